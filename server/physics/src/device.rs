@@ -1,0 +1,346 @@
+//! Devices (guidewires, catheters) as sequences of sections, with rest shapes and presets.
+//!
+//! A device runs from its proximal end (arc length 0, held by the operator) to its distal tip.
+//! Each section has its own cross-section, material, wall friction and rest curvature, so a
+//! stiff shaft, a transition and a soft shaped tip can be described, as real devices are.
+
+use crate::error::{PhysicsError, Result, require_finite, require_positive};
+use crate::section::{BeamProperties, CircularSection, Material};
+
+/// Rest (unloaded) curvature of a section. Bending happens in the device's material x–y
+/// plane (about the material z axis): twisting the device turns that plane.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RestShape {
+    /// Straight.
+    Straight,
+    /// Bent by `angle_rad` over the last `bend_length_m` of the section (angled / hockey-stick
+    /// tips), with uniform curvature angle/length.
+    Angled {
+        /// Total bend angle (rad).
+        angle_rad: f64,
+        /// Length over which the bend is spread (m), at the distal end of the section.
+        bend_length_m: f64,
+    },
+    /// A J: an arc of `radius_m` over `angle_rad` (π for a full J) at the distal end of the
+    /// section.
+    J {
+        /// Radius of the J (m).
+        radius_m: f64,
+        /// Arc angle (rad).
+        angle_rad: f64,
+    },
+}
+
+impl RestShape {
+    /// Curvature (1/m) at `s` metres from the section's proximal end, for a section of
+    /// `length_m`.
+    pub fn curvature_at(&self, s: f64, length_m: f64) -> f64 {
+        let (kappa, bent_length) = match *self {
+            RestShape::Straight => return 0.0,
+            RestShape::Angled {
+                angle_rad,
+                bend_length_m,
+            } => (angle_rad / bend_length_m, bend_length_m),
+            RestShape::J {
+                radius_m,
+                angle_rad,
+            } => (1.0 / radius_m, radius_m * angle_rad),
+        };
+        if s >= length_m - bent_length { kappa } else { 0.0 }
+    }
+
+    fn validate(&self, owner: &str, length_m: f64) -> Result<()> {
+        let (angle, bent) = match *self {
+            RestShape::Straight => return Ok(()),
+            RestShape::Angled {
+                angle_rad,
+                bend_length_m,
+            } => {
+                require_positive(|| format!("{owner}: rest bend_length_m"), bend_length_m)?;
+                (angle_rad, bend_length_m)
+            }
+            RestShape::J {
+                radius_m,
+                angle_rad,
+            } => {
+                require_positive(|| format!("{owner}: rest J radius_m"), radius_m)?;
+                (angle_rad, radius_m * angle_rad)
+            }
+        };
+        require_finite(|| format!("{owner}: rest angle_rad"), angle)?;
+        if bent > length_m {
+            return Err(PhysicsError::OutOfRange {
+                what: format!("{owner}: curved length of the rest shape (m)"),
+                range: "(0, section length]",
+                value: bent,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// One section of a device.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Section {
+    /// Name, used in error messages and displays ("shaft", "tip").
+    pub name: String,
+    /// Length along the device (m).
+    pub length_m: f64,
+    /// Cross-section (outer/inner radius, m).
+    pub cross_section: CircularSection,
+    /// Material (Young's modulus, Poisson ratio, density).
+    pub material: Material,
+    /// Coulomb friction coefficient against the vessel wall (dimensionless).
+    pub friction_coefficient: f64,
+    /// Rest curvature.
+    pub rest_shape: RestShape,
+}
+
+impl Section {
+    /// Checks every parameter of the section.
+    pub fn validate(&self) -> Result<()> {
+        let owner = format!("section \"{}\"", self.name);
+        require_positive(|| format!("{owner}: length_m"), self.length_m)?;
+        self.cross_section.validate(&owner)?;
+        self.material.validate(&owner)?;
+        let mu = require_finite(
+            || format!("{owner}: friction_coefficient"),
+            self.friction_coefficient,
+        )?;
+        if mu < 0.0 {
+            return Err(PhysicsError::OutOfRange {
+                what: format!("{owner}: friction_coefficient"),
+                range: "[0, ∞)",
+                value: mu,
+            });
+        }
+        self.rest_shape.validate(&owner, self.length_m)
+    }
+
+    /// Precomputed beam properties of this section.
+    pub fn beam_properties(&self) -> BeamProperties {
+        BeamProperties::new(&self.cross_section, &self.material)
+    }
+}
+
+/// A guidewire or catheter: sections from proximal (index 0) to distal.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Device {
+    /// Display name.
+    pub name: String,
+    /// Sections, proximal first.
+    pub sections: Vec<Section>,
+}
+
+/// Minimum number of sections of a device (shaft, transition, tip).
+pub const MIN_SECTIONS: usize = 3;
+
+impl Device {
+    /// Builds and validates a device.
+    pub fn new(name: impl Into<String>, sections: Vec<Section>) -> Result<Self> {
+        let device = Self {
+            name: name.into(),
+            sections,
+        };
+        device.validate()?;
+        Ok(device)
+    }
+
+    /// Checks the section count and every section.
+    pub fn validate(&self) -> Result<()> {
+        if self.sections.len() < MIN_SECTIONS {
+            return Err(PhysicsError::TooFewSections {
+                device: self.name.clone(),
+                count: self.sections.len(),
+                min: MIN_SECTIONS,
+            });
+        }
+        self.sections.iter().try_for_each(Section::validate)
+    }
+
+    /// Total length (m).
+    pub fn length_m(&self) -> f64 {
+        self.sections.iter().map(|s| s.length_m).sum()
+    }
+
+    /// The section containing arc length `s` (m from the proximal end) and the distance into
+    /// it; past the ends it clamps to the first/last section.
+    pub fn section_at(&self, s: f64) -> (&Section, f64) {
+        let mut start = 0.0;
+        for section in &self.sections {
+            if s < start + section.length_m {
+                return (section, (s - start).max(0.0));
+            }
+            start += section.length_m;
+        }
+        let last = self.sections.last().expect("validated devices have sections");
+        (last, last.length_m)
+    }
+
+    /// Rest curvature (1/m) at arc length `s`.
+    pub fn rest_curvature_at(&self, s: f64) -> f64 {
+        let (section, local) = self.section_at(s);
+        section.rest_shape.curvature_at(local, section.length_m)
+    }
+}
+
+/// Named device presets with literature-based values (see `presets` docs and NOTES.md).
+pub mod presets {
+    use super::*;
+
+    const INCH_M: f64 = 0.0254;
+    const FRENCH_M: f64 = 1.0e-3 / 3.0;
+
+    fn nitinol(young_modulus_pa: f64) -> Material {
+        Material {
+            young_modulus_pa,
+            poisson_ratio: 0.33,
+            density_kg_m3: 6450.0,
+        }
+    }
+
+    fn polymer(young_modulus_pa: f64) -> Material {
+        Material {
+            young_modulus_pa,
+            poisson_ratio: 0.4,
+            density_kg_m3: 1150.0,
+        }
+    }
+
+    fn section(
+        name: &str,
+        length_m: f64,
+        cross_section: CircularSection,
+        material: Material,
+        friction_coefficient: f64,
+        rest_shape: RestShape,
+    ) -> Section {
+        Section {
+            name: name.into(),
+            length_m,
+            cross_section,
+            material,
+            friction_coefficient,
+            rest_shape,
+        }
+    }
+
+    /// 0.014" (0.36 mm) neurovascular micro-guidewire, 200 cm, 45° angled tip.
+    ///
+    /// Moduli are *effective flexural* moduli of a solid wire of the full outer diameter:
+    /// a nitinol core (E ≈ 55 GPa) fills the shaft; the transition grinds the core down (an
+    /// effective 12 GPa); the distal 3 cm is a platinum coil over a thin core, very soft
+    /// (≈ 1.5 GPa effective), hydrophilic-coated (μ ≈ 0.03).
+    pub fn micro_guidewire_014() -> Device {
+        let r = 0.014 * INCH_M / 2.0;
+        let wire = CircularSection::solid(r);
+        Device {
+            name: "0.014in micro-guidewire".into(),
+            sections: vec![
+                section("shaft", 1.62, wire, nitinol(55e9), 0.08, RestShape::Straight),
+                section("transition", 0.35, wire, nitinol(12e9), 0.03, RestShape::Straight),
+                section(
+                    "tip",
+                    0.03,
+                    wire,
+                    Material {
+                        density_kg_m3: 12000.0,
+                        ..nitinol(1.5e9)
+                    },
+                    0.03,
+                    RestShape::Angled {
+                        angle_rad: 45f64.to_radians(),
+                        bend_length_m: 0.002,
+                    },
+                ),
+            ],
+        }
+    }
+
+    /// 0.035" (0.89 mm) standard guidewire, 150 cm, 3 mm J tip.
+    ///
+    /// Whole-wire flexural moduli of 0.035" wires measure 9.5–158 GPa; this stiff-shaft wire
+    /// uses 60 GPa in the shaft, 15 GPa in the taper and a 2 GPa coil tip, PTFE/hydrophilic
+    /// friction 0.08 / 0.04.
+    pub fn guidewire_035() -> Device {
+        let wire = CircularSection::solid(0.035 * INCH_M / 2.0);
+        Device {
+            name: "0.035in J guidewire".into(),
+            sections: vec![
+                section("shaft", 1.35, wire, nitinol(60e9), 0.08, RestShape::Straight),
+                section("transition", 0.10, wire, nitinol(15e9), 0.04, RestShape::Straight),
+                section(
+                    "tip",
+                    0.05,
+                    wire,
+                    Material {
+                        density_kg_m3: 12000.0,
+                        ..nitinol(2e9)
+                    },
+                    0.04,
+                    RestShape::J {
+                        radius_m: 0.003,
+                        angle_rad: std::f64::consts::PI,
+                    },
+                ),
+            ],
+        }
+    }
+
+    /// 5 F (1.67 mm OD, 0.038" = 0.97 mm ID) diagnostic catheter, 100 cm, 45° angled tip.
+    ///
+    /// Braided polymer shaft (effective E ≈ 2.5 GPa), softer transition (0.8 GPa) and an
+    /// atraumatic soft tip (0.15 GPa); hydrophilic coating μ ≈ 0.05.
+    pub fn diagnostic_catheter_5f() -> Device {
+        let tube = CircularSection {
+            outer_radius_m: 5.0 * FRENCH_M / 2.0,
+            inner_radius_m: 0.038 * INCH_M / 2.0,
+        };
+        Device {
+            name: "5F diagnostic catheter".into(),
+            sections: vec![
+                section("shaft", 0.90, tube, polymer(2.5e9), 0.05, RestShape::Straight),
+                section("transition", 0.08, tube, polymer(0.8e9), 0.05, RestShape::Straight),
+                section(
+                    "tip",
+                    0.02,
+                    tube,
+                    polymer(0.15e9),
+                    0.05,
+                    RestShape::Angled {
+                        angle_rad: 45f64.to_radians(),
+                        bend_length_m: 0.008,
+                    },
+                ),
+            ],
+        }
+    }
+
+    /// Micro-catheter, 0.67 mm OD / 0.43 mm (0.017") ID, 150 cm, straight tip.
+    ///
+    /// Braid-reinforced polymer: shaft 1.5 GPa, transition 0.4 GPa, distal 0.08 GPa; μ ≈ 0.04.
+    pub fn micro_catheter() -> Device {
+        let tube = CircularSection {
+            outer_radius_m: 0.67e-3 / 2.0,
+            inner_radius_m: 0.017 * INCH_M / 2.0,
+        };
+        Device {
+            name: "micro-catheter 0.017in ID".into(),
+            sections: vec![
+                section("shaft", 1.20, tube, polymer(1.5e9), 0.04, RestShape::Straight),
+                section("transition", 0.25, tube, polymer(0.4e9), 0.04, RestShape::Straight),
+                section("tip", 0.05, tube, polymer(0.08e9), 0.04, RestShape::Straight),
+            ],
+        }
+    }
+
+    /// Every preset with a stable identifier.
+    pub fn all() -> Vec<(&'static str, Device)> {
+        vec![
+            ("micro-guidewire-014", micro_guidewire_014()),
+            ("guidewire-035", guidewire_035()),
+            ("catheter-5f", diagnostic_catheter_5f()),
+            ("micro-catheter", micro_catheter()),
+        ]
+    }
+}

@@ -1,0 +1,20 @@
+//! cathlab-physics: guidewire and catheter mechanics for interventional-radiology simulation.
+//!
+//! Devices are chains of 3D Timoshenko beams (after Cotin et al., MICCAI 2005) whose frames
+//! are updated every step from the previous solution; each step is one block-tridiagonal
+//! linear solve done in O(N) by substructure analysis, which also yields the flexibility
+//! blocks that contact response needs. Plain synchronous, deterministic library: SI units, f64.
+
+pub mod beam;
+pub mod device;
+pub mod elastica;
+pub mod element;
+pub mod error;
+pub mod section;
+pub mod substructure;
+
+pub use beam::{BeamModel, ElementSpec, SolverSettings, StepMode, StepReport};
+pub use device::{Device, RestShape, Section, presets};
+pub use error::{PhysicsError, Result};
+pub use section::{BeamProperties, CircularSection, Material};
+pub use substructure::{BlockTridiagonal, Flexibility, Substructure};
