@@ -261,17 +261,39 @@ impl BeamModel {
         )
     }
 
-    /// A whole device in `elements` equal elements, each with the properties and rest
-    /// curvature of the device at its mid-point, clamped at the origin along world x.
+    /// A whole device in `elements` equal elements, clamped at the origin along world x.
     pub fn from_device(device: &Device, elements: usize, settings: SolverSettings) -> Result<Self> {
+        Self::from_device_part(device, 0.0, device.length_m(), elements, settings)
+    }
+
+    /// The part of a device between arc lengths `start_m` and `end_m` (from its proximal end),
+    /// e.g. only the inserted length, in `elements` equal elements, each with the section
+    /// properties and rest curvature at its mid-point; node 0 (at `start_m`) is clamped at the
+    /// origin with its material x axis along world x.
+    pub fn from_device_part(
+        device: &Device,
+        start_m: f64,
+        end_m: f64,
+        elements: usize,
+        settings: SolverSettings,
+    ) -> Result<Self> {
         device.validate()?;
         if elements == 0 {
             return Err(PhysicsError::TooFewElements { count: 0, min: 1 });
         }
-        let h = device.length_m() / elements as f64;
+        let start = require_finite(|| "start_m".into(), start_m)?;
+        let end = require_finite(|| "end_m".into(), end_m)?;
+        if start < 0.0 || end > device.length_m() * (1.0 + 1e-12) || end <= start {
+            return Err(PhysicsError::OutOfRange {
+                what: format!("device part [{start}, {end}] m"),
+                range: "0 <= start < end <= device length",
+                value: end - start,
+            });
+        }
+        let h = (end - start) / elements as f64;
         let specs: Vec<ElementSpec> = (0..elements)
             .map(|i| {
-                let mid = (i as f64 + 0.5) * h;
+                let mid = start + (i as f64 + 0.5) * h;
                 ElementSpec {
                     props: device.section_at(mid).0.beam_properties(),
                     length_m: h,

@@ -157,6 +157,19 @@ impl Substructure {
         u
     }
 
+    /// Solves K·u = f followed by one step of iterative refinement (u += K⁻¹(f − K·u)),
+    /// which recovers the digits lost to the stiffness ratio of long, slender devices
+    /// (axial EA against bending EI/l²) for one extra O(N) sweep. `k` must be the matrix
+    /// that was factored.
+    pub fn solve_refined(&mut self, k: &BlockTridiagonal, f: &[Vector6<f64>]) -> Vec<Vector6<f64>> {
+        let mut u = self.solve(f);
+        let mut residual: Vec<Vector6<f64>> =
+            f.iter().zip(k.multiply(&u)).map(|(f, ku)| f - ku).collect();
+        self.solve_in_place(&mut residual);
+        u.iter_mut().zip(&residual).for_each(|(u, du)| *u += du);
+        u
+    }
+
     /// Flexibility assembling by accumulation (Algorithm 2, corrected): fills `flex` with the
     /// diagonal blocks of K⁻¹ and the coupling blocks H(n,n+1).
     pub fn flexibility_into(&self, flex: &mut Flexibility) {
