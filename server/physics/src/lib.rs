@@ -10,6 +10,7 @@ pub mod device;
 pub mod elastica;
 pub mod element;
 pub mod error;
+pub mod scenarios;
 pub mod section;
 pub mod substructure;
 
