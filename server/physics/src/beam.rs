@@ -552,7 +552,7 @@ impl BeamModel {
         ElementState {
             frame: frame_q.to_rotation_matrix().into_inner(),
             chord_m: chord.norm(),
-            theta: [(inv * s1).scaled_axis(), (inv * s2).scaled_axis()],
+            theta: [rotation_vector(&(inv * s1)), rotation_vector(&(inv * s2))],
         }
     }
 
@@ -578,18 +578,44 @@ impl BeamModel {
     }
 }
 
+/// Rotation vector (axis × angle, rad) of a unit quaternion, accurate near the identity.
+///
+/// nalgebra's `scaled_axis` computes the angle as 2·acos(w), which loses half the digits
+/// near w = 1 (an error of ~1e-8 rad on an exact rest state); 2·atan2(|v|, w) does not.
+pub fn rotation_vector(q: &UnitQuaternion<f64>) -> Vector3<f64> {
+    let (w, v) = (q.scalar(), q.vector());
+    let (w, v) = if w < 0.0 { (-w, -v) } else { (w, v.into_owned()) };
+    let sin_half = v.norm();
+    if sin_half < 1e-300 {
+        return Vector3::zeros();
+    }
+    let angle = 2.0 * sin_half.atan2(w);
+    v * (angle / sin_half)
+}
+
 /// Element frame: mid-rotation of the two corrected node frames, turned so x lies on the chord.
 fn element_frame(
     s1: &UnitQuaternion<f64>,
     s2: &UnitQuaternion<f64>,
     chord: &Vector3<f64>,
 ) -> UnitQuaternion<f64> {
-    let half = UnitQuaternion::from_scaled_axis((s1.inverse() * s2).scaled_axis() * 0.5);
+    let half = UnitQuaternion::from_scaled_axis(rotation_vector(&(s1.inverse() * s2)) * 0.5);
     let mid = s1 * half;
     let tangent = mid * axis_x();
-    let align =
-        UnitQuaternion::rotation_between(&tangent, chord).unwrap_or_else(UnitQuaternion::identity);
-    align * mid
+    minimal_rotation(&tangent, &chord.normalize()) * mid
+}
+
+/// The smallest rotation taking unit vector `a` to unit vector `b`: the normalised
+/// quaternion (1 + a·b, a×b). Accurate for nearly parallel vectors, unlike nalgebra's
+/// `rotation_between`, whose acos of the dot product is only good to ~1e-8 rad there.
+/// Anti-parallel inputs (never met by an element frame) give the identity.
+pub fn minimal_rotation(a: &Vector3<f64>, b: &Vector3<f64>) -> UnitQuaternion<f64> {
+    let w = 1.0 + a.dot(b);
+    if w <= 1e-12 {
+        return UnitQuaternion::identity();
+    }
+    let v = a.cross(b);
+    UnitQuaternion::new_normalize(nalgebra::Quaternion::new(w, v.x, v.y, v.z))
 }
 
 /// Local end wrenches of an element (node 1, node 2) and its axial force (N), from the
@@ -648,4 +674,66 @@ fn arc_increment(kappa: f64, length: f64) -> (Vector3<f64>, UnitQuaternion<f64>)
         Vector3::new(along, across, 0.0),
         UnitQuaternion::from_scaled_axis(Vector3::z() * angle),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rotation_vector_is_accurate_near_identity() {
+        // Regression: nalgebra's acos-based angle gave ~1e-8 rad for rotations of 1e-12 rad.
+        for angle in [1e-15, 1e-12, 1e-9, 1e-4, 1.0, 3.0] {
+            let axis = Vector3::new(1.0, -2.0, 0.5).normalize();
+            let q = UnitQuaternion::from_scaled_axis(axis * angle);
+            let back = rotation_vector(&q);
+            assert!((back - axis * angle).norm() <= 1e-15 * angle.max(1e-15) * 4.0, "{angle}: {back:?}");
+        }
+    }
+
+    #[test]
+    fn minimal_rotation_is_accurate_for_nearly_parallel_vectors() {
+        // Regression: nalgebra's rotation_between returned 1.5e-8 rad for vectors 1e-16 apart.
+        let a = Vector3::new(0.6, 0.8, 0.0);
+        for tilt in [0.0, 1e-16, 1e-12, 1e-6, 0.5] {
+            let b = (a + Vector3::z() * tilt).normalize();
+            let q = minimal_rotation(&a, &b);
+            assert!((q * a - b).norm() < 1e-15, "{tilt}");
+            assert!((rotation_vector(&q).norm() - tilt.atan()).abs() < 1e-15, "{tilt}");
+        }
+    }
+
+    #[test]
+    fn curved_rest_shape_is_stress_free() {
+        // Regression: the acos errors above left forces of ~1e-4·EI/l² in a J tip at rest.
+        let props = BeamProperties::new(
+            &crate::section::CircularSection::solid(0.4e-3),
+            &crate::section::Material {
+                young_modulus_pa: 2e9,
+                poisson_ratio: 0.33,
+                density_kg_m3: 6450.0,
+            },
+        );
+        let specs: Vec<ElementSpec> = (0..40)
+            .map(|i| ElementSpec {
+                props,
+                length_m: 1e-3,
+                curvature_per_m: if i >= 20 { 1.0 / 3e-3 } else { 0.0 },
+            })
+            .collect();
+        let mut model = BeamModel::new(
+            &specs,
+            Vector3::zeros(),
+            UnitQuaternion::identity(),
+            SolverSettings::default(),
+        )
+        .unwrap();
+        let scale = props.bending_stiffness_nm2 / 1e-6;
+        let worst = model
+            .residual()
+            .iter()
+            .map(|r| r.abs().max())
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-12 * scale, "{worst} vs {scale}");
+    }
 }
