@@ -1,1 +1,290 @@
-fn main() {}
+//! Chart command: `cargo bench -p cathlab-physics --bench charts` measures accuracy and
+//! speed and writes SVG charts into `docs/figures/` (plus a CSV of every point).
+//! Under `cargo test --benches` it runs a tiny version and writes nothing.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use cathlab_physics::scenarios::{
+    end_moment_rollup, solve_tip_loaded_cantilever, tip_loaded_cantilever,
+};
+use cathlab_physics::{SolverSettings, StepMode, elastica};
+use plotters::prelude::*;
+
+type Series = (String, Vec<(f64, f64)>, RGBColor);
+
+fn converged() -> SolverSettings {
+    SolverSettings {
+        mode: StepMode::CONVERGED,
+        ..Default::default()
+    }
+}
+
+fn paper() -> SolverSettings {
+    SolverSettings::default()
+}
+
+fn literal_paper() -> SolverSettings {
+    SolverSettings {
+        geometric_stiffness: false,
+        ..SolverSettings::default()
+    }
+}
+
+/// Median wall time (s) of `f` over `runs` runs.
+fn time<T>(runs: usize, mut f: impl FnMut() -> T) -> f64 {
+    let mut times: Vec<f64> = (0..runs)
+        .map(|_| {
+            let start = Instant::now();
+            std::hint::black_box(f());
+            start.elapsed().as_secs_f64()
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    times[runs / 2]
+}
+
+fn log_chart(path: &PathBuf, title: &str, x_label: &str, y_label: &str, series: &[Series]) {
+    let points = series
+        .iter()
+        .flat_map(|s| s.1.iter())
+        .filter(|p| p.0 > 0.0 && p.1 > 0.0);
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for &(x, y) in points {
+        (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+    }
+    let root = SVGBackend::new(path, (760, 520)).into_drawing_area();
+    root.fill(&WHITE).unwrap();
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(
+            (x0 / 1.5..x1 * 1.5).log_scale(),
+            (y0 / 3.0..y1 * 3.0).log_scale(),
+        )
+        .unwrap();
+    chart
+        .configure_mesh()
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .y_label_formatter(&|v| format!("{v:.0e}"))
+        .x_label_formatter(&|v| format!("{v:.3}"))
+        .draw()
+        .unwrap();
+    for (name, data, color) in series {
+        let data: Vec<(f64, f64)> = data
+            .iter()
+            .copied()
+            .filter(|p| p.0 > 0.0 && p.1 > 0.0)
+            .collect();
+        let style = ShapeStyle::from(color).stroke_width(2);
+        chart
+            .draw_series(LineSeries::new(data.clone(), style))
+            .unwrap()
+            .label(name.as_str())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], style));
+        chart
+            .draw_series(data.iter().map(|&p| Circle::new(p, 3, color.filled())))
+            .unwrap();
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .unwrap();
+    root.present().unwrap();
+}
+
+fn main() {
+    // `cargo bench` passes --bench; `cargo test --benches` does not: then only smoke-test.
+    let full = std::env::args().any(|a| a == "--bench");
+    let counts: &[usize] = if full {
+        &[5, 10, 25, 50, 100, 200, 400]
+    } else {
+        &[5, 10]
+    };
+    let alpha = 1.0;
+    let mut csv = String::from("chart,series,x,y\n");
+    let mut record = |chart: &str, s: &Series| {
+        for (x, y) in &s.1 {
+            writeln!(csv, "{chart},{},{x:e},{y:e}", s.0).unwrap();
+        }
+    };
+    let reference = elastica::tip_loaded_cantilever(alpha);
+    let error_of = |tip: nalgebra::Vector3<f64>| {
+        ((tip.x - (1.0 - reference.shortening)).powi(2) + (tip.y + reference.deflection).powi(2))
+            .sqrt()
+    };
+
+    // 1. Tip error vs N, α = 1 (load ramped over 10 steps).
+    let mut conv = Vec::new();
+    let mut pap = Vec::new();
+    let mut lit = Vec::new();
+    for &n in counts {
+        let run = |s| {
+            tip_loaded_cantilever(alpha, n, s, 10, 0)
+                .ok()
+                .filter(|r| r.converged)
+        };
+        if let Some(r) = run(converged()) {
+            conv.push((n as f64, r.tip_error));
+        }
+        // Paper mode with a real-time budget: 10 ramp steps + 10 held steps (20 solves).
+        if let Ok(r) = tip_loaded_cantilever(alpha, n, paper(), 10, 10) {
+            pap.push((n as f64, r.tip_error));
+        }
+        if let Ok(r) = tip_loaded_cantilever(alpha, n, literal_paper(), 10, 10) {
+            lit.push((n as f64, r.tip_error));
+        }
+    }
+    let error_series: Vec<Series> = vec![
+        ("converged mode".into(), conv, BLUE),
+        ("paper mode, 20 steps".into(), pap, RED),
+        (
+            "paper mode, K̄ only (paper's tangent), 20 steps".into(),
+            lit,
+            GREEN,
+        ),
+    ];
+    // 2. Time per step vs N (paper mode, flexibility included).
+    let mut per_step = Vec::new();
+    for &n in counts {
+        let props = cathlab_physics::scenarios::slender_test_wire();
+        let mut model = cathlab_physics::BeamModel::straight(props, 1.0, n, paper()).unwrap();
+        model
+            .set_load(
+                n,
+                nalgebra::Vector3::new(0.0, -props.bending_stiffness_nm2, 0.0),
+                nalgebra::Vector3::zeros(),
+            )
+            .unwrap();
+        let reps = if full { 2000 / n.max(1) + 20 } else { 2 };
+        per_step.push((n as f64, time(reps, || model.step().unwrap())));
+    }
+    let step_series: Vec<Series> = vec![("one step (paper mode)".into(), per_step, BLUE)];
+    // 3. Error vs time: converged mode at each N, and paper mode at N = 50 after k steps
+    //    with the load applied at once.
+    let mut front_conv = Vec::new();
+    for &n in counts {
+        let s = SolverSettings {
+            mode: StepMode::Converged {
+                tolerance: 1e-6,
+                max_iterations: 50,
+            },
+            ..converged()
+        };
+        let seconds = time(if full { 9 } else { 1 }, || {
+            solve_tip_loaded_cantilever(alpha, n, s, 1, 0)
+        });
+        if let Ok((tip, _, true)) = solve_tip_loaded_cantilever(alpha, n, s, 1, 0) {
+            front_conv.push((seconds, error_of(tip)));
+        }
+    }
+    let mut front_paper = Vec::new();
+    for steps in if full {
+        vec![1, 2, 3, 4, 6, 8, 12, 16, 24]
+    } else {
+        vec![1, 2]
+    } {
+        let seconds = time(if full { 9 } else { 1 }, || {
+            solve_tip_loaded_cantilever(alpha, 50, paper(), 1, steps - 1)
+        });
+        if let Ok((tip, _, _)) = solve_tip_loaded_cantilever(alpha, 50, paper(), 1, steps - 1) {
+            front_paper.push((seconds, error_of(tip)));
+        }
+    }
+    let front_series: Vec<Series> = vec![
+        ("converged mode, N = 5…400".into(), front_conv, BLUE),
+        ("paper mode, N = 50, 1…24 steps".into(), front_paper, RED),
+    ];
+    // 4. Roll-up: tip-to-base distance vs load steps, N = 100.
+    let steps_list: &[usize] = if full {
+        &[10, 20, 50, 100, 200, 500]
+    } else {
+        &[10]
+    };
+    let mut roll = [Vec::new(), Vec::new(), Vec::new()];
+    for &steps in steps_list {
+        for (i, s) in [
+            converged(),
+            SolverSettings {
+                geometric_stiffness: false,
+                ..converged()
+            },
+            paper(),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            if let Ok(r) = end_moment_rollup(100, s, steps)
+                && r.converged
+            {
+                roll[i].push((steps as f64, r.tip_error));
+            }
+        }
+    }
+    let [a, b, c] = roll;
+    let roll_series: Vec<Series> = vec![
+        ("converged, with geometric stiffness".into(), a, BLUE),
+        (
+            "converged, K̄ only (diverges below 100 steps)".into(),
+            b,
+            GREEN,
+        ),
+        ("paper mode (one solve per step)".into(), c, RED),
+    ];
+
+    for s in &error_series {
+        record("tip_error_vs_n", s);
+    }
+    for s in &step_series {
+        record("time_per_step_vs_n", s);
+    }
+    for s in &front_series {
+        record("error_vs_time", s);
+    }
+    for s in &roll_series {
+        record("rollup_vs_load_steps", s);
+    }
+    print!("{csv}");
+    if !full {
+        return;
+    }
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../docs/figures");
+    std::fs::create_dir_all(&dir).unwrap();
+    log_chart(
+        &dir.join("tip_error_vs_n.svg"),
+        "Tip-loaded cantilever, α = 1: tip error vs elements",
+        "elements N",
+        "tip error / L",
+        &error_series,
+    );
+    log_chart(
+        &dir.join("time_per_step_vs_n.svg"),
+        "Time per step vs elements (one core)",
+        "elements N",
+        "seconds per step",
+        &step_series,
+    );
+    log_chart(
+        &dir.join("error_vs_time.svg"),
+        "Speed–accuracy front, α = 1 cantilever",
+        "wall time to answer (s)",
+        "tip error / L",
+        &front_series,
+    );
+    log_chart(
+        &dir.join("rollup_vs_load_steps.svg"),
+        "Roll-up (M = 2πEI/L), N = 100: tip-to-base distance",
+        "load steps",
+        "distance / L",
+        &roll_series,
+    );
+    std::fs::write(dir.join("charts.csv"), csv).unwrap();
+    println!("charts written to {}", dir.display());
+}

@@ -108,20 +108,93 @@ struct Element {
     rest_length_m: f64,
     offsets: [UnitQuaternion<f64>; 2],
     bending: BendingCoefficients,
-    /// K̄e blocks (node-1/node-1, node-1/node-2, node-2/node-2), local frame.
-    stiffness: [Matrix6<f64>; 3],
-    /// Geometric stiffness blocks per newton of axial force, local frame.
-    geometric_per_newton: [Matrix6<f64>; 3],
+    /// K̄e blocks (node-1/node-1, node-1/node-2, node-2/node-2) in frame-free form.
+    stiffness: [AxisymmetricBlock6; 3],
+    /// Geometric stiffness blocks per newton of axial force, frame-free form.
+    geometric_per_newton: [AxisymmetricBlock6; 3],
+}
+
+/// A 3×3 block a·I + b·e eᵀ + c·[e]× of an axisymmetric beam: every sub-block of K̄e and of
+/// the geometric stiffness has this form (Iy = Iz), so rotating it into the world frame
+/// needs only the element axis e, not the full frame.
+#[derive(Debug, Clone, Copy, Default)]
+struct AxisymmetricBlock {
+    iso: f64,
+    axial: f64,
+    skew: f64,
+}
+
+impl AxisymmetricBlock {
+    /// Reads the coefficients off a local block (axis e = x).
+    fn from_local(b: &Matrix3<f64>) -> Self {
+        debug_assert!((b[(1, 1)] - b[(2, 2)]).abs() <= 1e-12 * b.abs().max());
+        debug_assert!((b[(1, 2)] + b[(2, 1)]).abs() <= 1e-12 * b.abs().max());
+        Self {
+            iso: b[(1, 1)],
+            axial: b[(0, 0)] - b[(1, 1)],
+            skew: b[(2, 1)],
+        }
+    }
+
+    fn scaled_add(&self, other: &Self, factor: f64) -> Self {
+        Self {
+            iso: self.iso + factor * other.iso,
+            axial: self.axial + factor * other.axial,
+            skew: self.skew + factor * other.skew,
+        }
+    }
+
+    /// The block in the world frame for element axis `e` (unit).
+    fn world(&self, e: &Vector3<f64>) -> Matrix3<f64> {
+        let (a, b, c) = (self.iso, self.axial, self.skew);
+        Matrix3::new(
+            a + b * e.x * e.x,
+            b * e.x * e.y - c * e.z,
+            b * e.x * e.z + c * e.y,
+            b * e.y * e.x + c * e.z,
+            a + b * e.y * e.y,
+            b * e.y * e.z - c * e.x,
+            b * e.z * e.x - c * e.y,
+            b * e.z * e.y + c * e.x,
+            a + b * e.z * e.z,
+        )
+    }
+}
+
+/// A 6×6 block as four [`AxisymmetricBlock`]s (translation/rotation rows and columns).
+#[derive(Debug, Clone, Copy, Default)]
+struct AxisymmetricBlock6([[AxisymmetricBlock; 2]; 2]);
+
+impl AxisymmetricBlock6 {
+    fn from_local(k: &Matrix6<f64>) -> Self {
+        let sub = |i: usize, j: usize| {
+            AxisymmetricBlock::from_local(&k.fixed_view::<3, 3>(3 * i, 3 * j).into_owned())
+        };
+        Self([[sub(0, 0), sub(0, 1)], [sub(1, 0), sub(1, 1)]])
+    }
+
+    fn scaled_add(&self, other: &Self, factor: f64) -> Self {
+        let f = |i: usize, j: usize| self.0[i][j].scaled_add(&other.0[i][j], factor);
+        Self([[f(0, 0), f(0, 1)], [f(1, 0), f(1, 1)]])
+    }
+
+    /// Adds the world-frame block for element axis `e` into `out`.
+    fn add_world_to(&self, e: &Vector3<f64>, out: &mut Matrix6<f64>) {
+        for i in 0..2 {
+            for j in 0..2 {
+                let mut view = out.fixed_view_mut::<3, 3>(3 * i, 3 * j);
+                view += self.0[i][j].world(e);
+            }
+        }
+    }
 }
 
 impl Element {
     fn new(props: BeamProperties, rest_length_m: f64, offsets: [UnitQuaternion<f64>; 2]) -> Self {
         let split = |k: &crate::element::Matrix12| {
-            [
-                k.fixed_view::<6, 6>(0, 0).into_owned(),
-                k.fixed_view::<6, 6>(0, 6).into_owned(),
-                k.fixed_view::<6, 6>(6, 6).into_owned(),
-            ]
+            [(0, 0), (0, 6), (6, 6)].map(|(i, j)| {
+                AxisymmetricBlock6::from_local(&k.fixed_view::<6, 6>(i, j).into_owned())
+            })
         };
         let phi = 12.0 * props.bending_stiffness_nm2
             / (props.shear_stiffness_n * rest_length_m * rest_length_m);
@@ -162,6 +235,8 @@ pub struct BeamModel {
     flexibility: Flexibility,
     internal: Vec<Vector6<f64>>,
     rhs: Vec<Vector6<f64>>,
+    saved_positions: Vec<Vector3<f64>>,
+    saved_rotations: Vec<UnitQuaternion<f64>>,
 }
 
 /// Unit vector of the material x axis (along the device).
@@ -195,7 +270,10 @@ impl BeamModel {
         }
         for (i, s) in specs.iter().enumerate() {
             require_positive(|| format!("element {i}: length_m"), s.length_m)?;
-            require_finite(|| format!("element {i}: curvature_per_m"), s.curvature_per_m)?;
+            require_finite(
+                || format!("element {i}: curvature_per_m"),
+                s.curvature_per_m,
+            )?;
         }
         for (i, v) in base_position.iter().enumerate() {
             require_finite(|| format!("base position component {i}"), *v)?;
@@ -239,6 +317,8 @@ impl BeamModel {
             flexibility: Flexibility::default(),
             internal: vec![Vector6::zeros(); nodes],
             rhs: vec![Vector6::zeros(); nodes - 1],
+            saved_positions: Vec::with_capacity(nodes),
+            saved_rotations: Vec::with_capacity(nodes),
         })
     }
 
@@ -376,7 +456,12 @@ impl BeamModel {
     }
 
     /// Sets a constant (dead) external force (N) and moment (N·m) on `node`, world frame.
-    pub fn set_load(&mut self, node: usize, force_n: Vector3<f64>, moment_nm: Vector3<f64>) -> Result<()> {
+    pub fn set_load(
+        &mut self,
+        node: usize,
+        force_n: Vector3<f64>,
+        moment_nm: Vector3<f64>,
+    ) -> Result<()> {
         if node >= self.node_count() {
             return Err(PhysicsError::LengthMismatch {
                 what: "load node index (must be < node count)",
@@ -388,7 +473,12 @@ impl BeamModel {
             require_finite(|| format!("load on node {node}, component {i}"), *v)?;
         }
         self.external[node] = Vector6::new(
-            force_n.x, force_n.y, force_n.z, moment_nm.x, moment_nm.y, moment_nm.z,
+            force_n.x,
+            force_n.y,
+            force_n.z,
+            moment_nm.x,
+            moment_nm.y,
+            moment_nm.z,
         );
         Ok(())
     }
@@ -400,7 +490,11 @@ impl BeamModel {
 
     /// Moves the base (node 0) to a new pose. The rest of the device follows rigidly as a
     /// predictor (exact for a free device); the next step resolves the deformation.
-    pub fn set_base_pose(&mut self, position: Vector3<f64>, rotation: UnitQuaternion<f64>) -> Result<()> {
+    pub fn set_base_pose(
+        &mut self,
+        position: Vector3<f64>,
+        rotation: UnitQuaternion<f64>,
+    ) -> Result<()> {
         for (i, v) in position.iter().chain(rotation.coords.iter()).enumerate() {
             require_finite(|| format!("base pose component {i}"), *v)?;
         }
@@ -426,12 +520,13 @@ impl BeamModel {
 
     /// Advances one step with the configured mode.
     pub fn step(&mut self) -> Result<StepReport> {
-        let saved = (self.positions.clone(), self.rotations.clone());
+        self.saved_positions.clone_from(&self.positions);
+        self.saved_rotations.clone_from(&self.rotations);
         let result = self.step_inner();
         self.step_count += 1;
         if result.is_err() {
-            self.positions = saved.0;
-            self.rotations = saved.1;
+            self.positions.clone_from(&self.saved_positions);
+            self.rotations.clone_from(&self.saved_rotations);
         }
         result
     }
@@ -452,7 +547,11 @@ impl BeamModel {
             StepMode::Converged {
                 tolerance,
                 max_iterations,
-            } => (1.0, Some(require_positive(|| "tolerance".into(), tolerance)?), max_iterations.max(1)),
+            } => (
+                1.0,
+                Some(require_positive(|| "tolerance".into(), tolerance)?),
+                max_iterations.max(1),
+            ),
         };
         let mut report = StepReport {
             iterations: 0,
@@ -461,7 +560,8 @@ impl BeamModel {
             last_rotation_increment_rad: 0.0,
         };
         for iteration in 0..max_iterations {
-            let (dx, dtheta) = self.iterate(gamma, iteration == 0 && self.settings.compute_flexibility)?;
+            let (dx, dtheta) =
+                self.iterate(gamma, iteration == 0 && self.settings.compute_flexibility)?;
             report.iterations += 1;
             report.last_translation_increment_m = dx;
             report.last_rotation_increment_rad = dtheta;
@@ -501,7 +601,9 @@ impl BeamModel {
                 return Err(diverged("increment (non-finite)"));
             }
             if dx.norm() > MAX_TRANSLATION_INCREMENT_LENGTHS * self.length_m {
-                return Err(diverged("translation increment (larger than 10 device lengths)"));
+                return Err(diverged(
+                    "translation increment (larger than 10 device lengths)",
+                ));
             }
             if dtheta.norm() > std::f64::consts::PI {
                 return Err(diverged("rotation increment (larger than π)"));
@@ -530,14 +632,14 @@ impl BeamModel {
             let mut k = element.stiffness;
             if geometric {
                 for (block, g) in k.iter_mut().zip(&element.geometric_per_newton) {
-                    *block += g * axial_force;
+                    *block = block.scaled_add(g, axial_force);
                 }
             }
-            let k22 = rotate_block(r, &k[2]);
-            self.stiffness.diagonal[e] += k22;
+            let axis = r.column(0).into_owned();
+            k[2].add_world_to(&axis, &mut self.stiffness.diagonal[e]);
             if e > 0 {
-                self.stiffness.diagonal[e - 1] += rotate_block(r, &k[0]);
-                self.stiffness.upper[e - 1] += rotate_block(r, &k[1]);
+                k[0].add_world_to(&axis, &mut self.stiffness.diagonal[e - 1]);
+                k[1].add_world_to(&axis, &mut self.stiffness.upper[e - 1]);
             }
         }
     }
@@ -584,7 +686,11 @@ impl BeamModel {
 /// near w = 1 (an error of ~1e-8 rad on an exact rest state); 2·atan2(|v|, w) does not.
 pub fn rotation_vector(q: &UnitQuaternion<f64>) -> Vector3<f64> {
     let (w, v) = (q.scalar(), q.vector());
-    let (w, v) = if w < 0.0 { (-w, -v) } else { (w, v.into_owned()) };
+    let (w, v) = if w < 0.0 {
+        (-w, -v)
+    } else {
+        (w, v.into_owned())
+    };
     let sin_half = v.norm();
     if sin_half < 1e-300 {
         return Vector3::zeros();
@@ -644,20 +750,6 @@ fn rotate_wrench(r: &Matrix3<f64>, w: &Vector6<f64>) -> Vector6<f64> {
     Vector6::new(f.x, f.y, f.z, m.x, m.y, m.z)
 }
 
-/// R₆ K R₆ᵀ with R₆ = diag(R, R), block by block.
-fn rotate_block(r: &Matrix3<f64>, k: &Matrix6<f64>) -> Matrix6<f64> {
-    let rt = r.transpose();
-    let mut out = Matrix6::zeros();
-    for bi in 0..2 {
-        for bj in 0..2 {
-            let block = k.fixed_view::<3, 3>(3 * bi, 3 * bj);
-            out.fixed_view_mut::<3, 3>(3 * bi, 3 * bj)
-                .copy_from(&(r * block * rt));
-        }
-    }
-    out
-}
-
 /// Position and rotation increment along an arc of curvature `kappa` (1/m, about material z)
 /// and length `length` (m), in the frame at its start.
 fn arc_increment(kappa: f64, length: f64) -> (Vector3<f64>, UnitQuaternion<f64>) {
@@ -687,7 +779,10 @@ mod tests {
             let axis = Vector3::new(1.0, -2.0, 0.5).normalize();
             let q = UnitQuaternion::from_scaled_axis(axis * angle);
             let back = rotation_vector(&q);
-            assert!((back - axis * angle).norm() <= 1e-15 * angle.max(1e-15) * 4.0, "{angle}: {back:?}");
+            assert!(
+                (back - axis * angle).norm() <= 1e-15 * angle.max(1e-15) * 4.0,
+                "{angle}: {back:?}"
+            );
         }
     }
 
@@ -699,7 +794,45 @@ mod tests {
             let b = (a + Vector3::z() * tilt).normalize();
             let q = minimal_rotation(&a, &b);
             assert!((q * a - b).norm() < 1e-15, "{tilt}");
-            assert!((rotation_vector(&q).norm() - tilt.atan()).abs() < 1e-15, "{tilt}");
+            assert!(
+                (rotation_vector(&q).norm() - tilt.atan()).abs() < 1e-15,
+                "{tilt}"
+            );
+        }
+    }
+
+    #[test]
+    fn frame_free_blocks_equal_the_full_rotation() {
+        // Fast path vs naive R₆ K R₆ᵀ for a random frame and every element block.
+        let props = BeamProperties::new(
+            &crate::section::CircularSection {
+                outer_radius_m: 1e-3,
+                inner_radius_m: 4e-4,
+            },
+            &crate::section::Material {
+                young_modulus_pa: 3e9,
+                poisson_ratio: 0.4,
+                density_kg_m3: 1e3,
+            },
+        );
+        let k = crate::element::local_stiffness(&props, 0.01)
+            + crate::element::local_geometric_stiffness(&props, 0.01, -0.7);
+        let frame =
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.3, -1.1, 0.7)).to_rotation_matrix();
+        let r = frame.matrix();
+        let mut r6 = Matrix6::zeros();
+        r6.fixed_view_mut::<3, 3>(0, 0).copy_from(r);
+        r6.fixed_view_mut::<3, 3>(3, 3).copy_from(r);
+        for (i, j) in [(0, 0), (0, 6), (6, 6), (6, 0)] {
+            let local = k.fixed_view::<6, 6>(i, j).into_owned();
+            let naive = r6 * local * r6.transpose();
+            let mut fast = Matrix6::zeros();
+            AxisymmetricBlock6::from_local(&local)
+                .add_world_to(&r.column(0).into_owned(), &mut fast);
+            assert!(
+                (fast - naive).abs().max() <= 1e-12 * naive.abs().max(),
+                "block ({i},{j})"
+            );
         }
     }
 

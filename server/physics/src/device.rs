@@ -46,7 +46,11 @@ impl RestShape {
                 angle_rad,
             } => (1.0 / radius_m, radius_m * angle_rad),
         };
-        if s >= length_m - bent_length { kappa } else { 0.0 }
+        if s >= length_m - bent_length {
+            kappa
+        } else {
+            0.0
+        }
     }
 
     fn validate(&self, owner: &str, length_m: f64) -> Result<()> {
@@ -173,7 +177,10 @@ impl Device {
             }
             start += section.length_m;
         }
-        let last = self.sections.last().expect("validated devices have sections");
+        let last = self
+            .sections
+            .last()
+            .expect("validated devices have sections");
         (last, last.length_m)
     }
 
@@ -237,8 +244,22 @@ pub mod presets {
         Device {
             name: "0.014in micro-guidewire".into(),
             sections: vec![
-                section("shaft", 1.62, wire, nitinol(55e9), 0.08, RestShape::Straight),
-                section("transition", 0.35, wire, nitinol(12e9), 0.03, RestShape::Straight),
+                section(
+                    "shaft",
+                    1.62,
+                    wire,
+                    nitinol(55e9),
+                    0.08,
+                    RestShape::Straight,
+                ),
+                section(
+                    "transition",
+                    0.35,
+                    wire,
+                    nitinol(12e9),
+                    0.03,
+                    RestShape::Straight,
+                ),
                 section(
                     "tip",
                     0.03,
@@ -267,8 +288,22 @@ pub mod presets {
         Device {
             name: "0.035in J guidewire".into(),
             sections: vec![
-                section("shaft", 1.35, wire, nitinol(60e9), 0.08, RestShape::Straight),
-                section("transition", 0.10, wire, nitinol(15e9), 0.04, RestShape::Straight),
+                section(
+                    "shaft",
+                    1.35,
+                    wire,
+                    nitinol(60e9),
+                    0.08,
+                    RestShape::Straight,
+                ),
+                section(
+                    "transition",
+                    0.10,
+                    wire,
+                    nitinol(15e9),
+                    0.04,
+                    RestShape::Straight,
+                ),
                 section(
                     "tip",
                     0.05,
@@ -299,8 +334,22 @@ pub mod presets {
         Device {
             name: "5F diagnostic catheter".into(),
             sections: vec![
-                section("shaft", 0.90, tube, polymer(2.5e9), 0.05, RestShape::Straight),
-                section("transition", 0.08, tube, polymer(0.8e9), 0.05, RestShape::Straight),
+                section(
+                    "shaft",
+                    0.90,
+                    tube,
+                    polymer(2.5e9),
+                    0.05,
+                    RestShape::Straight,
+                ),
+                section(
+                    "transition",
+                    0.08,
+                    tube,
+                    polymer(0.8e9),
+                    0.05,
+                    RestShape::Straight,
+                ),
                 section(
                     "tip",
                     0.02,
@@ -327,9 +376,30 @@ pub mod presets {
         Device {
             name: "micro-catheter 0.017in ID".into(),
             sections: vec![
-                section("shaft", 1.20, tube, polymer(1.5e9), 0.04, RestShape::Straight),
-                section("transition", 0.25, tube, polymer(0.4e9), 0.04, RestShape::Straight),
-                section("tip", 0.05, tube, polymer(0.08e9), 0.04, RestShape::Straight),
+                section(
+                    "shaft",
+                    1.20,
+                    tube,
+                    polymer(1.5e9),
+                    0.04,
+                    RestShape::Straight,
+                ),
+                section(
+                    "transition",
+                    0.25,
+                    tube,
+                    polymer(0.4e9),
+                    0.04,
+                    RestShape::Straight,
+                ),
+                section(
+                    "tip",
+                    0.05,
+                    tube,
+                    polymer(0.08e9),
+                    0.04,
+                    RestShape::Straight,
+                ),
             ],
         }
     }

@@ -20,7 +20,14 @@ fn shoot(alpha: f64, m: f64, steps: usize) -> (f64, f64, f64, f64) {
     let f = |s: [f64; 4]| [s[1], -alpha * s[0].cos(), s[0].cos(), s[0].sin()];
     let h = 1.0 / steps as f64;
     let mut y = [0.0, m, 0.0, 0.0];
-    let add = |a: [f64; 4], b: [f64; 4], k: f64| [a[0] + k * b[0], a[1] + k * b[1], a[2] + k * b[2], a[3] + k * b[3]];
+    let add = |a: [f64; 4], b: [f64; 4], k: f64| {
+        [
+            a[0] + k * b[0],
+            a[1] + k * b[1],
+            a[2] + k * b[2],
+            a[3] + k * b[3],
+        ]
+    };
     for _ in 0..steps {
         let k1 = f(y);
         let k2 = f(add(y, k1, h / 2.0));
@@ -80,5 +87,6 @@ pub fn timoshenko_tip_deflection(
     bending_stiffness_nm2: f64,
     shear_stiffness_n: f64,
 ) -> f64 {
-    load_n * length_m.powi(3) / (3.0 * bending_stiffness_nm2) + load_n * length_m / shear_stiffness_n
+    load_n * length_m.powi(3) / (3.0 * bending_stiffness_nm2)
+        + load_n * length_m / shear_stiffness_n
 }

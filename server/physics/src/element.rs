@@ -63,7 +63,11 @@ pub fn local_stiffness(props: &BeamProperties, length_m: f64) -> Matrix12 {
 
 /// Local geometric (initial-stress) stiffness of a beam under axial force `axial_force_n`
 /// (N, tension positive), consistent cubic interpolation (Przemieniecki §15).
-pub fn local_geometric_stiffness(props: &BeamProperties, length_m: f64, axial_force_n: f64) -> Matrix12 {
+pub fn local_geometric_stiffness(
+    props: &BeamProperties,
+    length_m: f64,
+    axial_force_n: f64,
+) -> Matrix12 {
     let l = length_m;
     let c = axial_force_n / l;
     let a = 6.0 / 5.0 * c;

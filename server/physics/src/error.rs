@@ -32,7 +32,9 @@ pub enum PhysicsError {
         value: f64,
     },
     /// A tube whose inner radius is not smaller than its outer radius.
-    #[error("section \"{section}\": inner radius {inner_m} m must be smaller than outer radius {outer_m} m")]
+    #[error(
+        "section \"{section}\": inner radius {inner_m} m must be smaller than outer radius {outer_m} m"
+    )]
     InnerRadiusTooLarge {
         /// Section name.
         section: String,

@@ -44,6 +44,31 @@ pub fn tip_loaded_cantilever(
     load_steps: usize,
     hold_steps: usize,
 ) -> Result<ScenarioResult> {
+    let (tip, solves, converged) =
+        solve_tip_loaded_cantilever(alpha, elements, settings, load_steps, hold_steps)?;
+    let length = TEST_BEAM_LENGTH_M;
+    let reference = elastica::tip_loaded_cantilever(alpha);
+    let expected = Vector3::new(
+        length * (1.0 - reference.shortening),
+        -length * reference.deflection,
+        0.0,
+    );
+    Ok(ScenarioResult {
+        tip_error: (tip - expected).norm() / length,
+        solves,
+        converged,
+    })
+}
+
+/// The finite-element part of [`tip_loaded_cantilever`]: returns the tip position (m), the
+/// linear solves spent and whether every step converged.
+pub fn solve_tip_loaded_cantilever(
+    alpha: f64,
+    elements: usize,
+    settings: SolverSettings,
+    load_steps: usize,
+    hold_steps: usize,
+) -> Result<(Vector3<f64>, usize, bool)> {
     let props = slender_test_wire();
     let length = TEST_BEAM_LENGTH_M;
     let mut model = BeamModel::straight(props, length, elements, settings)?;
@@ -52,22 +77,16 @@ pub fn tip_loaded_cantilever(
     let mut converged = true;
     for k in 1..=load_steps + hold_steps {
         let fraction = (k.min(load_steps)) as f64 / load_steps as f64;
-        model.set_load(elements, Vector3::new(0.0, -load * fraction, 0.0), Vector3::zeros())?;
+        model.set_load(
+            elements,
+            Vector3::new(0.0, -load * fraction, 0.0),
+            Vector3::zeros(),
+        )?;
         let report = model.step()?;
         solves += report.iterations;
         converged &= report.converged;
     }
-    let reference = elastica::tip_loaded_cantilever(alpha);
-    let expected = Vector3::new(
-        length * (1.0 - reference.shortening),
-        -length * reference.deflection,
-        0.0,
-    );
-    Ok(ScenarioResult {
-        tip_error: (model.tip_position() - expected).norm() / length,
-        solves,
-        converged,
-    })
+    Ok((model.tip_position(), solves, converged))
 }
 
 /// Applies an end moment M = 2πEI/L about z to the slender wire in `load_steps` steps;
@@ -85,7 +104,11 @@ pub fn end_moment_rollup(
     let mut converged = true;
     for k in 1..=load_steps {
         let fraction = k as f64 / load_steps as f64;
-        model.set_load(elements, Vector3::zeros(), Vector3::new(0.0, 0.0, moment * fraction))?;
+        model.set_load(
+            elements,
+            Vector3::zeros(),
+            Vector3::new(0.0, 0.0, moment * fraction),
+        )?;
         let report = model.step()?;
         solves += report.iterations;
         converged &= report.converged;

@@ -21,7 +21,10 @@ impl Material {
 
     /// Checks every field; `owner` names the section in error messages.
     pub fn validate(&self, owner: &str) -> Result<()> {
-        require_positive(|| format!("{owner}: young_modulus_pa"), self.young_modulus_pa)?;
+        require_positive(
+            || format!("{owner}: young_modulus_pa"),
+            self.young_modulus_pa,
+        )?;
         require_positive(|| format!("{owner}: density_kg_m3"), self.density_kg_m3)?;
         let nu = require_finite(|| format!("{owner}: poisson_ratio"), self.poisson_ratio)?;
         if !(nu > -1.0 && nu < 0.5) {

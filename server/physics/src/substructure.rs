@@ -69,9 +69,11 @@ impl BlockTridiagonal {
         let n = self.nodes();
         let mut k = nalgebra::DMatrix::zeros(6 * n, 6 * n);
         for i in 0..n {
-            k.fixed_view_mut::<6, 6>(6 * i, 6 * i).copy_from(&self.diagonal[i]);
+            k.fixed_view_mut::<6, 6>(6 * i, 6 * i)
+                .copy_from(&self.diagonal[i]);
             if i + 1 < n {
-                k.fixed_view_mut::<6, 6>(6 * i, 6 * i + 6).copy_from(&self.upper[i]);
+                k.fixed_view_mut::<6, 6>(6 * i, 6 * i + 6)
+                    .copy_from(&self.upper[i]);
                 k.fixed_view_mut::<6, 6>(6 * i + 6, 6 * i)
                     .copy_from(&self.upper[i].transpose());
             }

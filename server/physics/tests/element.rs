@@ -3,15 +3,24 @@
 mod common;
 
 use cathlab_physics::element::{local_geometric_stiffness, local_stiffness};
-use cathlab_physics::{BeamModel, BeamProperties, CircularSection, Material, SolverSettings, Substructure};
+use cathlab_physics::{
+    BeamModel, BeamProperties, CircularSection, Material, SolverSettings, Substructure,
+};
 use common::{rel, wire};
 use nalgebra::{SVector, SymmetricEigen, Vector3, Vector6};
 use proptest::prelude::*;
 
 fn props(outer: f64, inner_fraction: f64, young: f64, nu: f64) -> BeamProperties {
     BeamProperties::new(
-        &CircularSection { outer_radius_m: outer, inner_radius_m: outer * inner_fraction },
-        &Material { young_modulus_pa: young, poisson_ratio: nu, density_kg_m3: 1000.0 },
+        &CircularSection {
+            outer_radius_m: outer,
+            inner_radius_m: outer * inner_fraction,
+        },
+        &Material {
+            young_modulus_pa: young,
+            poisson_ratio: nu,
+            density_kg_m3: 1000.0,
+        },
     )
 }
 
@@ -101,18 +110,33 @@ fn cantilever_tip_deflection_is_exact_for_any_element_count() {
     let (r, length, load) = (0.01, 0.03, 3.0);
     let p = wire(r);
     let expected = cathlab_physics::elastica::timoshenko_tip_deflection(
-        load, length, p.bending_stiffness_nm2, p.shear_stiffness_n);
+        load,
+        length,
+        p.bending_stiffness_nm2,
+        p.shear_stiffness_n,
+    );
     let shear_part = load * length / p.shear_stiffness_n;
     assert!(shear_part / expected > 0.05, "the test must exercise shear");
     for n in 1..=30 {
         let u = cantilever_tip(p, length, n, Vector6::new(0.0, load, 0.0, 0.0, 0.0, 0.0));
-        assert!(rel(u[1], expected) < 1e-9, "n={n}: v={} expected {expected}", u[1]);
+        assert!(
+            rel(u[1], expected) < 1e-9,
+            "n={n}: v={} expected {expected}",
+            u[1]
+        );
         // Section rotation at the tip: PL²/2EI (shear does not rotate the section).
         let slope = load * length * length / (2.0 * p.bending_stiffness_nm2);
-        assert!(rel(u[5], slope) < 1e-9, "n={n}: θz={} expected {slope}", u[5]);
+        assert!(
+            rel(u[5], slope) < 1e-9,
+            "n={n}: θz={} expected {slope}",
+            u[5]
+        );
         // Same in the x–z plane, where θy = −dw/dx.
         let w = cantilever_tip(p, length, n, Vector6::new(0.0, 0.0, load, 0.0, 0.0, 0.0));
-        assert!(rel(w[2], expected) < 1e-9 && rel(-w[4], slope) < 1e-9, "n={n}: {w:?}");
+        assert!(
+            rel(w[2], expected) < 1e-9 && rel(-w[4], slope) < 1e-9,
+            "n={n}: {w:?}"
+        );
         // Axial: PL/EA.
         let a = cantilever_tip(p, length, n, Vector6::new(load, 0.0, 0.0, 0.0, 0.0, 0.0));
         assert!(rel(a[0], load * length / p.axial_stiffness_n) < 1e-9);
@@ -125,6 +149,9 @@ fn torsion_is_exact() {
     let p = wire(0.5e-3);
     for n in [1, 2, 7, 40] {
         let u = cantilever_tip(p, length, n, Vector6::new(0.0, 0.0, 0.0, torque, 0.0, 0.0));
-        assert!(rel(u[3], torque * length / p.torsional_stiffness_nm2) < 1e-9, "n={n}");
+        assert!(
+            rel(u[3], torque * length / p.torsional_stiffness_nm2) < 1e-9,
+            "n={n}"
+        );
     }
 }

@@ -8,19 +8,36 @@ use cathlab_physics::{BeamModel, PhysicsError, SolverSettings, StepMode, elastic
 use nalgebra::{DMatrix, Vector3};
 
 fn converged() -> SolverSettings {
-    SolverSettings { mode: StepMode::CONVERGED, ..Default::default() }
+    SolverSettings {
+        mode: StepMode::CONVERGED,
+        ..Default::default()
+    }
 }
 
 #[test]
 fn elastica_reference_matches_published_values_and_is_converged() {
     // Mattiasson (1981), 5 digits.
-    for (alpha, v, u) in [(1.0, 0.30172, 0.05643), (2.0, 0.49346, 0.16064), (5.0, 0.71379, 0.38763), (10.0, 0.81061, 0.55500)] {
+    for (alpha, v, u) in [
+        (1.0, 0.30172, 0.05643),
+        (2.0, 0.49346, 0.16064),
+        (5.0, 0.71379, 0.38763),
+        (10.0, 0.81061, 0.55500),
+    ] {
         let tip = elastica::tip_loaded_cantilever(alpha);
-        assert!((tip.deflection - v).abs() < 6e-6 && (tip.shortening - u).abs() < 6e-6, "α={alpha}: {tip:?}");
+        assert!(
+            (tip.deflection - v).abs() < 6e-6 && (tip.shortening - u).abs() < 6e-6,
+            "α={alpha}: {tip:?}"
+        );
         // RK4 self-convergence: halving the step changes the answer by < 1e-11.
         let coarse = elastica::tip_loaded_cantilever_with(alpha, 10_000);
-        assert!((coarse.deflection - tip.deflection).abs() < 1e-11, "α={alpha}");
-        assert!((coarse.shortening - tip.shortening).abs() < 1e-11, "α={alpha}");
+        assert!(
+            (coarse.deflection - tip.deflection).abs() < 1e-11,
+            "α={alpha}"
+        );
+        assert!(
+            (coarse.shortening - tip.shortening).abs() < 1e-11,
+            "α={alpha}"
+        );
     }
 }
 
@@ -31,7 +48,10 @@ fn converged_mode_matches_elastica_with_second_order_convergence() {
         let e50 = tip_loaded_cantilever(alpha, 50, converged(), 10, 0).unwrap();
         assert!(e25.converged && e50.converged);
         let ratio = e25.tip_error / e50.tip_error;
-        println!("α={alpha}: error N=25 {:.3e}, N=50 {:.3e}, ratio {ratio:.2}", e25.tip_error, e50.tip_error);
+        println!(
+            "α={alpha}: error N=25 {:.3e}, N=50 {:.3e}, ratio {ratio:.2}",
+            e25.tip_error, e50.tip_error
+        );
         assert!(e50.tip_error < 1e-3, "α={alpha}: {}", e50.tip_error);
         assert!(ratio >= 3.5, "α={alpha}: ratio {ratio}");
     }
@@ -41,7 +61,10 @@ fn converged_mode_matches_elastica_with_second_order_convergence() {
 fn paper_mode_reaches_the_same_equilibrium_given_enough_steps() {
     // One solve per step: with the load ramped over 10 steps the tip lags; held longer, the
     // incremental method settles on the converged solution.
-    let paper = SolverSettings { mode: StepMode::PAPER, ..Default::default() };
+    let paper = SolverSettings {
+        mode: StepMode::PAPER,
+        ..Default::default()
+    };
     for alpha in [1.0, 2.0, 5.0, 10.0] {
         let reference = tip_loaded_cantilever(alpha, 50, converged(), 10, 0).unwrap();
         let ramp_only = tip_loaded_cantilever(alpha, 50, paper, 10, 0).unwrap();
@@ -50,7 +73,10 @@ fn paper_mode_reaches_the_same_equilibrium_given_enough_steps() {
             "α={alpha}: paper mode error after the 10-step ramp {:.3e}, after 40 more steps {:.3e} (converged {:.3e})",
             ramp_only.tip_error, settled.tip_error, reference.tip_error
         );
-        assert!((settled.tip_error - reference.tip_error).abs() < 1e-6, "α={alpha}");
+        assert!(
+            (settled.tip_error - reference.tip_error).abs() < 1e-6,
+            "α={alpha}"
+        );
         assert!(ramp_only.tip_error > settled.tip_error);
     }
 }
@@ -58,11 +84,17 @@ fn paper_mode_reaches_the_same_equilibrium_given_enough_steps() {
 #[test]
 fn end_moment_rolls_the_beam_into_a_circle() {
     let c = end_moment_rollup(100, converged(), 20).unwrap();
-    println!("converged: tip-to-base distance {:.3e}·L after {} solves", c.tip_error, c.solves);
+    println!(
+        "converged: tip-to-base distance {:.3e}·L after {} solves",
+        c.tip_error, c.solves
+    );
     assert!(c.converged && c.tip_error < 1e-2, "{c:?}");
     // Paper mode: one solve per step; the tip lags the ramped load by about one step.
     let p = end_moment_rollup(100, SolverSettings::default(), 200).unwrap();
-    println!("paper: tip-to-base distance {:.3e}·L after {} solves", p.tip_error, p.solves);
+    println!(
+        "paper: tip-to-base distance {:.3e}·L after {} solves",
+        p.tip_error, p.solves
+    );
     assert!(p.tip_error < 1e-2, "{p:?}");
 }
 
@@ -72,7 +104,10 @@ fn end_moment_rolls_the_beam_into_a_circle() {
 /// not stabilised) or when the device is under tension. These are the documented failures.
 #[test]
 fn paper_tangent_without_geometric_stiffness_fails_where_documented() {
-    let literal = SolverSettings { geometric_stiffness: false, ..converged() };
+    let literal = SolverSettings {
+        geometric_stiffness: false,
+        ..converged()
+    };
     // Roll-up: fine with small load steps (2π/200 per step) ...
     let fine = end_moment_rollup(100, literal, 200).unwrap();
     assert!(fine.converged && fine.tip_error < 1e-2, "{fine:?}");
@@ -124,18 +159,26 @@ fn clamped_free_column_buckles_at_euler_load() {
     let exact = elastica::clamped_free_buckling_load(p.bending_stiffness_nm2, 1.0);
     for elements in [4, 10, 40] {
         let pcr = linear_buckling_load(elements);
-        assert!(((pcr - exact) / exact).abs() < 0.01, "{elements} elements: {pcr} vs {exact}");
+        assert!(
+            ((pcr - exact) / exact).abs() < 0.01,
+            "{elements} elements: {pcr} vs {exact}"
+        );
     }
     // Non-linear: with a 1e-4 lateral imperfection the column stays nearly straight at
     // 0.98 Pcr and deflects grossly at 1.02 Pcr. Newton-like iterations (geometric stiffness
     // in the tangent) converge to the nearest equilibrium, stable or not, and would sit on the
     // unstable straight branch above Pcr; the paper's material-only tangent is a relaxation
     // that leaves unstable equilibria, so it is the one that finds the buckled state.
-    let relaxation = SolverSettings { geometric_stiffness: false, ..SolverSettings::default() };
+    let relaxation = SolverSettings {
+        geometric_stiffness: false,
+        ..SolverSettings::default()
+    };
     let lateral = |fraction: f64| {
         let mut model = BeamModel::straight(p, 1.0, 40, relaxation).unwrap();
         let load = exact * fraction;
-        model.set_load(40, Vector3::new(-load, 1e-4 * load, 0.0), Vector3::zeros()).unwrap();
+        model
+            .set_load(40, Vector3::new(-load, 1e-4 * load, 0.0), Vector3::zeros())
+            .unwrap();
         for _ in 0..3000 {
             model.step().unwrap();
         }

@@ -11,7 +11,11 @@ fn j_tip_wire() -> Device {
         name: name.into(),
         length_m,
         cross_section: CircularSection::solid(0.445e-3),
-        material: Material { young_modulus_pa: young, poisson_ratio: 0.33, density_kg_m3: 6450.0 },
+        material: Material {
+            young_modulus_pa: young,
+            poisson_ratio: 0.33,
+            density_kg_m3: 6450.0,
+        },
         friction_coefficient: 0.04,
         rest_shape,
     };
@@ -20,14 +24,25 @@ fn j_tip_wire() -> Device {
         vec![
             section("shaft", 0.05, 60e9, RestShape::Straight),
             section("transition", 0.02, 15e9, RestShape::Straight),
-            section("tip", 0.02, 2e9, RestShape::J { radius_m: 0.003, angle_rad: std::f64::consts::PI }),
+            section(
+                "tip",
+                0.02,
+                2e9,
+                RestShape::J {
+                    radius_m: 0.003,
+                    angle_rad: std::f64::consts::PI,
+                },
+            ),
         ],
     )
     .unwrap()
 }
 
 fn max_distance(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
-    a.iter().zip(b).map(|(p, q)| (p - q).norm()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (p - q).norm())
+        .fold(0.0, f64::max)
 }
 
 fn tip_direction(model: &BeamModel) -> Vector3<f64> {
@@ -38,13 +53,24 @@ fn tip_direction(model: &BeamModel) -> Vector3<f64> {
 fn j_tip_pulled_straight_returns_to_rest_when_released() {
     let device = j_tip_wire();
     for (name, settings, release_steps) in [
-        ("converged", SolverSettings { mode: StepMode::CONVERGED, ..Default::default() }, 5),
+        (
+            "converged",
+            SolverSettings {
+                mode: StepMode::CONVERGED,
+                ..Default::default()
+            },
+            5,
+        ),
         ("paper", SolverSettings::default(), 400),
     ] {
         let mut model = BeamModel::from_device(&device, 90, settings).unwrap();
         let rest = model.positions().to_vec();
         // At rest the J points back along −x.
-        assert!(tip_direction(&model).x < -0.95, "{name}: rest tip {:?}", tip_direction(&model));
+        assert!(
+            tip_direction(&model).x < -0.95,
+            "{name}: rest tip {:?}",
+            tip_direction(&model)
+        );
         let tip = model.node_count() - 1;
         // Pull the tip along +x with a force well above EI·κ² of the J: the bending boundary
         // layer sqrt(EI/T) is then R/7, so only the last fraction of a millimetre stays bent.
@@ -52,7 +78,13 @@ fn j_tip_pulled_straight_returns_to_rest_when_released() {
         let pull = 50.0 * ei / 0.003f64.powi(2);
         let ramp = 2000;
         for k in 1..=ramp {
-            model.set_load(tip, Vector3::x() * pull * k as f64 / ramp as f64, Vector3::zeros()).unwrap();
+            model
+                .set_load(
+                    tip,
+                    Vector3::x() * pull * k as f64 / ramp as f64,
+                    Vector3::zeros(),
+                )
+                .unwrap();
             model.step().unwrap();
         }
         for _ in 0..release_steps {
@@ -61,7 +93,10 @@ fn j_tip_pulled_straight_returns_to_rest_when_released() {
         let pulled = tip_direction(&model);
         assert!(pulled.x > 0.9, "{name}: pulled tip direction {pulled:?}");
         // The J has opened: the tip is now ahead of where the J turned back.
-        assert!(model.tip_position().x > rest.last().unwrap().x + 0.005, "{name}");
+        assert!(
+            model.tip_position().x > rest.last().unwrap().x + 0.005,
+            "{name}"
+        );
         // Release.
         model.clear_loads();
         for _ in 0..release_steps {
@@ -78,20 +113,34 @@ fn twisting_the_base_rotates_an_angled_tip() {
     let device = cathlab_physics::presets::diagnostic_catheter_5f();
     // The distal 10 cm (shaft, transition and the 45° tip) in 2 mm elements.
     let length = device.length_m();
-    let settings = SolverSettings { mode: StepMode::CONVERGED, ..Default::default() };
-    let mut model = BeamModel::from_device_part(&device, length - 0.1, length, 50, settings).unwrap();
+    let settings = SolverSettings {
+        mode: StepMode::CONVERGED,
+        ..Default::default()
+    };
+    let mut model =
+        BeamModel::from_device_part(&device, length - 0.1, length, 50, settings).unwrap();
     let rest_tip = model.tip_position();
-    assert!(rest_tip.y > 1e-3, "the angled tip bends towards +y at rest: {rest_tip:?}");
+    assert!(
+        rest_tip.y > 1e-3,
+        "the angled tip bends towards +y at rest: {rest_tip:?}"
+    );
     let turns = 12;
     for _ in 0..turns {
-        model.drive_base(0.0, std::f64::consts::FRAC_PI_2 / turns as f64).unwrap();
+        model
+            .drive_base(0.0, std::f64::consts::FRAC_PI_2 / turns as f64)
+            .unwrap();
         let report = model.step().unwrap();
         assert!(report.converged);
     }
     // A free device turns rigidly: the tip is the rest tip rotated 90° about the shaft (x).
-    let expected = UnitQuaternion::from_scaled_axis(Vector3::x() * std::f64::consts::FRAC_PI_2) * rest_tip;
+    let expected =
+        UnitQuaternion::from_scaled_axis(Vector3::x() * std::f64::consts::FRAC_PI_2) * rest_tip;
     let error = (model.tip_position() - expected).norm();
-    assert!(error < 1e-9, "tip {:?} expected {expected:?}", model.tip_position());
+    assert!(
+        error < 1e-9,
+        "tip {:?} expected {expected:?}",
+        model.tip_position()
+    );
     // Pushing moves it along the shaft.
     model.drive_base(0.01, 0.0).unwrap();
     model.step().unwrap();
@@ -105,15 +154,27 @@ fn twist_is_transmitted_through_a_held_tip() {
     // the base equals the moment at the tip.
     let device = cathlab_physics::presets::micro_catheter();
     let length = device.length_m();
-    let settings = SolverSettings { mode: StepMode::CONVERGED, ..Default::default() };
-    let mut model = BeamModel::from_device_part(&device, length - 0.05, length, 25, settings).unwrap();
+    let settings = SolverSettings {
+        mode: StepMode::CONVERGED,
+        ..Default::default()
+    };
+    let mut model =
+        BeamModel::from_device_part(&device, length - 0.05, length, 25, settings).unwrap();
     let tip = model.node_count() - 1;
     let torque = 1e-5;
-    model.set_load(tip, Vector3::zeros(), Vector3::x() * torque).unwrap();
+    model
+        .set_load(tip, Vector3::zeros(), Vector3::x() * torque)
+        .unwrap();
     model.step().unwrap();
     let gj = device.sections[2].beam_properties().torsional_stiffness_nm2;
     let twist = (model.rotations()[tip].scaled_axis()).x;
-    assert!(((twist - torque * 0.05 / gj) / twist).abs() < 1e-6, "twist {twist}");
+    assert!(
+        ((twist - torque * 0.05 / gj) / twist).abs() < 1e-6,
+        "twist {twist}"
+    );
     let reaction = model.base_reaction();
-    assert!((reaction[3] + torque).abs() < 1e-9 * torque.max(1.0), "base reaction {reaction:?}");
+    assert!(
+        (reaction[3] + torque).abs() < 1e-9 * torque.max(1.0),
+        "base reaction {reaction:?}"
+    );
 }

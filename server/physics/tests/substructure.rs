@@ -2,7 +2,9 @@
 
 mod common;
 
-use cathlab_physics::{BeamModel, BlockTridiagonal, SolverSettings, StepMode, Substructure, presets};
+use cathlab_physics::{
+    BeamModel, BlockTridiagonal, SolverSettings, StepMode, Substructure, presets,
+};
 use nalgebra::{DMatrix, DVector, Matrix6, SMatrix, Vector3, Vector6};
 use proptest::prelude::*;
 
@@ -44,7 +46,8 @@ fn compare_with_dense(k: &BlockTridiagonal, f: &[Vector6<f64>]) -> f64 {
 
     // Dense inverse with one Newton–Schulz refinement step, X ← X + X(I − K X).
     let mut inverse = lu.try_inverse().unwrap();
-    let correction = &inverse * (DMatrix::identity(6 * k.nodes(), 6 * k.nodes()) - &dense * &inverse);
+    let correction =
+        &inverse * (DMatrix::identity(6 * k.nodes(), 6 * k.nodes()) - &dense * &inverse);
     inverse += correction;
     let flex = sub.flexibility();
     let n = k.nodes();
@@ -52,7 +55,10 @@ fn compare_with_dense(k: &BlockTridiagonal, f: &[Vector6<f64>]) -> f64 {
         let exact = inverse.view((6 * i, 6 * j), (6, 6)).into_owned();
         let got = DMatrix::from_column_slice(6, 6, flex.block(i, j).as_slice());
         // Relative to the diagonal blocks' scale, since far couplings decay.
-        let scale = inverse.view((6 * i, 6 * i), (6, 6)).norm().max(inverse.view((6 * j, 6 * j), (6, 6)).norm());
+        let scale = inverse
+            .view((6 * i, 6 * i), (6, 6))
+            .norm()
+            .max(inverse.view((6 * j, 6 * j), (6, 6)).norm());
         (got - exact).norm() / scale
     };
     for i in 0..n {
@@ -84,8 +90,16 @@ proptest! {
 /// The tangent of a preset's part [start, end] (m) in `elements` elements, deformed by a
 /// tip load through a few converged steps, so it has rotated frames, rest curvature and
 /// axial force.
-fn device_tangent(device: &cathlab_physics::Device, start: f64, end: f64, elements: usize) -> BlockTridiagonal {
-    let settings = SolverSettings { mode: StepMode::CONVERGED, ..Default::default() };
+fn device_tangent(
+    device: &cathlab_physics::Device,
+    start: f64,
+    end: f64,
+    elements: usize,
+) -> BlockTridiagonal {
+    let settings = SolverSettings {
+        mode: StepMode::CONVERGED,
+        ..Default::default()
+    };
     let mut model = BeamModel::from_device_part(device, start, end, elements, settings).unwrap();
     let tip = model.node_count() - 1;
     let ei = device.sections[2].beam_properties().bending_stiffness_nm2;
@@ -115,7 +129,10 @@ fn inserted_device_matrices_match_dense() {
         for (inserted, elements) in [(0.05, 10), (0.10, 10)] {
             let k = device_tangent(&device, l - inserted, l, elements);
             let err = compare_with_dense(&k, &device_loads(k.nodes()));
-            assert!(err < 1e-10, "{id}, {inserted} m in {elements}: relative error {err}");
+            assert!(
+                err < 1e-10,
+                "{id}, {inserted} m in {elements}: relative error {err}"
+            );
         }
     }
 }
@@ -138,8 +155,14 @@ fn full_length_device_matrices_agree_within_conditioning() {
             let u = flatten(&Substructure::new(&k).unwrap().solve(&f));
             let forward = (&u - &reference).norm() / reference.norm();
             let backward = (&dense * &u - &fd).norm() / (dense.norm() * u.norm());
-            assert!(forward < 10.0 * condition * f64::EPSILON, "{id}/{elements}: {forward} vs κ={condition:e}");
-            assert!(backward < 1e-16, "{id}/{elements}: backward error {backward}");
+            assert!(
+                forward < 10.0 * condition * f64::EPSILON,
+                "{id}/{elements}: {forward} vs κ={condition:e}"
+            );
+            assert!(
+                backward < 1e-16,
+                "{id}/{elements}: backward error {backward}"
+            );
         }
     }
 }
@@ -148,5 +171,11 @@ fn full_length_device_matrices_agree_within_conditioning() {
 fn singular_matrix_is_reported_not_panicked() {
     let k = BlockTridiagonal::zeros(3);
     let err = Substructure::new(&k).unwrap_err();
-    assert!(matches!(err, cathlab_physics::PhysicsError::SingularBlock { node: 0 }), "{err}");
+    assert!(
+        matches!(
+            err,
+            cathlab_physics::PhysicsError::SingularBlock { node: 0 }
+        ),
+        "{err}"
+    );
 }
