@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Every test: formatting, lints, and the whole workspace's tests (optimised test profile).
+# Every test: formatting, lints, and the whole workspace's tests including the benchmarks'
+# smoke runs (optimised test profile). Ends with a one-line total.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
@@ -7,7 +8,8 @@ echo "== cargo fmt --check"
 cargo fmt --all --check
 echo "== cargo clippy"
 cargo clippy --locked --workspace --all-targets -- -D warnings
-echo "== cargo test"
-cargo test --locked --workspace --all-targets
-echo "== benchmarks compile and run once (smoke)"
-cargo test --locked -p cathlab-physics --benches
+echo "== cargo test (lib, bins, tests, benches in test mode)"
+log=$(mktemp)
+trap 'rm -f "$log"' EXIT
+cargo test --locked --workspace --all-targets 2>&1 | tee "$log"
+awk '/^test result:/ { p += $4; f += $6 } END { printf "cathlab: %d passed, %d failed\n", p, f }' "$log"
