@@ -1,8 +1,7 @@
 //! Bad input gets typed errors naming the problem; divergence is reported and rolled back.
 
 use cathlab_physics::{
-    BeamModel, CircularSection, Device, Material, PhysicsError, RestShape, Section, SolverSettings,
-    StepMode, presets,
+    BeamModel, Device, PhysicsError, RestShape, Section, SolverSettings, StepMode, presets,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
