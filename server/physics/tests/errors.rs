@@ -146,12 +146,6 @@ fn invalid_model_inputs_are_errors_not_panics() {
         model.step(),
         Err(PhysicsError::NotPositive { .. })
     ));
-    let _ = CircularSection::solid(1.0);
-    let _ = Material {
-        young_modulus_pa: 1.0,
-        poisson_ratio: 0.0,
-        density_kg_m3: 1.0,
-    };
 }
 
 #[test]
