@@ -1,0 +1,105 @@
+//! Anatomy file formats: surfaces (OBJ, STL, VTK PolyData), centerlines (3D Slicer markups,
+//! SWC) and the JSON vessel graph; units, and loading by file extension.
+
+pub mod obj;
+pub mod slicer;
+pub mod stl;
+pub mod swc;
+pub mod vtp;
+
+use std::path::Path;
+
+use crate::error::{AnatomyError, Result};
+
+/// A length unit that a file declares or that the caller assumes for it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LengthUnit {
+    /// Metres.
+    M,
+    /// Centimetres.
+    Cm,
+    /// Millimetres (medical imaging's default).
+    Mm,
+    /// Micrometres (common in SWC morphology files).
+    Um,
+}
+
+impl LengthUnit {
+    /// Metres per unit.
+    pub fn metres(self) -> f64 {
+        match self {
+            LengthUnit::M => 1.0,
+            LengthUnit::Cm => 1e-2,
+            LengthUnit::Mm => 1e-3,
+            LengthUnit::Um => 1e-6,
+        }
+    }
+
+    /// Parses a unit name as files spell it ("mm", "cm", "m", "um", "µm", "micron").
+    pub fn parse(name: &str, file: &str) -> Result<Self> {
+        match name.trim().to_ascii_lowercase().as_str() {
+            "m" | "meter" | "metre" | "meters" | "metres" => Ok(LengthUnit::M),
+            "cm" | "centimeter" | "centimetre" => Ok(LengthUnit::Cm),
+            "mm" | "millimeter" | "millimetre" => Ok(LengthUnit::Mm),
+            "um" | "µm" | "micron" | "microns" | "micrometer" | "micrometre" => Ok(LengthUnit::Um),
+            other => Err(AnatomyError::Units {
+                file: file.to_owned(),
+                message: format!("unknown length unit {other:?} (expected m, cm, mm or um)"),
+            }),
+        }
+    }
+}
+
+/// Largest and smallest plausible extents of a vascular anatomy (m).
+const PLAUSIBLE_EXTENT_M: (f64, f64) = (1e-3, 2.5);
+
+/// Fails when the anatomy's largest extent (already in metres) is implausible, which is how a
+/// wrong declared unit shows (a 400 mm arch read as metres spans 400 m).
+pub fn check_plausible_extent(file: &str, unit: LengthUnit, extent_m: f64) -> Result<()> {
+    let (lo, hi) = PLAUSIBLE_EXTENT_M;
+    if extent_m.is_finite() && (lo..=hi).contains(&extent_m) {
+        return Ok(());
+    }
+    Err(AnatomyError::Units {
+        file: file.to_owned(),
+        message: format!(
+            "with unit {unit:?} the anatomy spans {extent_m:.3e} m; vascular anatomy spans \
+             {lo} m to {hi} m, so the declared or assumed unit is wrong"
+        ),
+    })
+}
+
+/// Reads a whole file, mapping failure to [`AnatomyError::Io`].
+pub(crate) fn read_bytes(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|source| AnatomyError::Io {
+        file: path.to_owned(),
+        source,
+    })
+}
+
+/// Parses one finite float, naming the file, line and field on failure.
+pub(crate) fn parse_f64(token: &str, file: &str, line: Option<usize>, what: &str) -> Result<f64> {
+    let value: f64 = token.parse().map_err(|_| AnatomyError::Parse {
+        file: file.to_owned(),
+        line,
+        message: format!("{what}: {token:?} is not a number"),
+    })?;
+    if !value.is_finite() {
+        return Err(AnatomyError::Parse {
+            file: file.to_owned(),
+            line,
+            message: format!("{what} is {token} (not finite)"),
+        });
+    }
+    Ok(value)
+}
+
+/// The file's text, or a parse error if it is not UTF-8.
+pub(crate) fn utf8<'a>(bytes: &'a [u8], file: &str) -> Result<&'a str> {
+    std::str::from_utf8(bytes).map_err(|e| AnatomyError::Parse {
+        file: file.to_owned(),
+        line: None,
+        message: format!("not UTF-8 text (byte {})", e.valid_up_to()),
+    })
+}

@@ -1,0 +1,250 @@
+//! VTK XML PolyData (`.vtp`): points, polygons (fan-triangulated) and lines (centerlines
+//! with an optional per-point radius array, as VMTK writes them). Data arrays in `ascii` or
+//! inline `binary` (base64, UInt32 or UInt64 headers) format; compressed and appended data are
+//! reported as unsupported.
+
+use std::path::Path;
+
+use base64::Engine as _;
+use nalgebra::Point3;
+
+use super::slicer::Centerline;
+use super::{LengthUnit, check_plausible_extent, read_bytes, utf8};
+use crate::error::{AnatomyError, Result};
+use crate::mesh::TriangleMesh;
+
+/// Point-data array names read as the lumen radius, in order of preference.
+pub const RADIUS_ARRAY_NAMES: [&str; 3] = ["MaximumInscribedSphereRadius", "Radius", "radius"];
+
+/// What a `.vtp` file held.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PolyData {
+    /// The polygons as a triangle surface, if there were any.
+    pub surface: Option<TriangleMesh>,
+    /// Each polyline with its radius array (empty radii when the file has none).
+    pub lines: Vec<Centerline>,
+}
+
+fn error(file: &str, message: impl Into<String>) -> AnatomyError {
+    AnatomyError::Parse {
+        file: file.to_owned(),
+        line: None,
+        message: message.into(),
+    }
+}
+
+/// Reads one `<DataArray>` as f64 values.
+fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Result<Vec<f64>> {
+    let name = node.attribute("Name").unwrap_or("(unnamed)");
+    let kind = node.attribute("type").unwrap_or("Float32");
+    let format = node.attribute("format").unwrap_or("ascii");
+    let text = node.text().unwrap_or("");
+    match format {
+        "ascii" => text
+            .split_whitespace()
+            .map(|t| {
+                t.parse::<f64>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .ok_or_else(|| error(file, format!("array {name}: {t:?} is not a finite number")))
+            })
+            .collect(),
+        "binary" => {
+            let compact: String = text.chars().filter(|c| !c.is_whitespace()).collect();
+            let bytes = base64::engine::general_purpose::STANDARD
+                .decode(compact.as_bytes())
+                .map_err(|e| error(file, format!("array {name}: bad base64: {e}")))?;
+            let header = if header_u64 { 8 } else { 4 };
+            if bytes.len() < header {
+                return Err(error(file, format!("array {name}: truncated binary header")));
+            }
+            let declared = if header_u64 {
+                u64::from_le_bytes(bytes[..8].try_into().unwrap_or([0; 8])) as usize
+            } else {
+                u32::from_le_bytes(bytes[..4].try_into().unwrap_or([0; 4])) as usize
+            };
+            let body = &bytes[header..];
+            if declared > body.len() {
+                return Err(error(
+                    file,
+                    format!("array {name}: truncated ({declared} bytes declared, {} present)", body.len()),
+                ));
+            }
+            let body = &body[..declared];
+            let width = match kind {
+                "Float32" | "Int32" | "UInt32" => 4,
+                "Float64" | "Int64" | "UInt64" => 8,
+                "Int8" | "UInt8" => 1,
+                "Int16" | "UInt16" => 2,
+                other => return Err(error(file, format!("array {name}: unsupported type {other}"))),
+            };
+            if body.len() % width != 0 {
+                return Err(error(file, format!("array {name}: {} bytes is not a whole number of {kind}", body.len())));
+            }
+            body.chunks_exact(width)
+                .map(|c| {
+                    let v = match kind {
+                        "Float32" => f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+                        "Int32" => f64::from(i32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+                        "UInt32" => f64::from(u32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+                        "Float64" => f64::from_le_bytes(c.try_into().unwrap_or([0; 8])),
+                        "Int64" => i64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f64,
+                        "UInt64" => u64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f64,
+                        "Int8" => f64::from(c[0] as i8),
+                        "UInt8" => f64::from(c[0]),
+                        "Int16" => f64::from(i16::from_le_bytes([c[0], c[1]])),
+                        _ => f64::from(u16::from_le_bytes([c[0], c[1]])),
+                    };
+                    if v.is_finite() {
+                        Ok(v)
+                    } else {
+                        Err(error(file, format!("array {name}: non-finite value")))
+                    }
+                })
+                .collect()
+        }
+        "appended" => Err(error(file, format!("array {name}: appended data is not supported; save as ascii or inline binary"))),
+        other => Err(error(file, format!("array {name}: unknown format {other:?}"))),
+    }
+}
+
+fn child<'a, 'i>(node: roxmltree::Node<'a, 'i>, tag: &str) -> Option<roxmltree::Node<'a, 'i>> {
+    node.children().find(|c| c.has_tag_name(tag))
+}
+
+fn named_array<'a, 'i>(node: roxmltree::Node<'a, 'i>, name: &str) -> Option<roxmltree::Node<'a, 'i>> {
+    node.children()
+        .find(|c| c.has_tag_name("DataArray") && c.attribute("Name") == Some(name))
+}
+
+/// Splits a VTK cell array (connectivity + offsets) into cells with valid point indices.
+fn cells(
+    section: roxmltree::Node<'_, '_>,
+    header_u64: bool,
+    points: usize,
+    what: &str,
+    file: &str,
+) -> Result<Vec<Vec<u32>>> {
+    let connectivity = named_array(section, "connectivity")
+        .ok_or_else(|| error(file, format!("{what}: no connectivity array")))?;
+    let offsets = named_array(section, "offsets")
+        .ok_or_else(|| error(file, format!("{what}: no offsets array")))?;
+    let connectivity = read_array(connectivity, header_u64, file)?;
+    let offsets = read_array(offsets, header_u64, file)?;
+    let mut out = Vec::with_capacity(offsets.len());
+    let mut begin = 0usize;
+    for (c, &end) in offsets.iter().enumerate() {
+        if end.fract() != 0.0 || end < begin as f64 || end > connectivity.len() as f64 {
+            return Err(error(file, format!("{what}: offset {c} = {end} is out of range")));
+        }
+        let end = end as usize;
+        let mut cell = Vec::with_capacity(end - begin);
+        for &i in &connectivity[begin..end] {
+            if i.fract() != 0.0 || i < 0.0 || i >= points as f64 {
+                return Err(error(file, format!("{what}: cell {c} refers to point {i} of {points}")));
+            }
+            cell.push(i as u32);
+        }
+        out.push(cell);
+        begin = end;
+    }
+    Ok(out)
+}
+
+/// Parses a PolyData document whose coordinates are in `unit`.
+pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
+    let text = utf8(bytes, file)?;
+    let doc = roxmltree::Document::parse(text).map_err(|e| AnatomyError::Parse {
+        file: file.to_owned(),
+        line: Some(e.pos().row as usize),
+        message: format!("not well-formed XML: {e}"),
+    })?;
+    let root = doc.root_element();
+    if !root.has_tag_name("VTKFile") || root.attribute("type") != Some("PolyData") {
+        return Err(error(file, "not a VTKFile of type PolyData"));
+    }
+    if let Some(c) = root.attribute("compressor") {
+        return Err(error(file, format!("compressed data ({c}) is not supported; save uncompressed")));
+    }
+    let header_u64 = root.attribute("header_type") == Some("UInt64");
+    let piece = child(root, "PolyData")
+        .and_then(|p| child(p, "Piece"))
+        .ok_or_else(|| error(file, "no PolyData/Piece element"))?;
+    let points_node = child(piece, "Points")
+        .and_then(|p| child(p, "DataArray"))
+        .ok_or_else(|| error(file, "no Points/DataArray"))?;
+    let flat = read_array(points_node, header_u64, file)?;
+    if flat.len() % 3 != 0 || flat.is_empty() {
+        return Err(AnatomyError::Empty {
+            file: file.to_owned(),
+            message: format!("{} point coordinates (need a positive multiple of 3)", flat.len()),
+        });
+    }
+    let points: Vec<Point3<f64>> = flat
+        .chunks_exact(3)
+        .map(|c| Point3::new(c[0], c[1], c[2]) * unit.metres())
+        .collect();
+    let (lo, hi) = points
+        .iter()
+        .fold((points[0], points[0]), |(lo, hi), p| (lo.inf(p), hi.sup(p)));
+    check_plausible_extent(file, unit, (hi - lo).amax())?;
+    let mut data = PolyData::default();
+    if let Some(polys) = child(piece, "Polys") {
+        let mut triangles = Vec::new();
+        for (c, cell) in cells(polys, header_u64, points.len(), "Polys", file)?.iter().enumerate() {
+            if cell.len() < 3 {
+                return Err(error(file, format!("Polys: polygon {c} has {} points", cell.len())));
+            }
+            for k in 1..cell.len() - 1 {
+                triangles.push([cell[0], cell[k], cell[k + 1]]);
+            }
+        }
+        if !triangles.is_empty() {
+            data.surface = Some(TriangleMesh::new(points.clone(), triangles, file)?);
+        }
+    }
+    if let Some(lines) = child(piece, "Lines") {
+        let radius = child(piece, "PointData").and_then(|pd| {
+            RADIUS_ARRAY_NAMES.iter().find_map(|name| named_array(pd, name))
+        });
+        let radius = match radius {
+            Some(node) => {
+                let values = read_array(node, header_u64, file)?;
+                if values.len() != points.len() {
+                    return Err(error(file, format!("radius array has {} values for {} points", values.len(), points.len())));
+                }
+                if let Some(v) = values.iter().find(|v| **v <= 0.0) {
+                    return Err(error(file, format!("radius {v} is not positive")));
+                }
+                values.iter().map(|r| r * unit.metres()).collect()
+            }
+            None => Vec::new(),
+        };
+        for (c, cell) in cells(lines, header_u64, points.len(), "Lines", file)?.iter().enumerate() {
+            if cell.len() < 2 {
+                return Err(error(file, format!("Lines: line {c} has {} points", cell.len())));
+            }
+            data.lines.push(Centerline {
+                name: format!("line_{c}"),
+                points: cell.iter().map(|&i| points[i as usize]).collect(),
+                radii: if radius.is_empty() {
+                    Vec::new()
+                } else {
+                    cell.iter().map(|&i| radius[i as usize]).collect()
+                },
+            });
+        }
+    }
+    if data.surface.is_none() && data.lines.is_empty() {
+        return Err(AnatomyError::Empty {
+            file: file.to_owned(),
+            message: "no polygons and no lines".into(),
+        });
+    }
+    Ok(data)
+}
+
+/// Loads a `.vtp` file whose coordinates are in `unit`.
+pub fn load(path: &Path, unit: LengthUnit) -> Result<PolyData> {
+    parse(&read_bytes(path)?, unit, &path.display().to_string())
+}

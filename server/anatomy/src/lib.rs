@@ -1,0 +1,18 @@
+//! Vascular anatomy for cathlab: the vessel graph, procedural and analytic phantoms, import
+//! and export of real anatomy, watertight lumen surfaces and fast lumen (wall) queries.
+//!
+//! Units: metres throughout; coordinates in the patient LPS frame (x to the patient's left,
+//! y posterior, z superior), as 3D Slicer and DICOM use. Files in millimetres are converted on
+//! import.
+
+pub mod error;
+pub mod glam_conv;
+pub mod graph;
+pub mod io;
+pub mod lumen;
+pub mod mesh;
+
+pub use error::{AnatomyError, Result};
+pub use graph::{Branch, BranchSpec, GraphLocation, Side, VesselGraph, VesselKind, VesselPath};
+pub use lumen::{Lumen, WallQuery};
+pub use mesh::{MeshTopology, TriangleMesh};

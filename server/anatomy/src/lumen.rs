@@ -1,0 +1,507 @@
+//! Lumen (vessel wall) queries for contact: signed distance, closest wall point and outward
+//! normal for points and capsules, over a closed triangle surface.
+//!
+//! Two exact backends answer the same queries: parry's BVH over the triangles, and a
+//! narrow-band cell grid that lists, per cell, every triangle that can be closest to a point in
+//! that cell (falling back to the BVH away from the wall). The grid is the default: see the
+//! `lumen` benchmark for both.
+
+use nalgebra::{Point3, Vector3};
+use parry3d_f64::query::{PointQuery, PointQueryWithLocation};
+use parry3d_f64::shape::{TriMesh, TriMeshFlags};
+
+use crate::error::{AnatomyError, Result};
+use crate::glam_conv::{to_glam, to_point};
+use crate::mesh::TriangleMesh;
+
+/// The answer to a wall query.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WallQuery {
+    /// Signed distance to the wall (m): negative inside the lumen, positive outside.
+    pub signed_distance: f64,
+    /// Closest point on the wall (m).
+    pub closest_wall_point: Point3<f64>,
+    /// Unit normal at the closest point, pointing out of the lumen (interpolated from vertex
+    /// normals, so it varies smoothly over the faceted surface).
+    pub outward_normal: Vector3<f64>,
+    /// Index of the triangle holding the closest point.
+    pub triangle: u32,
+}
+
+impl WallQuery {
+    /// True when the query point is inside the lumen.
+    pub fn inside(&self) -> bool {
+        self.signed_distance < 0.0
+    }
+}
+
+/// A closed lumen surface prepared for queries.
+pub struct Lumen {
+    mesh: TriangleMesh,
+    /// Angle-weighted vertex normals: interpolation weights and vertex pseudo-normals.
+    normals: Vec<Vector3<f64>>,
+    /// Unit face normals.
+    face_normals: Vec<Vector3<f64>>,
+    /// Triangle corners stored contiguously for the candidate loop.
+    corners: Vec<[Point3<f64>; 3]>,
+    /// Edge pseudo-normals (sum of the two adjacent unit face normals), per triangle edge.
+    edge_normals: Vec<[Vector3<f64>; 3]>,
+    trimesh: TriMesh,
+    grid: CellGrid,
+}
+
+/// How the narrow-band grid is laid out.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GridSettings {
+    /// Cell edge (m); `None` picks a quarter of the median triangle edge, kept between 0.1 and
+    /// 2 mm.
+    pub cell_size: Option<f64>,
+    /// Cells whose centre is within this distance of the wall (m) keep a candidate list; the
+    /// rest answer through the BVH (or as "far" for [`Lumen::proximity`]).
+    pub band: f64,
+}
+
+impl Default for GridSettings {
+    fn default() -> Self {
+        Self {
+            cell_size: None,
+            band: 3e-3,
+        }
+    }
+}
+
+/// Whether the wall is near a point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Proximity {
+    /// The wall is within the asked distance: the full answer.
+    Near(WallQuery),
+    /// The wall is farther than the asked distance; `inside` says on which side the point is.
+    Far {
+        /// True inside the lumen.
+        inside: bool,
+    },
+}
+
+const BLOCK: usize = 8;
+const NO_BLOCK: u32 = u32::MAX;
+
+#[derive(Debug, Clone, Copy, Default)]
+struct CellEntry {
+    start: u32,
+    count: u32,
+    /// For cells without candidates: a lower bound on the distance to the wall (m), negative
+    /// inside; NaN when unknown.
+    far_bound: f32,
+}
+
+#[derive(Debug, Default)]
+struct CellGrid {
+    origin: Point3<f64>,
+    inverse_cell: f64,
+    blocks: [usize; 3],
+    block_of: Vec<u32>,
+    cells: Vec<CellEntry>,
+    candidates: Vec<u32>,
+}
+
+impl CellGrid {
+    #[inline]
+    fn entry(&self, p: &Point3<f64>) -> Option<&CellEntry> {
+        let f = (p - self.origin) * self.inverse_cell;
+        if !(f.x >= 0.0 && f.y >= 0.0 && f.z >= 0.0) {
+            return None;
+        }
+        let (i, j, k) = (f.x as usize, f.y as usize, f.z as usize);
+        let (bi, bj, bk) = (i / BLOCK, j / BLOCK, k / BLOCK);
+        if bi >= self.blocks[0] || bj >= self.blocks[1] || bk >= self.blocks[2] {
+            return None;
+        }
+        let block = self.block_of[(bk * self.blocks[1] + bj) * self.blocks[0] + bi];
+        if block == NO_BLOCK {
+            return None;
+        }
+        let local = ((k % BLOCK) * BLOCK + (j % BLOCK)) * BLOCK + (i % BLOCK);
+        self.cells.get(block as usize * BLOCK * BLOCK * BLOCK + local)
+    }
+}
+
+impl std::fmt::Debug for Lumen {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Lumen")
+            .field("vertices", &self.mesh.vertices.len())
+            .field("triangles", &self.mesh.triangles.len())
+            .finish()
+    }
+}
+
+impl Lumen {
+    /// Prepares `mesh`, which must be a closed, consistently oriented 2-manifold; a surface
+    /// whose faces all point into the lumen is flipped. `source` names it in errors.
+    pub fn new(mut mesh: TriangleMesh, source: &str) -> Result<Self> {
+        mesh.require_closed_manifold(source)?;
+        let volume = mesh.enclosed_volume();
+        if volume < 0.0 {
+            mesh.flip();
+        } else if volume == 0.0 {
+            return Err(AnatomyError::NotManifold {
+                file: source.to_owned(),
+                message: "encloses no volume".into(),
+            });
+        }
+        let vertices = mesh.vertices.iter().map(to_glam).collect();
+        let trimesh = TriMesh::with_flags(vertices, mesh.triangles.clone(), TriMeshFlags::ORIENTED)
+            .map_err(|e| AnatomyError::NotManifold {
+                file: source.to_owned(),
+                message: format!("parry rejected the surface: {e:?}"),
+            })?;
+        let normals = mesh.vertex_normals();
+        let face_normals: Vec<Vector3<f64>> = mesh
+            .triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = mesh.corners(t);
+                (b - a).cross(&(c - a)).try_normalize(0.0).unwrap_or_else(Vector3::zeros)
+            })
+            .collect();
+        let mut edge_faces: std::collections::HashMap<(u32, u32), Vec<usize>> =
+            std::collections::HashMap::with_capacity(mesh.triangles.len() * 2);
+        for (f, t) in mesh.triangles.iter().enumerate() {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                edge_faces.entry((a.min(b), a.max(b))).or_default().push(f);
+            }
+        }
+        let edge_normals = mesh
+            .triangles
+            .iter()
+            .map(|t| {
+                std::array::from_fn(|k| {
+                    let (a, b) = (t[k], t[(k + 1) % 3]);
+                    edge_faces[&(a.min(b), a.max(b))]
+                        .iter()
+                        .map(|&f| face_normals[f])
+                        .sum::<Vector3<f64>>()
+                })
+            })
+            .collect();
+        let corners = mesh.triangles.iter().map(|t| mesh.corners(t)).collect();
+        let mut lumen = Self {
+            mesh,
+            normals,
+            face_normals,
+            corners,
+            edge_normals,
+            trimesh,
+            grid: CellGrid::default(),
+        };
+        lumen.grid = lumen.build_grid(GridSettings::default())?;
+        Ok(lumen)
+    }
+
+    /// Rebuilds the narrow-band grid with other settings.
+    pub fn with_grid(mut self, settings: GridSettings) -> Result<Self> {
+        self.grid = self.build_grid(settings)?;
+        Ok(self)
+    }
+
+    fn build_grid(&self, settings: GridSettings) -> Result<CellGrid> {
+        let band = crate::error::require_positive("band", settings.band)?;
+        let cell = match settings.cell_size {
+            Some(c) => crate::error::require_positive("cell_size", c)?,
+            None => {
+                let mut edges: Vec<f64> = self
+                    .mesh
+                    .triangles
+                    .iter()
+                    .map(|t| {
+                        let [a, b, _] = self.mesh.corners(t);
+                        (b - a).norm()
+                    })
+                    .collect();
+                edges.sort_by(f64::total_cmp);
+                (0.25 * edges[edges.len() / 2]).clamp(1e-4, 2e-3)
+            }
+        };
+        let (lo, hi) = self.mesh.bounding_box();
+        let pad = Vector3::repeat(band + cell);
+        let origin = lo - pad;
+        let extent = (hi + pad) - origin;
+        let block_size = cell * BLOCK as f64;
+        let blocks = [
+            (extent.x / block_size).ceil() as usize,
+            (extent.y / block_size).ceil() as usize,
+            (extent.z / block_size).ceil() as usize,
+        ];
+        let total_blocks = blocks[0] * blocks[1] * blocks[2];
+        if total_blocks > 1 << 26 {
+            return Err(AnatomyError::InvalidParameter {
+                name: "cell_size",
+                value: cell,
+                requirement: "large enough that the grid has at most 2^26 blocks",
+            });
+        }
+        // Blocks touched by any triangle's box grown by the band.
+        let mut block_of = vec![NO_BLOCK; total_blocks];
+        let mut allocated = 0u32;
+        for t in &self.mesh.triangles {
+            let [a, b, c] = self.mesh.corners(t);
+            let tlo = a.inf(&b).inf(&c) - Vector3::repeat(band);
+            let thi = a.sup(&b).sup(&c) + Vector3::repeat(band);
+            let b0 = ((tlo - origin) / block_size).map(|v| v.max(0.0) as usize);
+            let b1 = ((thi - origin) / block_size).map(|v| v.max(0.0) as usize);
+            for bk in b0.z..=b1.z.min(blocks[2] - 1) {
+                for bj in b0.y..=b1.y.min(blocks[1] - 1) {
+                    for bi in b0.x..=b1.x.min(blocks[0] - 1) {
+                        let slot = &mut block_of[(bk * blocks[1] + bj) * blocks[0] + bi];
+                        if *slot == NO_BLOCK {
+                            *slot = allocated;
+                            allocated += 1;
+                        }
+                    }
+                }
+            }
+        }
+        let per_block = BLOCK * BLOCK * BLOCK;
+        let mut cells = vec![CellEntry::default(); allocated as usize * per_block];
+        let mut candidates = Vec::new();
+        let half_diagonal = 0.5 * cell * 3f64.sqrt();
+        for bk in 0..blocks[2] {
+            for bj in 0..blocks[1] {
+                for bi in 0..blocks[0] {
+                    let block = block_of[(bk * blocks[1] + bj) * blocks[0] + bi];
+                    if block == NO_BLOCK {
+                        continue;
+                    }
+                    for local in 0..per_block {
+                        let (i, j, k) = (local % BLOCK, (local / BLOCK) % BLOCK, local / (BLOCK * BLOCK));
+                        let center = origin
+                            + Vector3::new(
+                                (bi * BLOCK + i) as f64 + 0.5,
+                                (bj * BLOCK + j) as f64 + 0.5,
+                                (bk * BLOCK + k) as f64 + 0.5,
+                            ) * cell;
+                        let exact = self.query_bvh(&center);
+                        let d = exact.signed_distance.abs();
+                        let entry = &mut cells[block as usize * per_block + local];
+                        if d > band {
+                            entry.far_bound = ((d - half_diagonal).max(0.0) as f32)
+                                * if exact.inside() { -1.0 } else { 1.0 };
+                            continue;
+                        }
+                        let reach = d + 2.0 * half_diagonal;
+                        let g = to_glam(&center);
+                        entry.start = candidates.len() as u32;
+                        // Nearest first, so that the query's plane test culls the rest early.
+                        let mut near: Vec<(f64, u32)> = self
+                            .trimesh
+                            .bvh()
+                            .leaves(|node| node.aabb().distance_to_local_point(g, true) <= reach)
+                            .filter_map(|leaf| {
+                                let [a, b, c] = self.corners[leaf as usize];
+                                let (q, _, _) = closest_on_triangle(&center, &a, &b, &c);
+                                let d = (center - q).norm();
+                                (d <= reach).then_some((d, leaf))
+                            })
+                            .collect();
+                        near.sort_by(|x, y| x.0.total_cmp(&y.0));
+                        candidates.extend(near.iter().map(|&(_, leaf)| leaf));
+                        entry.count = candidates.len() as u32 - entry.start;
+                    }
+                }
+            }
+        }
+        Ok(CellGrid {
+            origin,
+            inverse_cell: 1.0 / cell,
+            blocks,
+            block_of,
+            cells,
+            candidates,
+        })
+    }
+
+    /// Number of candidate triangles the grid holds for `point`'s cell (`None`: the query
+    /// falls back to the BVH there).
+    pub fn grid_candidates(&self, point: &Point3<f64>) -> Option<usize> {
+        self.grid.entry(point).filter(|e| e.count > 0).map(|e| e.count as usize)
+    }
+
+    /// Memory held by the narrow-band grid (bytes).
+    pub fn grid_bytes(&self) -> usize {
+        self.grid.block_of.len() * 4
+            + self.grid.cells.len() * std::mem::size_of::<CellEntry>()
+            + self.grid.candidates.len() * 4
+    }
+
+    /// Exact wall query for a point: the grid's candidate triangles near the wall, the BVH
+    /// elsewhere.
+    #[inline]
+    pub fn query(&self, point: &Point3<f64>) -> WallQuery {
+        match self.grid.entry(point) {
+            Some(e) if e.count > 0 => {
+                let list = &self.grid.candidates[e.start as usize..(e.start + e.count) as usize];
+                self.query_candidates(point, list)
+            }
+            _ => self.query_bvh(point),
+        }
+    }
+
+    /// The wall query if the wall is within `max_distance` (m) of `point`, else which side
+    /// of the wall the point is on. Cheaper than [`Lumen::query`] far from the wall.
+    #[inline]
+    pub fn proximity(&self, point: &Point3<f64>, max_distance: f64) -> Proximity {
+        if let Some(e) = self.grid.entry(point) {
+            if e.count == 0 && f64::from(e.far_bound.abs()) > max_distance {
+                return Proximity::Far {
+                    inside: e.far_bound < 0.0,
+                };
+            }
+        }
+        let q = self.query(point);
+        if q.signed_distance.abs() <= max_distance {
+            Proximity::Near(q)
+        } else {
+            Proximity::Far { inside: q.inside() }
+        }
+    }
+
+    fn query_candidates(&self, point: &Point3<f64>, list: &[u32]) -> WallQuery {
+        let mut best = (f64::INFINITY, Point3::origin(), [0.0; 3], Feature::Face, 0u32);
+        for &t in list {
+            let [a, b, c] = &self.corners[t as usize];
+            // The distance to the triangle's plane bounds the distance to the triangle.
+            let plane = (point - a).dot(&self.face_normals[t as usize]);
+            if plane * plane >= best.0 {
+                continue;
+            }
+            let (q, bary, feature) = closest_on_triangle(point, a, b, c);
+            let d2 = (point - q).norm_squared();
+            if d2 < best.0 {
+                best = (d2, q, bary, feature, t);
+            }
+        }
+        let (d2, closest, bary, feature, t) = best;
+        let tri = self.mesh.triangles[t as usize];
+        let pseudo = match feature {
+            Feature::Face => self.face_normals[t as usize],
+            Feature::Edge(k) => self.edge_normals[t as usize][k as usize],
+            Feature::Vertex(k) => self.normals[tri[k as usize] as usize],
+        };
+        let inside = (point - closest).dot(&pseudo) <= 0.0;
+        let n = self.normals[tri[0] as usize] * bary[0]
+            + self.normals[tri[1] as usize] * bary[1]
+            + self.normals[tri[2] as usize] * bary[2];
+        let distance = d2.sqrt();
+        WallQuery {
+            signed_distance: if inside { -distance } else { distance },
+            closest_wall_point: closest,
+            outward_normal: n
+                .try_normalize(0.0)
+                .unwrap_or(self.face_normals[t as usize]),
+            triangle: t,
+        }
+    }
+
+    /// The surface.
+    pub fn mesh(&self) -> &TriangleMesh {
+        &self.mesh
+    }
+
+    /// Wall query for a point through parry's BVH.
+    pub fn query_bvh(&self, point: &Point3<f64>) -> WallQuery {
+        let (projection, (triangle, _)) = self
+            .trimesh
+            .project_local_point_and_get_location(to_glam(point), false);
+        let closest = to_point(projection.point);
+        let distance = (point - closest).norm();
+        WallQuery {
+            signed_distance: if projection.is_inside { -distance } else { distance },
+            closest_wall_point: closest,
+            outward_normal: self.interpolated_normal(triangle, &closest),
+            triangle,
+        }
+    }
+
+    /// Unit normal at `point` (on triangle `triangle`) interpolated from the vertex normals.
+    fn interpolated_normal(&self, triangle: u32, point: &Point3<f64>) -> Vector3<f64> {
+        let t = self.mesh.triangles[triangle as usize];
+        let [a, b, c] = self.mesh.corners(&t);
+        let (v0, v1, v2) = (b - a, c - a, point - a);
+        let (d00, d01, d11) = (v0.dot(&v0), v0.dot(&v1), v1.dot(&v1));
+        let (d20, d21) = (v2.dot(&v0), v2.dot(&v1));
+        let denom = d00 * d11 - d01 * d01;
+        let face = v0.cross(&v1);
+        if denom <= 0.0 {
+            return face.try_normalize(0.0).unwrap_or_else(Vector3::z);
+        }
+        let v = ((d11 * d20 - d01 * d21) / denom).clamp(0.0, 1.0);
+        let w = ((d00 * d21 - d01 * d20) / denom).clamp(0.0, 1.0 - v);
+        let u = 1.0 - v - w;
+        let n = self.normals[t[0] as usize] * u
+            + self.normals[t[1] as usize] * v
+            + self.normals[t[2] as usize] * w;
+        n.try_normalize(0.0)
+            .or_else(|| face.try_normalize(0.0))
+            .unwrap_or_else(Vector3::z)
+    }
+}
+
+/// Which feature of a triangle a closest point lies on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Feature {
+    /// Interior of the face.
+    Face,
+    /// Edge k runs from corner k to corner (k+1) mod 3.
+    Edge(u8),
+    /// Corner k.
+    Vertex(u8),
+}
+
+/// Closest point on triangle (a, b, c) to p with its barycentric coordinates and feature
+/// (Ericson, *Real-Time Collision Detection*, §5.1.5).
+pub(crate) fn closest_on_triangle(
+    p: &Point3<f64>,
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    c: &Point3<f64>,
+) -> (Point3<f64>, [f64; 3], Feature) {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = ab.dot(&ap);
+    let d2 = ac.dot(&ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return (*a, [1.0, 0.0, 0.0], Feature::Vertex(0));
+    }
+    let bp = p - b;
+    let d3 = ab.dot(&bp);
+    let d4 = ac.dot(&bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return (*b, [0.0, 1.0, 0.0], Feature::Vertex(1));
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return (a + ab * v, [1.0 - v, v, 0.0], Feature::Edge(0));
+    }
+    let cp = p - c;
+    let d5 = ab.dot(&cp);
+    let d6 = ac.dot(&cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return (*c, [0.0, 0.0, 1.0], Feature::Vertex(2));
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return (a + ac * w, [1.0 - w, 0.0, w], Feature::Edge(2));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return (b + (c - b) * w, [0.0, 1.0 - w, w], Feature::Edge(1));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    let v = vb * denom;
+    let w = vc * denom;
+    (a + ab * v + ac * w, [1.0 - v - w, v, w], Feature::Face)
+}
