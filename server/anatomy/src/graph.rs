@@ -118,7 +118,14 @@ impl Branch {
             Err(i) => i.saturating_sub(1).min(self.points.len() - 2),
         };
         let len = self.arc[i + 1] - self.arc[i];
-        (i, if len > 0.0 { (s - self.arc[i]) / len } else { 0.0 })
+        (
+            i,
+            if len > 0.0 {
+                (s - self.arc[i]) / len
+            } else {
+                0.0
+            },
+        )
     }
 
     /// Centerline point at arc length `s` (m), linearly interpolated.
@@ -226,7 +233,9 @@ impl VesselGraph {
             radii,
         } = spec;
         if self.branches.iter().any(|b| b.name == name) {
-            return Err(AnatomyError::InvalidGraph(format!("two branches named {name:?}")));
+            return Err(AnatomyError::InvalidGraph(format!(
+                "two branches named {name:?}"
+            )));
         }
         if points.len() < 2 {
             return Err(AnatomyError::InvalidGraph(format!(
@@ -241,7 +250,10 @@ impl VesselGraph {
                 radii.len()
             )));
         }
-        if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
+        if let Some(i) = points
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
             return Err(AnatomyError::InvalidGraph(format!(
                 "branch {name:?} point {i} is not finite"
             )));
@@ -311,7 +323,8 @@ impl VesselGraph {
             }
             let (first, last) = (b.points.first().copied(), b.points.last().copied());
             for (node, point, which) in [(b.start, first, "start"), (b.end, last, "end")] {
-                if point.is_some_and(|p| (nodes[node] - p).norm() > 1e-6 * (1.0 + p.coords.norm())) {
+                if point.is_some_and(|p| (nodes[node] - p).norm() > 1e-6 * (1.0 + p.coords.norm()))
+                {
                     return Err(AnatomyError::InvalidGraph(format!(
                         "branch {:?}: its {which} node {node} is not at its {which} point",
                         b.name
@@ -350,7 +363,11 @@ impl VesselGraph {
     /// Number of independent cycles (edges − nodes + connected components).
     pub fn cycle_rank(&self) -> usize {
         let used: Vec<NodeId> = {
-            let mut u: Vec<_> = self.branches.iter().flat_map(|b| [b.start, b.end]).collect();
+            let mut u: Vec<_> = self
+                .branches
+                .iter()
+                .flat_map(|b| [b.start, b.end])
+                .collect();
             u.sort_unstable();
             u.dedup();
             u
@@ -417,7 +434,10 @@ impl VesselGraph {
             to: target.to_owned(),
         })?;
         let describe = || AnatomyError::NoPath {
-            from: format!("{} at {:.4} m", self.branches[start.branch].name, start.arc_length),
+            from: format!(
+                "{} at {:.4} m",
+                self.branches[start.branch].name, start.arc_length
+            ),
             to: target.to_owned(),
         };
         let target_branch = &self.branches[target_id];
@@ -439,7 +459,10 @@ impl VesselGraph {
         let mut via: Vec<Option<(BranchId, NodeId)>> = vec![None; n];
         let mut heap = BinaryHeap::new();
         let sb = &self.branches[start.branch];
-        for (node, d) in [(sb.start, start.arc_length), (sb.end, sb.length() - start.arc_length)] {
+        for (node, d) in [
+            (sb.start, start.arc_length),
+            (sb.end, sb.length() - start.arc_length),
+        ] {
             if d < dist[node] {
                 dist[node] = d;
                 heap.push(QueueEntry { cost: -d, node });
@@ -461,7 +484,10 @@ impl VesselGraph {
                 if d < dist[other] {
                     dist[other] = d;
                     via[other] = Some((id, node));
-                    heap.push(QueueEntry { cost: -d, node: other });
+                    heap.push(QueueEntry {
+                        cost: -d,
+                        node: other,
+                    });
                 }
             }
         }

@@ -5,12 +5,17 @@
 //! y posterior, z superior), as 3D Slicer and DICOM use. Files in millimetres are converted on
 //! import.
 
+pub mod centerline;
 pub mod error;
 pub mod glam_conv;
 pub mod graph;
+pub mod implicit;
 pub mod io;
 pub mod lumen;
 pub mod mesh;
+pub mod phantom;
+pub mod real;
+pub mod surface;
 
 pub use error::{AnatomyError, Result};
 pub use graph::{Branch, BranchSpec, GraphLocation, Side, VesselGraph, VesselKind, VesselPath};

@@ -38,10 +38,14 @@ impl WallQuery {
 /// A closed lumen surface prepared for queries.
 pub struct Lumen {
     mesh: TriangleMesh,
-    /// Angle-weighted vertex normals: interpolation weights and vertex pseudo-normals.
+    /// Vertex normals for interpolation (known normals if the mesh carries them).
     normals: Vec<Vector3<f64>>,
+    /// Angle-weighted vertex pseudo-normals, for the inside test at vertices.
+    pseudo_normals: Vec<Vector3<f64>>,
     /// Unit face normals.
     face_normals: Vec<Vector3<f64>>,
+    /// Neighbouring triangle across edge k (corner k to corner k+1) of each triangle.
+    neighbours: Vec<[u32; 3]>,
     /// Triangle corners stored contiguously for the candidate loop.
     corners: Vec<[Point3<f64>; 3]>,
     /// Edge pseudo-normals (sum of the two adjacent unit face normals), per triangle edge.
@@ -121,7 +125,8 @@ impl CellGrid {
             return None;
         }
         let local = ((k % BLOCK) * BLOCK + (j % BLOCK)) * BLOCK + (i % BLOCK);
-        self.cells.get(block as usize * BLOCK * BLOCK * BLOCK + local)
+        self.cells
+            .get(block as usize * BLOCK * BLOCK * BLOCK + local)
     }
 }
 
@@ -154,13 +159,18 @@ impl Lumen {
                 file: source.to_owned(),
                 message: format!("parry rejected the surface: {e:?}"),
             })?;
-        let normals = mesh.vertex_normals();
+        // Interpolation uses the best normals known; the sign test needs true pseudo-normals.
+        let normals = mesh.best_vertex_normals();
+        let pseudo_normals = mesh.vertex_normals();
         let face_normals: Vec<Vector3<f64>> = mesh
             .triangles
             .iter()
             .map(|t| {
                 let [a, b, c] = mesh.corners(t);
-                (b - a).cross(&(c - a)).try_normalize(0.0).unwrap_or_else(Vector3::zeros)
+                (b - a)
+                    .cross(&(c - a))
+                    .try_normalize(0.0)
+                    .unwrap_or_else(Vector3::zeros)
             })
             .collect();
         let mut edge_faces: std::collections::HashMap<(u32, u32), Vec<usize>> =
@@ -185,10 +195,26 @@ impl Lumen {
             })
             .collect();
         let corners = mesh.triangles.iter().map(|t| mesh.corners(t)).collect();
+        let neighbours = mesh
+            .triangles
+            .iter()
+            .enumerate()
+            .map(|(f, t)| {
+                std::array::from_fn(|k| {
+                    let (a, b) = (t[k], t[(k + 1) % 3]);
+                    edge_faces[&(a.min(b), a.max(b))]
+                        .iter()
+                        .find(|&&g| g != f)
+                        .map_or(u32::MAX, |&g| g as u32)
+                })
+            })
+            .collect();
         let mut lumen = Self {
             mesh,
             normals,
+            pseudo_normals,
             face_normals,
+            neighbours,
             corners,
             edge_normals,
             trimesh,
@@ -273,7 +299,11 @@ impl Lumen {
                         continue;
                     }
                     for local in 0..per_block {
-                        let (i, j, k) = (local % BLOCK, (local / BLOCK) % BLOCK, local / (BLOCK * BLOCK));
+                        let (i, j, k) = (
+                            local % BLOCK,
+                            (local / BLOCK) % BLOCK,
+                            local / (BLOCK * BLOCK),
+                        );
                         let center = origin
                             + Vector3::new(
                                 (bi * BLOCK + i) as f64 + 0.5,
@@ -323,7 +353,10 @@ impl Lumen {
     /// Number of candidate triangles the grid holds for `point`'s cell (`None`: the query
     /// falls back to the BVH there).
     pub fn grid_candidates(&self, point: &Point3<f64>) -> Option<usize> {
-        self.grid.entry(point).filter(|e| e.count > 0).map(|e| e.count as usize)
+        self.grid
+            .entry(point)
+            .filter(|e| e.count > 0)
+            .map(|e| e.count as usize)
     }
 
     /// Memory held by the narrow-band grid (bytes).
@@ -366,7 +399,13 @@ impl Lumen {
     }
 
     fn query_candidates(&self, point: &Point3<f64>, list: &[u32]) -> WallQuery {
-        let mut best = (f64::INFINITY, Point3::origin(), [0.0; 3], Feature::Face, 0u32);
+        let mut best = (
+            f64::INFINITY,
+            Point3::origin(),
+            [0.0; 3],
+            Feature::Face,
+            0u32,
+        );
         for &t in list {
             let [a, b, c] = &self.corners[t as usize];
             // The distance to the triangle's plane bounds the distance to the triangle.
@@ -385,19 +424,15 @@ impl Lumen {
         let pseudo = match feature {
             Feature::Face => self.face_normals[t as usize],
             Feature::Edge(k) => self.edge_normals[t as usize][k as usize],
-            Feature::Vertex(k) => self.normals[tri[k as usize] as usize],
+            Feature::Vertex(k) => self.pseudo_normals[tri[k as usize] as usize],
         };
         let inside = (point - closest).dot(&pseudo) <= 0.0;
-        let n = self.normals[tri[0] as usize] * bary[0]
-            + self.normals[tri[1] as usize] * bary[1]
-            + self.normals[tri[2] as usize] * bary[2];
+        let _ = bary;
         let distance = d2.sqrt();
         WallQuery {
             signed_distance: if inside { -distance } else { distance },
             closest_wall_point: closest,
-            outward_normal: n
-                .try_normalize(0.0)
-                .unwrap_or(self.face_normals[t as usize]),
+            outward_normal: self.smooth_normal(t, point, &closest),
             triangle: t,
         }
     }
@@ -415,34 +450,78 @@ impl Lumen {
         let closest = to_point(projection.point);
         let distance = (point - closest).norm();
         WallQuery {
-            signed_distance: if projection.is_inside { -distance } else { distance },
+            signed_distance: if projection.is_inside {
+                -distance
+            } else {
+                distance
+            },
             closest_wall_point: closest,
-            outward_normal: self.interpolated_normal(triangle, &closest),
+            outward_normal: self.smooth_normal(triangle, point, &closest),
             triangle,
         }
     }
 
-    /// Unit normal at `point` (on triangle `triangle`) interpolated from the vertex normals.
-    fn interpolated_normal(&self, triangle: u32, point: &Point3<f64>) -> Vector3<f64> {
-        let t = self.mesh.triangles[triangle as usize];
-        let [a, b, c] = self.mesh.corners(&t);
-        let (v0, v1, v2) = (b - a, c - a, point - a);
-        let (d00, d01, d11) = (v0.dot(&v0), v0.dot(&v1), v1.dot(&v1));
-        let (d20, d21) = (v2.dot(&v0), v2.dot(&v1));
-        let denom = d00 * d11 - d01 * d01;
-        let face = v0.cross(&v1);
-        if denom <= 0.0 {
-            return face.try_normalize(0.0).unwrap_or_else(Vector3::z);
+    /// Unit outward normal for a query at `point` whose closest wall point lies on
+    /// `triangle`: the vertex normals interpolated at the spot of the wall whose interpolated
+    /// normal passes through `point` (Phong projection: fixed-point steps that walk across
+    /// triangle edges), so the normal follows the smooth wall rather than the facets.
+    fn smooth_normal(
+        &self,
+        triangle: u32,
+        point: &Point3<f64>,
+        closest: &Point3<f64>,
+    ) -> Vector3<f64> {
+        let mut tri = triangle as usize;
+        let mut x = *closest;
+        let mut normal = self.face_normals[tri];
+        for _ in 0..12 {
+            let t = self.mesh.triangles[tri];
+            let [a, b, c] = self.corners[tri];
+            let face = self.face_normals[tri];
+            let (v0, v1, v2) = (b - a, c - a, x - a);
+            let (d00, d01, d11) = (v0.dot(&v0), v0.dot(&v1), v1.dot(&v1));
+            let denom = d00 * d11 - d01 * d01;
+            if denom <= 0.0 || face == Vector3::zeros() {
+                break;
+            }
+            let (d20, d21) = (v2.dot(&v0), v2.dot(&v1));
+            let v = (d11 * d20 - d01 * d21) / denom;
+            let w = (d00 * d21 - d01 * d20) / denom;
+            let bary = [1.0 - v - w, v, w];
+            // Outside this triangle: step across the edge facing the most negative weight.
+            let (worst, most_negative) =
+                bary.iter().enumerate().fold(
+                    (0, 0.0),
+                    |acc, (k, &b)| if b < acc.1 { (k, b) } else { acc },
+                );
+            if most_negative < -1e-9 {
+                let edge = (worst + 1) % 3;
+                let next = self.neighbours[tri][edge];
+                if next == u32::MAX {
+                    break;
+                }
+                tri = next as usize;
+                continue;
+            }
+            let interpolated = self.normals[t[0] as usize] * bary[0]
+                + self.normals[t[1] as usize] * bary[1]
+                + self.normals[t[2] as usize] * bary[2];
+            let Some(n) = interpolated.try_normalize(0.0) else {
+                break;
+            };
+            normal = n;
+            let along = n.dot(&face);
+            if along.abs() < 0.5 {
+                break;
+            }
+            // Where the line through `point` along n meets this triangle's plane.
+            let foot = point - n * ((point - a).dot(&face) / along);
+            if (foot - x).norm_squared() < 1e-24 {
+                break;
+            }
+            x = foot;
         }
-        let v = ((d11 * d20 - d01 * d21) / denom).clamp(0.0, 1.0);
-        let w = ((d00 * d21 - d01 * d20) / denom).clamp(0.0, 1.0 - v);
-        let u = 1.0 - v - w;
-        let n = self.normals[t[0] as usize] * u
-            + self.normals[t[1] as usize] * v
-            + self.normals[t[2] as usize] * w;
-        n.try_normalize(0.0)
-            .or_else(|| face.try_normalize(0.0))
-            .unwrap_or_else(Vector3::z)
+        normal
     }
 }
 

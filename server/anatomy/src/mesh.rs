@@ -14,6 +14,9 @@ pub struct TriangleMesh {
     pub vertices: Vec<Point3<f64>>,
     /// Triangles as indices into `vertices`.
     pub triangles: Vec<[u32; 3]>,
+    /// Known unit outward normals per vertex (for example the implicit surface's gradient);
+    /// empty when unknown, in which case angle-weighted normals are used.
+    pub normals: Vec<Vector3<f64>>,
 }
 
 /// What a topology check found.
@@ -62,7 +65,10 @@ impl MeshTopology {
 impl TriangleMesh {
     /// Builds a mesh, checking that every index is in range and every coordinate finite.
     pub fn new(vertices: Vec<Point3<f64>>, triangles: Vec<[u32; 3]>, source: &str) -> Result<Self> {
-        if let Some(i) = vertices.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
+        if let Some(i) = vertices
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
             return Err(AnatomyError::Parse {
                 file: source.to_owned(),
                 line: None,
@@ -78,7 +84,9 @@ impl TriangleMesh {
             return Err(AnatomyError::Parse {
                 file: source.to_owned(),
                 line: None,
-                message: format!("triangle {t} refers to vertex {tri:?} but there are {n} vertices"),
+                message: format!(
+                    "triangle {t} refers to vertex {tri:?} but there are {n} vertices"
+                ),
             });
         }
         if triangles.is_empty() {
@@ -90,13 +98,15 @@ impl TriangleMesh {
         Ok(Self {
             vertices,
             triangles,
+            normals: Vec::new(),
         })
     }
 
     /// Edge, orientation, vertex-fan and component analysis.
     pub fn topology(&self) -> MeshTopology {
         // Undirected edge -> (uses, uses in the a<b direction).
-        let mut edges: HashMap<(u32, u32), (u32, u32)> = HashMap::with_capacity(self.triangles.len() * 2);
+        let mut edges: HashMap<(u32, u32), (u32, u32)> =
+            HashMap::with_capacity(self.triangles.len() * 2);
         let mut degenerate = 0;
         let mut used = vec![false; self.vertices.len()];
         for t in &self.triangles {
@@ -159,7 +169,10 @@ impl TriangleMesh {
         for t in &self.triangles {
             for k in 0..3 {
                 used[t[k] as usize] = true;
-                let (a, b) = (find(&mut parent, t[k] as usize), find(&mut parent, t[(k + 1) % 3] as usize));
+                let (a, b) = (
+                    find(&mut parent, t[k] as usize),
+                    find(&mut parent, t[(k + 1) % 3] as usize),
+                );
                 if a != b {
                     parent[a] = b;
                 }
@@ -206,7 +219,9 @@ impl TriangleMesh {
                     parent[ra] = rb;
                 }
             }
-            let roots = (0..ids.len()).filter(|&i| find(&mut parent, i) == i).count();
+            let roots = (0..ids.len())
+                .filter(|&i| find(&mut parent, i) == i)
+                .count();
             if roots != 1 {
                 bad += 1;
             }
@@ -278,13 +293,24 @@ impl TriangleMesh {
         ]
     }
 
+    /// The known vertex normals if present, else the angle-weighted ones.
+    pub fn best_vertex_normals(&self) -> Vec<Vector3<f64>> {
+        if self.normals.len() == self.vertices.len() {
+            self.normals.clone()
+        } else {
+            self.vertex_normals()
+        }
+    }
+
     /// Angle-weighted vertex normals (unit, outward); zero for unused vertices.
     pub fn vertex_normals(&self) -> Vec<Vector3<f64>> {
         let mut normals = vec![Vector3::zeros(); self.vertices.len()];
         for t in &self.triangles {
             let p = self.corners(t);
             let n = (p[1] - p[0]).cross(&(p[2] - p[0]));
-            let Some(n) = n.try_normalize(0.0) else { continue };
+            let Some(n) = n.try_normalize(0.0) else {
+                continue;
+            };
             for k in 0..3 {
                 let u = p[(k + 1) % 3] - p[k];
                 let v = p[(k + 2) % 3] - p[k];
@@ -309,6 +335,9 @@ impl TriangleMesh {
     pub fn flip(&mut self) {
         for t in &mut self.triangles {
             t.swap(1, 2);
+        }
+        for n in &mut self.normals {
+            *n = -*n;
         }
     }
 }

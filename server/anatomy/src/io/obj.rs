@@ -61,7 +61,10 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<TriangleMesh>
                     return Err(AnatomyError::Parse {
                         file: file.to_owned(),
                         line,
-                        message: format!("face with {} vertices (at least 3 needed)", corners.len()),
+                        message: format!(
+                            "face with {} vertices (at least 3 needed)",
+                            corners.len()
+                        ),
                     });
                 }
                 for k in 1..corners.len() - 1 {

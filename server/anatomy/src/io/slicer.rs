@@ -56,7 +56,11 @@ pub fn parse(bytes: &[u8], default_name: &str, file: &str) -> Result<Vec<Centerl
                 });
             }
         };
-        let flip = match markup.get("coordinateSystem").and_then(Value::as_str).unwrap_or("LPS") {
+        let flip = match markup
+            .get("coordinateSystem")
+            .and_then(Value::as_str)
+            .unwrap_or("LPS")
+        {
             "LPS" => false,
             "RAS" => true,
             other => {
@@ -76,11 +80,16 @@ pub fn parse(bytes: &[u8], default_name: &str, file: &str) -> Result<Vec<Centerl
                 .get("position")
                 .and_then(Value::as_array)
                 .filter(|a| a.len() == 3)
-                .ok_or_else(|| parse_error(file, format!("markup {m} point {i}: no 3-element position")))?;
+                .ok_or_else(|| {
+                    parse_error(file, format!("markup {m} point {i}: no 3-element position"))
+                })?;
             let mut c = [0.0; 3];
             for (k, v) in position.iter().enumerate() {
                 c[k] = v.as_f64().filter(|x| x.is_finite()).ok_or_else(|| {
-                    parse_error(file, format!("markup {m} point {i}: coordinate {k} is {v}, not a finite number"))
+                    parse_error(
+                        file,
+                        format!("markup {m} point {i}: coordinate {k} is {v}, not a finite number"),
+                    )
                 })? * unit.metres();
             }
             if flip {
@@ -93,12 +102,16 @@ pub fn parse(bytes: &[u8], default_name: &str, file: &str) -> Result<Vec<Centerl
             .get("measurements")
             .and_then(Value::as_array)
             .and_then(|ms| {
-                ms.iter().find(|x| x.get("name").and_then(Value::as_str) == Some("Radius"))
+                ms.iter()
+                    .find(|x| x.get("name").and_then(Value::as_str) == Some("Radius"))
             })
             .and_then(|r| r.get("controlPointValues"))
             .and_then(Value::as_array)
             .ok_or_else(|| {
-                parse_error(file, format!("markup {m}: no \"Radius\" measurement with controlPointValues"))
+                parse_error(
+                    file,
+                    format!("markup {m}: no \"Radius\" measurement with controlPointValues"),
+                )
             })?;
         if radius_values.len() != points.len() {
             return Err(parse_error(
@@ -112,15 +125,24 @@ pub fn parse(bytes: &[u8], default_name: &str, file: &str) -> Result<Vec<Centerl
         }
         let mut radii = Vec::with_capacity(points.len());
         for (i, v) in radius_values.iter().enumerate() {
-            let r = v.as_f64().filter(|x| x.is_finite() && *x > 0.0).ok_or_else(|| {
-                parse_error(file, format!("markup {m}: radius {i} is {v}, not a positive number"))
-            })?;
+            let r = v
+                .as_f64()
+                .filter(|x| x.is_finite() && *x > 0.0)
+                .ok_or_else(|| {
+                    parse_error(
+                        file,
+                        format!("markup {m}: radius {i} is {v}, not a positive number"),
+                    )
+                })?;
             radii.push(r * unit.metres());
         }
         if points.len() < 2 {
             return Err(AnatomyError::Empty {
                 file: file.to_owned(),
-                message: format!("markup {m} has {} control points (a curve needs 2)", points.len()),
+                message: format!(
+                    "markup {m} has {} control points (a curve needs 2)",
+                    points.len()
+                ),
             });
         }
         let extent = points

@@ -65,7 +65,12 @@ fn parse_binary(bytes: &[u8], file: &str) -> Result<Vec<[f64; 3]>> {
             let mut c = [0.0; 3];
             for (axis, value) in c.iter_mut().enumerate() {
                 let at = 12 + 12 * k + 4 * axis;
-                let raw = f32::from_le_bytes([record[at], record[at + 1], record[at + 2], record[at + 3]]);
+                let raw = f32::from_le_bytes([
+                    record[at],
+                    record[at + 1],
+                    record[at + 2],
+                    record[at + 3],
+                ]);
                 if !raw.is_finite() {
                     return Err(AnatomyError::Parse {
                         file: file.to_owned(),
@@ -147,7 +152,10 @@ pub fn to_binary(mesh: &TriangleMesh, unit: LengthUnit) -> Vec<u8> {
     out.extend_from_slice(&(mesh.triangles.len() as u32).to_le_bytes());
     for t in &mesh.triangles {
         let p = mesh.corners(t);
-        let n = (p[1] - p[0]).cross(&(p[2] - p[0])).try_normalize(0.0).unwrap_or_default();
+        let n = (p[1] - p[0])
+            .cross(&(p[2] - p[0]))
+            .try_normalize(0.0)
+            .unwrap_or_default();
         for v in [n.x, n.y, n.z] {
             out.extend_from_slice(&(v as f32).to_le_bytes());
         }

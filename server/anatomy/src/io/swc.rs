@@ -33,7 +33,10 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<VesselGraph> 
             return Err(AnatomyError::Parse {
                 file: file.to_owned(),
                 line,
-                message: format!("{} fields (SWC needs id type x y z radius parent)", fields.len()),
+                message: format!(
+                    "{} fields (SWC needs id type x y z radius parent)",
+                    fields.len()
+                ),
             });
         }
         let int = |k: usize, what: &str| -> Result<i64> {
@@ -111,10 +114,11 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<VesselGraph> 
             });
         }
     }
-    let (lo, hi) = samples.iter().fold(
-        (samples[0].position, samples[0].position),
-        |(lo, hi), s| (lo.inf(&s.position), hi.sup(&s.position)),
-    );
+    let (lo, hi) = samples
+        .iter()
+        .fold((samples[0].position, samples[0].position), |(lo, hi), s| {
+            (lo.inf(&s.position), hi.sup(&s.position))
+        });
     check_plausible_extent(file, unit, (hi - lo).amax())?;
     let mut children: Vec<Vec<usize>> = vec![Vec::new(); samples.len()];
     for (i, s) in samples.iter().enumerate() {

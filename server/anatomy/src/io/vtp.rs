@@ -46,7 +46,9 @@ fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Re
                 t.parse::<f64>()
                     .ok()
                     .filter(|v| v.is_finite())
-                    .ok_or_else(|| error(file, format!("array {name}: {t:?} is not a finite number")))
+                    .ok_or_else(|| {
+                        error(file, format!("array {name}: {t:?} is not a finite number"))
+                    })
             })
             .collect(),
         "binary" => {
@@ -56,7 +58,10 @@ fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Re
                 .map_err(|e| error(file, format!("array {name}: bad base64: {e}")))?;
             let header = if header_u64 { 8 } else { 4 };
             if bytes.len() < header {
-                return Err(error(file, format!("array {name}: truncated binary header")));
+                return Err(error(
+                    file,
+                    format!("array {name}: truncated binary header"),
+                ));
             }
             let declared = if header_u64 {
                 u64::from_le_bytes(bytes[..8].try_into().unwrap_or([0; 8])) as usize
@@ -67,7 +72,10 @@ fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Re
             if declared > body.len() {
                 return Err(error(
                     file,
-                    format!("array {name}: truncated ({declared} bytes declared, {} present)", body.len()),
+                    format!(
+                        "array {name}: truncated ({declared} bytes declared, {} present)",
+                        body.len()
+                    ),
                 ));
             }
             let body = &body[..declared];
@@ -76,10 +84,21 @@ fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Re
                 "Float64" | "Int64" | "UInt64" => 8,
                 "Int8" | "UInt8" => 1,
                 "Int16" | "UInt16" => 2,
-                other => return Err(error(file, format!("array {name}: unsupported type {other}"))),
+                other => {
+                    return Err(error(
+                        file,
+                        format!("array {name}: unsupported type {other}"),
+                    ));
+                }
             };
             if body.len() % width != 0 {
-                return Err(error(file, format!("array {name}: {} bytes is not a whole number of {kind}", body.len())));
+                return Err(error(
+                    file,
+                    format!(
+                        "array {name}: {} bytes is not a whole number of {kind}",
+                        body.len()
+                    ),
+                ));
             }
             body.chunks_exact(width)
                 .map(|c| {
@@ -103,8 +122,14 @@ fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Re
                 })
                 .collect()
         }
-        "appended" => Err(error(file, format!("array {name}: appended data is not supported; save as ascii or inline binary"))),
-        other => Err(error(file, format!("array {name}: unknown format {other:?}"))),
+        "appended" => Err(error(
+            file,
+            format!("array {name}: appended data is not supported; save as ascii or inline binary"),
+        )),
+        other => Err(error(
+            file,
+            format!("array {name}: unknown format {other:?}"),
+        )),
     }
 }
 
@@ -112,7 +137,10 @@ fn child<'a, 'i>(node: roxmltree::Node<'a, 'i>, tag: &str) -> Option<roxmltree::
     node.children().find(|c| c.has_tag_name(tag))
 }
 
-fn named_array<'a, 'i>(node: roxmltree::Node<'a, 'i>, name: &str) -> Option<roxmltree::Node<'a, 'i>> {
+fn named_array<'a, 'i>(
+    node: roxmltree::Node<'a, 'i>,
+    name: &str,
+) -> Option<roxmltree::Node<'a, 'i>> {
     node.children()
         .find(|c| c.has_tag_name("DataArray") && c.attribute("Name") == Some(name))
 }
@@ -135,13 +163,19 @@ fn cells(
     let mut begin = 0usize;
     for (c, &end) in offsets.iter().enumerate() {
         if end.fract() != 0.0 || end < begin as f64 || end > connectivity.len() as f64 {
-            return Err(error(file, format!("{what}: offset {c} = {end} is out of range")));
+            return Err(error(
+                file,
+                format!("{what}: offset {c} = {end} is out of range"),
+            ));
         }
         let end = end as usize;
         let mut cell = Vec::with_capacity(end - begin);
         for &i in &connectivity[begin..end] {
             if i.fract() != 0.0 || i < 0.0 || i >= points as f64 {
-                return Err(error(file, format!("{what}: cell {c} refers to point {i} of {points}")));
+                return Err(error(
+                    file,
+                    format!("{what}: cell {c} refers to point {i} of {points}"),
+                ));
             }
             cell.push(i as u32);
         }
@@ -164,7 +198,10 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
         return Err(error(file, "not a VTKFile of type PolyData"));
     }
     if let Some(c) = root.attribute("compressor") {
-        return Err(error(file, format!("compressed data ({c}) is not supported; save uncompressed")));
+        return Err(error(
+            file,
+            format!("compressed data ({c}) is not supported; save uncompressed"),
+        ));
     }
     let header_u64 = root.attribute("header_type") == Some("UInt64");
     let piece = child(root, "PolyData")
@@ -177,7 +214,10 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
     if flat.len() % 3 != 0 || flat.is_empty() {
         return Err(AnatomyError::Empty {
             file: file.to_owned(),
-            message: format!("{} point coordinates (need a positive multiple of 3)", flat.len()),
+            message: format!(
+                "{} point coordinates (need a positive multiple of 3)",
+                flat.len()
+            ),
         });
     }
     let points: Vec<Point3<f64>> = flat
@@ -191,9 +231,15 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
     let mut data = PolyData::default();
     if let Some(polys) = child(piece, "Polys") {
         let mut triangles = Vec::new();
-        for (c, cell) in cells(polys, header_u64, points.len(), "Polys", file)?.iter().enumerate() {
+        for (c, cell) in cells(polys, header_u64, points.len(), "Polys", file)?
+            .iter()
+            .enumerate()
+        {
             if cell.len() < 3 {
-                return Err(error(file, format!("Polys: polygon {c} has {} points", cell.len())));
+                return Err(error(
+                    file,
+                    format!("Polys: polygon {c} has {} points", cell.len()),
+                ));
             }
             for k in 1..cell.len() - 1 {
                 triangles.push([cell[0], cell[k], cell[k + 1]]);
@@ -205,13 +251,22 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
     }
     if let Some(lines) = child(piece, "Lines") {
         let radius = child(piece, "PointData").and_then(|pd| {
-            RADIUS_ARRAY_NAMES.iter().find_map(|name| named_array(pd, name))
+            RADIUS_ARRAY_NAMES
+                .iter()
+                .find_map(|name| named_array(pd, name))
         });
         let radius = match radius {
             Some(node) => {
                 let values = read_array(node, header_u64, file)?;
                 if values.len() != points.len() {
-                    return Err(error(file, format!("radius array has {} values for {} points", values.len(), points.len())));
+                    return Err(error(
+                        file,
+                        format!(
+                            "radius array has {} values for {} points",
+                            values.len(),
+                            points.len()
+                        ),
+                    ));
                 }
                 if let Some(v) = values.iter().find(|v| **v <= 0.0) {
                     return Err(error(file, format!("radius {v} is not positive")));
@@ -220,9 +275,15 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
             }
             None => Vec::new(),
         };
-        for (c, cell) in cells(lines, header_u64, points.len(), "Lines", file)?.iter().enumerate() {
+        for (c, cell) in cells(lines, header_u64, points.len(), "Lines", file)?
+            .iter()
+            .enumerate()
+        {
             if cell.len() < 2 {
-                return Err(error(file, format!("Lines: line {c} has {} points", cell.len())));
+                return Err(error(
+                    file,
+                    format!("Lines: line {c} has {} points", cell.len()),
+                ));
             }
             data.lines.push(Centerline {
                 name: format!("line_{c}"),
