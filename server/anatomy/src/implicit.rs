@@ -27,6 +27,8 @@ pub struct FieldSample {
     pub value: f64,
     /// Smallest radius (m) among the vessels whose walls pass within the query's band.
     pub local_radius: f64,
+    /// Largest radius (m) among those vessels (bounds how much blending can shift the value).
+    pub largest_local_radius: f64,
 }
 
 /// The implicit lumen of a vessel graph.
@@ -167,6 +169,7 @@ impl LumenField {
             return FieldSample {
                 value: self.far_value,
                 local_radius: self.largest_radius,
+                largest_local_radius: self.largest_radius,
             };
         };
         // Per-branch minimum (branches in a cell are few).
@@ -199,14 +202,15 @@ impl LumenField {
         }
         let value = value.min(self.far_value);
         let reach = value + band;
-        let local_radius = if band > 0.0 {
+        let (local_radius, largest_local_radius) = if band > 0.0 {
             list.iter()
                 .map(|&s| Self::segment_value(&self.segments[s as usize], x))
                 .filter(|(d, _)| *d <= reach)
-                .map(|(_, r)| r)
-                .fold(f64::INFINITY, f64::min)
+                .fold((f64::INFINITY, 0.0f64), |(lo, hi), (_, r)| {
+                    (lo.min(r), hi.max(r))
+                })
         } else {
-            radius
+            (radius, radius)
         };
         FieldSample {
             value,
@@ -215,6 +219,7 @@ impl LumenField {
             } else {
                 branches[0].2
             },
+            largest_local_radius: largest_local_radius.max(branches[0].2),
         }
     }
 

@@ -37,9 +37,9 @@ impl Default for SurfaceSettings {
         Self {
             cells_per_radius: 3.0,
             min_cell: 5e-5,
-            max_cell: 8e-3,
+            max_cell: 4e-3,
             blend_fraction: 0.5,
-            smoothing_iterations: 4,
+            smoothing_iterations: 2,
         }
     }
 }
@@ -65,7 +65,8 @@ pub fn lumen_surface(graph: &VesselGraph, settings: &SurfaceSettings) -> Result<
         .fold((f64::INFINITY, 0.0f64), |(lo, hi), r| {
             (lo.min(r), hi.max(r))
         });
-    let margin = 2.0 * settings.max_cell.max(largest);
+    let _ = largest;
+    let margin = 1.5 * settings.max_cell;
     let field = LumenField::new(graph, settings.blend_fraction, margin)?;
     let finest = (smallest / settings.cells_per_radius).max(settings.min_cell);
     let mut lo = Point3::from(Vector3::repeat(f64::INFINITY));
@@ -151,6 +152,12 @@ impl<'a> Polygonizer<'a> {
             let half_diagonal = 0.5 * f64::from(e) * self.unit * 3f64.sqrt();
             let sample = self.field.sample(&center, 2.0 * half_diagonal);
             let near_wall = sample.value.abs() <= 1.25 * half_diagonal;
+            // Where branches blend, the field may jump by up to a quarter of the blend width;
+            // cubes that close are marched even if they need no refinement, so that no sign
+            // change inside a skipped cube can leave a hole.
+            let slack =
+                0.25 * self.settings.blend_fraction * sample.largest_local_radius + 2.0 * self.unit;
+            let march = sample.value.abs() <= 1.25 * half_diagonal + slack;
             let edge_m = f64::from(e) * self.unit;
             if near_wall && e > 2 && edge_m > sample.local_radius / self.settings.cells_per_radius {
                 for dz in 0..2 {
@@ -173,7 +180,7 @@ impl<'a> Polygonizer<'a> {
                     }
                 }
             }
-            if near_wall {
+            if march {
                 active.push((o, e));
             }
         }
@@ -238,6 +245,13 @@ impl<'a> Polygonizer<'a> {
 
     fn run(mut self) -> Result<TriangleMesh> {
         let active = self.build_tree();
+        if std::env::var_os("CATHLAB_SURFACE_STATS").is_some() {
+            eprintln!(
+                "surface: {} marched cubes, {} leaf corners",
+                active.len(),
+                self.corners.len()
+            );
+        }
         let mut vertices: Vec<Point3<f64>> = Vec::new();
         let mut crossing: FxHashMap<(Key, Key), u32> = FxHashMap::default();
         let mut triangles: Vec<[u32; 3]> = Vec::new();
@@ -369,7 +383,7 @@ impl<'a> Polygonizer<'a> {
         let step = 0.05 * self.unit;
         let project = |x: Point3<f64>| -> Point3<f64> {
             let mut x = x;
-            for _ in 0..3 {
+            for _ in 0..2 {
                 let g = self.field.gradient(&x, step);
                 let g2 = g.norm_squared();
                 if g2 < 1e-12 {
