@@ -93,8 +93,8 @@ const NO_BLOCK: u32 = u32::MAX;
 struct CellEntry {
     start: u32,
     count: u32,
-    /// For cells without candidates: a lower bound on the distance to the wall (m), negative
-    /// inside; NaN when unknown.
+    /// A lower bound on the distance to the wall from any point of the cell (m), negative
+    /// inside.
     far_bound: f32,
 }
 
@@ -313,9 +313,10 @@ impl Lumen {
                         let exact = self.query_bvh(&center);
                         let d = exact.signed_distance.abs();
                         let entry = &mut cells[block as usize * per_block + local];
+                        // A lower bound on the wall distance anywhere in the cell, rounded down.
+                        entry.far_bound = (((d - half_diagonal).max(0.0) * (1.0 - 1e-6)) as f32)
+                            * if exact.inside() { -1.0 } else { 1.0 };
                         if d > band {
-                            entry.far_bound = ((d - half_diagonal).max(0.0) as f32)
-                                * if exact.inside() { -1.0 } else { 1.0 };
                             continue;
                         }
                         let reach = d + 2.0 * half_diagonal;
@@ -384,7 +385,7 @@ impl Lumen {
     #[inline]
     pub fn proximity(&self, point: &Point3<f64>, max_distance: f64) -> Proximity {
         if let Some(e) = self.grid.entry(point) {
-            if e.count == 0 && f64::from(e.far_bound.abs()) > max_distance {
+            if f64::from(e.far_bound.abs()) > max_distance {
                 return Proximity::Far {
                     inside: e.far_bound < 0.0,
                 };

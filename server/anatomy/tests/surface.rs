@@ -3,11 +3,11 @@
 
 use std::f64::consts::PI;
 
+use cathlab_anatomy::Lumen;
 use cathlab_anatomy::phantom::{
     ArchType, NeuroPhantomParams, neuro_phantom, straight_tube, torus_segment, y_bifurcation,
 };
 use cathlab_anatomy::surface::{SurfaceSettings, lumen_surface};
-use cathlab_anatomy::Lumen;
 use nalgebra::{Point3, Vector3};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
@@ -17,14 +17,25 @@ const R: f64 = 2e-3;
 #[test]
 fn straight_tube_is_a_closed_sphere_with_the_right_volume_and_radius() {
     let length = 40e-3;
-    let mesh = lumen_surface(&straight_tube(R, length).unwrap(), &SurfaceSettings::default()).unwrap();
+    let mesh = lumen_surface(
+        &straight_tube(R, length).unwrap(),
+        &SurfaceSettings::default(),
+    )
+    .unwrap();
     let topology = mesh.topology();
     assert!(topology.is_closed_oriented_manifold(), "{topology:?}");
-    assert_eq!(topology.euler_characteristic, 2, "a capped tube is a sphere");
+    assert_eq!(
+        topology.euler_characteristic, 2,
+        "a capped tube is a sphere"
+    );
     assert_eq!(topology.components, 1);
     let volume = mesh.enclosed_volume();
     let exact = PI * R * R * length;
-    assert!((volume / exact - 1.0).abs() < 0.01, "volume ratio {}", volume / exact);
+    assert!(
+        (volume / exact - 1.0).abs() < 0.01,
+        "volume ratio {}",
+        volume / exact
+    );
     // Away from the caps every vertex lies within 5 % of the radius from the axis.
     let worst = mesh
         .vertices
@@ -80,7 +91,11 @@ fn ring_offset(rng: &mut StdRng, u: Vector3<f64>, v: Vector3<f64>) -> Vector3<f6
 fn tube_queries_match_the_analytic_distance_and_normal() {
     let length = 40e-3;
     let lumen = Lumen::new(
-        lumen_surface(&straight_tube(R, length).unwrap(), &SurfaceSettings::default()).unwrap(),
+        lumen_surface(
+            &straight_tube(R, length).unwrap(),
+            &SurfaceSettings::default(),
+        )
+        .unwrap(),
         "tube",
     )
     .unwrap();
@@ -94,7 +109,11 @@ fn tube_queries_match_the_analytic_distance_and_normal() {
 fn torus_queries_match_the_analytic_distance_and_normal() {
     let major = 15e-3;
     let lumen = Lumen::new(
-        lumen_surface(&torus_segment(major, R, 2.0).unwrap(), &SurfaceSettings::default()).unwrap(),
+        lumen_surface(
+            &torus_segment(major, R, 2.0).unwrap(),
+            &SurfaceSettings::default(),
+        )
+        .unwrap(),
         "torus",
     )
     .unwrap();

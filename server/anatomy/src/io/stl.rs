@@ -87,6 +87,29 @@ fn parse_binary(bytes: &[u8], file: &str) -> Result<Vec<[f64; 3]>> {
 }
 
 fn parse_ascii(bytes: &[u8], file: &str) -> Result<Vec<[f64; 3]>> {
+    let start = bytes
+        .iter()
+        .position(|b| !b.is_ascii_whitespace())
+        .unwrap_or(bytes.len());
+    if !bytes[start..].starts_with(b"solid") {
+        let declared = (bytes.len() >= 84)
+            .then(|| u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]))
+            .map(|n| {
+                format!(
+                    " (the header declares {n} facets = {} bytes, the file has {})",
+                    84 + 50 * u64::from(n),
+                    bytes.len()
+                )
+            })
+            .unwrap_or_default();
+        return Err(AnatomyError::Parse {
+            file: file.to_owned(),
+            line: None,
+            message: format!(
+                "neither binary STL (truncated or padded{declared}) nor ASCII STL (no leading 'solid')"
+            ),
+        });
+    }
     let text = utf8(bytes, file)?;
     if !text.trim_start().starts_with("solid") {
         return Err(AnatomyError::Parse {

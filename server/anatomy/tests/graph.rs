@@ -1,0 +1,120 @@
+//! Vessel graph queries and path finding, and the procedural neuro phantom's anatomy.
+
+use cathlab_anatomy::graph::VesselKind;
+use cathlab_anatomy::phantom::{ArchType, NeuroPhantomParams, neuro_phantom, y_bifurcation};
+use nalgebra::Point3;
+
+#[test]
+fn nearest_point_on_the_graph_gives_branch_arc_length_radius_and_direction() {
+    let g = y_bifurcation(3e-3, 2e-3, 20e-3, 15e-3, 0.5).unwrap();
+    let at = g.nearest(&Point3::new(1e-3, 0.0, -5e-3)).unwrap();
+    assert_eq!(g.branches[at.branch].name, "parent");
+    assert!((at.arc_length - 15e-3).abs() < 1e-12);
+    assert!((at.distance - 1e-3).abs() < 1e-12);
+    assert!((at.radius - 3e-3).abs() < 1e-15);
+    assert!((at.direction - nalgebra::Vector3::z()).norm() < 1e-12);
+    let path = g.path_to(&g.landmarks["access"], "left").unwrap();
+    assert!((path.length - 35e-3).abs() < 1e-12);
+    assert_eq!(path.legs.len(), 2);
+    assert!(g.path_to(&Point3::origin(), "nowhere").is_err());
+}
+
+#[test]
+fn phantom_is_seeded_and_names_every_required_vessel() {
+    let params = NeuroPhantomParams::default();
+    let a = neuro_phantom(&params).unwrap();
+    assert_eq!(
+        a,
+        neuro_phantom(&params).unwrap(),
+        "same seed, same phantom"
+    );
+    assert_ne!(
+        a,
+        neuro_phantom(&NeuroPhantomParams { seed: 2, ..params }).unwrap()
+    );
+    for kind in [
+        VesselKind::Aorta,
+        VesselKind::Brachiocephalic,
+        VesselKind::CommonCarotid,
+        VesselKind::InternalCarotid,
+        VesselKind::ExternalCarotid,
+        VesselKind::Vertebral,
+        VesselKind::Basilar,
+        VesselKind::AnteriorCerebral,
+        VesselKind::MiddleCerebral,
+        VesselKind::PosteriorCerebral,
+        VesselKind::AnteriorCommunicating,
+        VesselKind::PosteriorCommunicating,
+    ] {
+        assert!(
+            a.branches.iter().any(|b| b.kind == kind),
+            "{kind:?} missing"
+        );
+    }
+    let access = a.landmarks["access"];
+    for target in [
+        "left_common_carotid",
+        "right_common_carotid",
+        "right_vertebral",
+        "left_middle_cerebral",
+        "basilar",
+        "anterior_communicating",
+    ] {
+        let path = a.path_to(&access, target).unwrap();
+        assert!(
+            path.length > 0.1 && path.length < 0.7,
+            "{target}: {} m",
+            path.length
+        );
+    }
+}
+
+#[test]
+fn phantom_dimensions_are_physiological() {
+    let g = neuro_phantom(&NeuroPhantomParams {
+        variability: 1.0,
+        seed: 9,
+        ..Default::default()
+    })
+    .unwrap();
+    // Diameters (mm) from NOTES.md, with the ±10 % variability.
+    let expect = |name: &str, lo: f64, hi: f64| {
+        let b = g.branch(name).unwrap();
+        let d = 2e3 * b.radii[0];
+        assert!(
+            d >= lo && d <= hi,
+            "{name} diameter {d} mm not in {lo}..{hi}"
+        );
+    };
+    expect("ascending_aorta", 25.0, 31.0);
+    expect("left_common_carotid", 6.0, 8.0);
+    expect("right_internal_carotid", 4.5, 5.8);
+    expect("left_middle_cerebral", 2.7, 3.5);
+    expect("basilar", 3.2, 4.0);
+    expect("right_vertebral", 3.3, 4.2);
+}
+
+#[test]
+fn arch_type_sets_how_far_below_the_apex_the_brachiocephalic_arises() {
+    let drop = |arch| {
+        let g = neuro_phantom(&NeuroPhantomParams {
+            arch,
+            variability: 0.0,
+            ..Default::default()
+        })
+        .unwrap();
+        let apex = g
+            .branches
+            .iter()
+            .filter(|b| b.kind == VesselKind::Aorta)
+            .flat_map(|b| b.points.iter())
+            .map(|p| p.z)
+            .fold(f64::MIN, f64::max);
+        apex - g.branch("brachiocephalic").unwrap().points[0].z
+    };
+    let cca = 7e-3;
+    let (one, two, three) = (drop(ArchType::I), drop(ArchType::II), drop(ArchType::III));
+    assert!(one < cca, "type I: {one}");
+    assert!(two >= cca && two <= 2.0 * cca, "type II: {two}");
+    assert!(three > 2.0 * cca, "type III: {three}");
+}
