@@ -384,12 +384,12 @@ impl Lumen {
     /// of the wall the point is on. Cheaper than [`Lumen::query`] far from the wall.
     #[inline]
     pub fn proximity(&self, point: &Point3<f64>, max_distance: f64) -> Proximity {
-        if let Some(e) = self.grid.entry(point) {
-            if f64::from(e.far_bound.abs()) > max_distance {
-                return Proximity::Far {
-                    inside: e.far_bound < 0.0,
-                };
-            }
+        if let Some(e) = self.grid.entry(point)
+            && f64::from(e.far_bound.abs()) > max_distance
+        {
+            return Proximity::Far {
+                inside: e.far_bound < 0.0,
+            };
         }
         let q = self.query(point);
         if q.signed_distance.abs() <= max_distance {

@@ -415,6 +415,7 @@ impl<'a> Polygonizer<'a> {
             }
         }
         for _ in 0..self.settings.smoothing_iterations {
+            #[allow(clippy::needless_range_loop)] // vertices move while their neighbours are read
             for v in 0..n {
                 let x = mesh.vertices[v];
                 let centroid = neighbours[v]

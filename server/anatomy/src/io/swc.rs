@@ -98,7 +98,7 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<VesselGraph> 
         samples[i].parent = Some(p);
     }
     // Reject cycles: walking up from any sample must reach a root within n steps.
-    for start in 0..samples.len() {
+    for (start, &(_, line)) in parents.iter().enumerate() {
         let mut at = start;
         for _ in 0..=samples.len() {
             match samples[at].parent {
@@ -109,7 +109,7 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<VesselGraph> 
         if samples[at].parent.is_some() {
             return Err(AnatomyError::Parse {
                 file: file.to_owned(),
-                line: Some(parents[start].1),
+                line: Some(line),
                 message: "parent links form a cycle".into(),
             });
         }

@@ -118,7 +118,7 @@ impl Builder {
                 );
                 (
                     f64::from(k + 1) * std::f64::consts::PI,
-                    self.rng.random_range(0.0..6.283),
+                    self.rng.random_range(0.0..std::f64::consts::TAU),
                     dir,
                 )
             })
