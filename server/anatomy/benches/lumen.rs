@@ -6,6 +6,7 @@ use std::path::Path;
 
 use cathlab_anatomy::Lumen;
 use cathlab_anatomy::io::{LengthUnit, obj, slicer};
+use cathlab_anatomy::lumen::Proximity;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use nalgebra::{Point3, Vector3};
 use rand::rngs::StdRng;
@@ -45,65 +46,33 @@ fn queries(c: &mut Criterion) {
     }
     let mut group = c.benchmark_group("lumen_point_query");
     group.throughput(Throughput::Elements(along.len() as u64));
-    group.bench_function("grid_along_vessels", |b| {
-        b.iter(|| {
-            along
-                .iter()
-                .map(|p| lumen.query(black_box(p)).signed_distance)
-                .sum::<f64>()
-        })
-    });
-    group.bench_function("grid_random_order", |b| {
-        b.iter(|| {
-            shuffled
-                .iter()
-                .map(|p| lumen.query(black_box(p)).signed_distance)
-                .sum::<f64>()
-        })
-    });
-    // Contact detection asks only whether the wall is within 1 mm (device radius + margin).
-    group.bench_function("grid_proximity_1mm_along_vessels", |b| {
-        b.iter(|| {
-            along
-                .iter()
-                .filter(|p| {
-                    matches!(
-                        lumen.proximity(black_box(p), 1e-3),
-                        cathlab_anatomy::lumen::Proximity::Near(_)
-                    )
-                })
-                .count()
-        })
-    });
-    group.bench_function("grid_proximity_1mm_random_order", |b| {
-        b.iter(|| {
-            shuffled
-                .iter()
-                .filter(|p| {
-                    matches!(
-                        lumen.proximity(black_box(p), 1e-3),
-                        cathlab_anatomy::lumen::Proximity::Near(_)
-                    )
-                })
-                .count()
-        })
-    });
-    group.bench_function("bvh_along_vessels", |b| {
-        b.iter(|| {
-            along
-                .iter()
-                .map(|p| lumen.query_bvh(black_box(p)).signed_distance)
-                .sum::<f64>()
-        })
-    });
-    group.bench_function("bvh_random_order", |b| {
-        b.iter(|| {
-            shuffled
-                .iter()
-                .map(|p| lumen.query_bvh(black_box(p)).signed_distance)
-                .sum::<f64>()
-        })
-    });
+    for (order, points) in [("along_vessels", &along), ("random_order", &shuffled)] {
+        group.bench_function(format!("grid_{order}"), |b| {
+            b.iter(|| {
+                points
+                    .iter()
+                    .map(|p| lumen.query(black_box(p)).signed_distance)
+                    .sum::<f64>()
+            })
+        });
+        // Contact detection asks only whether the wall is within 1 mm (device radius + margin).
+        group.bench_function(format!("grid_proximity_1mm_{order}"), |b| {
+            b.iter(|| {
+                points
+                    .iter()
+                    .filter(|p| matches!(lumen.proximity(black_box(p), 1e-3), Proximity::Near(_)))
+                    .count()
+            })
+        });
+        group.bench_function(format!("bvh_{order}"), |b| {
+            b.iter(|| {
+                points
+                    .iter()
+                    .map(|p| lumen.query_bvh(black_box(p)).signed_distance)
+                    .sum::<f64>()
+            })
+        });
+    }
     group.finish();
     println!(
         "grid memory: {:.1} MB, {} queries per iteration",

@@ -62,9 +62,19 @@ pub fn lumen_path_tree(
             requirement: "coarse enough for at most 4e7 voxels over the search box",
         });
     }
-    let index = |i: usize, j: usize, k: usize| (k * dims.y + j) * dims.x + i;
-    let position = |v: usize| {
+    let lattice = |v: usize| {
         let (i, j, k) = (v % dims.x, (v / dims.x) % dims.y, v / (dims.x * dims.y));
+        (i as i64, j as i64, k as i64)
+    };
+    // The voxel at lattice coordinates, if inside the search box.
+    let voxel_at = |i: i64, j: i64, k: i64| -> Option<usize> {
+        let inside = (0..dims.x as i64).contains(&i)
+            && (0..dims.y as i64).contains(&j)
+            && (0..dims.z as i64).contains(&k);
+        inside.then(|| (k as usize * dims.y + j as usize) * dims.x + i as usize)
+    };
+    let position = |v: usize| {
+        let (i, j, k) = lattice(v);
         lo + Vector3::new(i as f64, j as f64, k as f64) * voxel
     };
     // Depth inside the lumen per voxel (0 outside).
@@ -81,17 +91,9 @@ pub fn lumen_path_tree(
         for dk in -reach..=reach {
             for dj in -reach..=reach {
                 for di in -reach..=reach {
-                    let (i, j, k) = (c.x + di, c.y + dj, c.z + dk);
-                    if i < 0
-                        || j < 0
-                        || k < 0
-                        || i >= dims.x as i64
-                        || j >= dims.y as i64
-                        || k >= dims.z as i64
-                    {
+                    let Some(v) = voxel_at(c.x + di, c.y + dj, c.z + dk) else {
                         continue;
-                    }
-                    let v = index(i as usize, j as usize, k as usize);
+                    };
                     if depth[v] > 0.0 {
                         let d = (position(v) - p).norm();
                         if best.is_none_or(|b| d < b.0) {
@@ -122,22 +124,16 @@ pub fn lumen_path_tree(
         if c > cost[v] {
             continue;
         }
-        let (i, j, k) = (v % dims.x, (v / dims.x) % dims.y, v / (dims.x * dims.y));
+        let (i, j, k) = lattice(v);
         for dk in -1i64..=1 {
             for dj in -1i64..=1 {
                 for di in -1i64..=1 {
-                    let (ni, nj, nk) = (i as i64 + di, j as i64 + dj, k as i64 + dk);
-                    if (di, dj, dk) == (0, 0, 0)
-                        || ni < 0
-                        || nj < 0
-                        || nk < 0
-                        || ni >= dims.x as i64
-                        || nj >= dims.y as i64
-                        || nk >= dims.z as i64
-                    {
+                    if (di, dj, dk) == (0, 0, 0) {
                         continue;
                     }
-                    let w = index(ni as usize, nj as usize, nk as usize);
+                    let Some(w) = voxel_at(i + di, j + dj, k + dk) else {
+                        continue;
+                    };
                     let d = f64::from(depth[w]);
                     if d <= 0.0 {
                         continue;

@@ -6,6 +6,7 @@ use std::collections::{BTreeMap, BinaryHeap};
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::components::count_components;
 use crate::error::{AnatomyError, Result};
 
 /// Distance (m) within which branch end points are taken to be the same junction.
@@ -377,26 +378,10 @@ impl VesselGraph {
 
     /// Connected components among nodes used by branches.
     pub fn connected_components(&self) -> usize {
-        let mut parent: Vec<usize> = (0..self.nodes.len()).collect();
-        fn find(p: &mut [usize], mut i: usize) -> usize {
-            while p[i] != i {
-                p[i] = p[p[i]];
-                i = p[i];
-            }
-            i
-        }
-        let mut used = vec![false; self.nodes.len()];
-        for b in &self.branches {
-            used[b.start] = true;
-            used[b.end] = true;
-            let (x, y) = (find(&mut parent, b.start), find(&mut parent, b.end));
-            if x != y {
-                parent[x] = y;
-            }
-        }
-        (0..self.nodes.len())
-            .filter(|&i| used[i] && find(&mut parent, i) == i)
-            .count()
+        count_components(
+            self.nodes.len(),
+            self.branches.iter().map(|b| (b.start, b.end)),
+        )
     }
 
     /// The closest centerline point to `point` over all branches (brute force over segments,

@@ -6,6 +6,7 @@
 //! import.
 
 pub mod centerline;
+mod components;
 pub mod error;
 pub mod glam_conv;
 pub mod graph;

@@ -329,7 +329,7 @@ impl Lumen {
                             .leaves(|node| node.aabb().distance_to_local_point(g, true) <= reach)
                             .filter_map(|leaf| {
                                 let [a, b, c] = self.corners[leaf as usize];
-                                let (q, _, _) = closest_on_triangle(&center, &a, &b, &c);
+                                let (q, _) = closest_on_triangle(&center, &a, &b, &c);
                                 let d = (center - q).norm();
                                 (d <= reach).then_some((d, leaf))
                             })
@@ -400,13 +400,7 @@ impl Lumen {
     }
 
     fn query_candidates(&self, point: &Point3<f64>, list: &[u32]) -> WallQuery {
-        let mut best = (
-            f64::INFINITY,
-            Point3::origin(),
-            [0.0; 3],
-            Feature::Face,
-            0u32,
-        );
+        let mut best = (f64::INFINITY, Point3::origin(), Feature::Face, 0u32);
         for &t in list {
             let [a, b, c] = &self.corners[t as usize];
             // The distance to the triangle's plane bounds the distance to the triangle.
@@ -414,13 +408,13 @@ impl Lumen {
             if plane * plane >= best.0 {
                 continue;
             }
-            let (q, bary, feature) = closest_on_triangle(point, a, b, c);
+            let (q, feature) = closest_on_triangle(point, a, b, c);
             let d2 = (point - q).norm_squared();
             if d2 < best.0 {
-                best = (d2, q, bary, feature, t);
+                best = (d2, q, feature, t);
             }
         }
-        let (d2, closest, bary, feature, t) = best;
+        let (d2, closest, feature, t) = best;
         let tri = self.mesh.triangles[t as usize];
         let pseudo = match feature {
             Feature::Face => self.face_normals[t as usize],
@@ -428,7 +422,6 @@ impl Lumen {
             Feature::Vertex(k) => self.pseudo_normals[tri[k as usize] as usize],
         };
         let inside = (point - closest).dot(&pseudo) <= 0.0;
-        let _ = bary;
         let distance = d2.sqrt();
         WallQuery {
             signed_distance: if inside { -distance } else { distance },
@@ -537,51 +530,51 @@ pub(crate) enum Feature {
     Vertex(u8),
 }
 
-/// Closest point on triangle (a, b, c) to p with its barycentric coordinates and feature
+/// Closest point on triangle (a, b, c) to p and the feature it lies on
 /// (Ericson, *Real-Time Collision Detection*, §5.1.5).
 pub(crate) fn closest_on_triangle(
     p: &Point3<f64>,
     a: &Point3<f64>,
     b: &Point3<f64>,
     c: &Point3<f64>,
-) -> (Point3<f64>, [f64; 3], Feature) {
+) -> (Point3<f64>, Feature) {
     let ab = b - a;
     let ac = c - a;
     let ap = p - a;
     let d1 = ab.dot(&ap);
     let d2 = ac.dot(&ap);
     if d1 <= 0.0 && d2 <= 0.0 {
-        return (*a, [1.0, 0.0, 0.0], Feature::Vertex(0));
+        return (*a, Feature::Vertex(0));
     }
     let bp = p - b;
     let d3 = ab.dot(&bp);
     let d4 = ac.dot(&bp);
     if d3 >= 0.0 && d4 <= d3 {
-        return (*b, [0.0, 1.0, 0.0], Feature::Vertex(1));
+        return (*b, Feature::Vertex(1));
     }
     let vc = d1 * d4 - d3 * d2;
     if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
         let v = d1 / (d1 - d3);
-        return (a + ab * v, [1.0 - v, v, 0.0], Feature::Edge(0));
+        return (a + ab * v, Feature::Edge(0));
     }
     let cp = p - c;
     let d5 = ab.dot(&cp);
     let d6 = ac.dot(&cp);
     if d6 >= 0.0 && d5 <= d6 {
-        return (*c, [0.0, 0.0, 1.0], Feature::Vertex(2));
+        return (*c, Feature::Vertex(2));
     }
     let vb = d5 * d2 - d1 * d6;
     if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
         let w = d2 / (d2 - d6);
-        return (a + ac * w, [1.0 - w, 0.0, w], Feature::Edge(2));
+        return (a + ac * w, Feature::Edge(2));
     }
     let va = d3 * d6 - d5 * d4;
     if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
         let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (b + (c - b) * w, [0.0, 1.0 - w, w], Feature::Edge(1));
+        return (b + (c - b) * w, Feature::Edge(1));
     }
     let denom = 1.0 / (va + vb + vc);
     let v = vb * denom;
     let w = vc * denom;
-    (a + ab * v + ac * w, [1.0 - v - w, v, w], Feature::Face)
+    (a + ab * v + ac * w, Feature::Face)
 }

@@ -4,6 +4,7 @@ use std::collections::HashMap;
 
 use nalgebra::{Point3, Vector3};
 
+use crate::components::count_components;
 use crate::error::{AnatomyError, Result};
 
 /// An indexed triangle surface. Coordinates in metres, patient LPS frame; triangles are
@@ -157,30 +158,11 @@ impl TriangleMesh {
     }
 
     fn face_components(&self) -> usize {
-        let mut parent: Vec<usize> = (0..self.vertices.len()).collect();
-        fn find(parent: &mut [usize], mut i: usize) -> usize {
-            while parent[i] != i {
-                parent[i] = parent[parent[i]];
-                i = parent[i];
-            }
-            i
-        }
-        let mut used = vec![false; self.vertices.len()];
-        for t in &self.triangles {
-            for k in 0..3 {
-                used[t[k] as usize] = true;
-                let (a, b) = (
-                    find(&mut parent, t[k] as usize),
-                    find(&mut parent, t[(k + 1) % 3] as usize),
-                );
-                if a != b {
-                    parent[a] = b;
-                }
-            }
-        }
-        (0..self.vertices.len())
-            .filter(|&i| used[i] && find(&mut parent, i) == i)
-            .count()
+        let edges = self
+            .triangles
+            .iter()
+            .flat_map(|t| (0..3).map(move |k| (t[k] as usize, t[(k + 1) % 3] as usize)));
+        count_components(self.vertices.len(), edges)
     }
 
     /// Counts vertices whose incident triangles do not form one connected fan.
@@ -200,28 +182,12 @@ impl TriangleMesh {
             if fan.is_empty() {
                 continue;
             }
-            // Union-find on the link vertices.
+            // The link vertices must be connected.
             let mut ids: Vec<u32> = fan.iter().flat_map(|&(a, b)| [a, b]).collect();
             ids.sort_unstable();
             ids.dedup();
             let index = |v: u32| ids.binary_search(&v).unwrap_or(0);
-            let mut parent: Vec<usize> = (0..ids.len()).collect();
-            fn find(parent: &mut [usize], mut i: usize) -> usize {
-                while parent[i] != i {
-                    parent[i] = parent[parent[i]];
-                    i = parent[i];
-                }
-                i
-            }
-            for &(a, b) in fan {
-                let (ra, rb) = (find(&mut parent, index(a)), find(&mut parent, index(b)));
-                if ra != rb {
-                    parent[ra] = rb;
-                }
-            }
-            let roots = (0..ids.len())
-                .filter(|&i| find(&mut parent, i) == i)
-                .count();
+            let roots = count_components(ids.len(), fan.iter().map(|&(a, b)| (index(a), index(b))));
             if roots != 1 {
                 bad += 1;
             }

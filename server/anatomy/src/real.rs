@@ -82,7 +82,7 @@ pub fn assemble(
     let chains = lumen_path_tree(&lumen, &access, &targets, 1e-3)?;
     for chain in chains {
         let mut points = chain.points;
-        let mut radii = chain.radii;
+        let radii = chain.radii;
         let last = points.len() - 1;
         if chain.serves.len() == 1 {
             // End exactly on the curve's first point so that the graph connects.
@@ -101,7 +101,6 @@ pub fn assemble(
                 .collect();
             (format!("arch_to_{}", names.join("+")), VesselKind::Aorta)
         };
-        radii[last] = radii[last].max(1e-4);
         graph.add_branch(BranchSpec {
             name,
             kind,

@@ -58,16 +58,9 @@ pub fn lumen_surface(graph: &VesselGraph, settings: &SurfaceSettings) -> Result<
         1.0,
         "between 0 and 1",
     )?;
-    let (smallest, largest) = graph
-        .branches
-        .iter()
-        .flat_map(|b| b.radii.iter().copied())
-        .fold((f64::INFINITY, 0.0f64), |(lo, hi), r| {
-            (lo.min(r), hi.max(r))
-        });
-    let _ = largest;
     let margin = 1.5 * settings.max_cell;
     let field = LumenField::new(graph, settings.blend_fraction, margin)?;
+    let (smallest, _) = field.radius_range();
     let finest = (smallest / settings.cells_per_radius).max(settings.min_cell);
     let mut lo = Point3::from(Vector3::repeat(f64::INFINITY));
     let mut hi = Point3::from(Vector3::repeat(f64::NEG_INFINITY));

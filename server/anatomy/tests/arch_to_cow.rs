@@ -75,6 +75,7 @@ fn paths_reach_the_four_targets_from_the_aortic_access() {
             let d = anatomy().lumen.query(&p).signed_distance;
             assert!(d < 2.5e-3, "{target}: route leaves the lumen by {d} m");
         }
+        println!("route to {target}: {:.1} mm", path.length * 1e3);
         assert!(
             path.length > 0.3 && path.length < 0.5,
             "{target}: {} m",

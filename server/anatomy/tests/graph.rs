@@ -118,3 +118,72 @@ fn arch_type_sets_how_far_below_the_apex_the_brachiocephalic_arises() {
     assert!(two >= cca && two <= 2.0 * cca, "type II: {two}");
     assert!(three > 2.0 * cca, "type III: {three}");
 }
+
+#[test]
+fn bad_parameters_and_branches_are_refused_by_name() {
+    use cathlab_anatomy::graph::{BranchSpec, Side, VesselGraph};
+    use cathlab_anatomy::phantom::{straight_tube, torus_segment};
+    use cathlab_anatomy::surface::{SurfaceSettings, lumen_surface};
+    let says = |err: cathlab_anatomy::AnatomyError, words: &str| {
+        assert!(
+            err.to_string().contains(words),
+            "{err} should mention {words}"
+        );
+    };
+    says(
+        neuro_phantom(&NeuroPhantomParams {
+            tortuosity: 2.0,
+            ..Default::default()
+        })
+        .unwrap_err(),
+        "tortuosity",
+    );
+    says(
+        neuro_phantom(&NeuroPhantomParams {
+            variability: f64::NAN,
+            ..Default::default()
+        })
+        .unwrap_err(),
+        "variability",
+    );
+    says(straight_tube(-1e-3, 1e-2).unwrap_err(), "radius");
+    says(torus_segment(1e-3, 2e-3, 1.0).unwrap_err(), "major_radius");
+    let tube = straight_tube(1e-3, 1e-2).unwrap();
+    says(
+        lumen_surface(
+            &tube,
+            &SurfaceSettings {
+                cells_per_radius: 0.0,
+                ..Default::default()
+            },
+        )
+        .unwrap_err(),
+        "cells_per_radius",
+    );
+    let mut g = VesselGraph::new();
+    let spec = |points: Vec<Point3<f64>>, radius: f64| BranchSpec {
+        name: "v".into(),
+        kind: VesselKind::Other,
+        side: Side::Midline,
+        radii: vec![radius; points.len()],
+        points,
+    };
+    says(
+        g.add_branch(spec(vec![Point3::origin()], 1e-3))
+            .unwrap_err(),
+        "1 centerline points",
+    );
+    says(
+        g.add_branch(spec(
+            vec![Point3::origin(), Point3::new(0.0, 0.0, 1e-2)],
+            f64::NAN,
+        ))
+        .unwrap_err(),
+        "radius 0",
+    );
+    says(
+        g.add_branch(spec(vec![Point3::origin(), Point3::origin()], 1e-3))
+            .unwrap_err(),
+        "zero length",
+    );
+}

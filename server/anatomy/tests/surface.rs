@@ -31,6 +31,7 @@ fn straight_tube_is_a_closed_sphere_with_the_right_volume_and_radius() {
     assert_eq!(topology.components, 1);
     let volume = mesh.enclosed_volume();
     let exact = PI * R * R * length;
+    println!("tube volume / (pi r^2 L) = {:.5}", volume / exact);
     assert!(
         (volume / exact - 1.0).abs() < 0.01,
         "volume ratio {}",
@@ -43,6 +44,7 @@ fn straight_tube_is_a_closed_sphere_with_the_right_volume_and_radius() {
         .filter(|p| p.z > 2.0 * R && p.z < length - 2.0 * R)
         .map(|p| ((p.x.hypot(p.y)) - R).abs() / R)
         .fold(0.0, f64::max);
+    println!("largest radial deviation away from the caps: {worst:.2e} r");
     assert!(worst < 0.05, "radial deviation {worst}");
 }
 
@@ -77,6 +79,7 @@ fn check_queries(lumen: &Lumen, sample: impl Fn(&mut StdRng) -> (Point3<f64>, Po
             assert_eq!(q.inside(), rho < R, "inside test at {rho} from the axis");
         }
     }
+    println!("worst distance error {worst_distance:.4} r, worst normal error {worst_normal:.4}");
     assert!(worst_distance < 0.01, "distance error {worst_distance} r");
     assert!(worst_normal < 0.01, "normal error {worst_normal}");
 }

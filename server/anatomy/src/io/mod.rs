@@ -95,6 +95,33 @@ pub(crate) fn parse_f64(token: &str, file: &str, line: Option<usize>, what: &str
     Ok(value)
 }
 
+/// A parse error for the whole file (no line number).
+pub(crate) fn parse_error(file: &str, message: impl Into<String>) -> AnatomyError {
+    AnatomyError::Parse {
+        file: file.to_owned(),
+        line: None,
+        message: message.into(),
+    }
+}
+
+/// Parses the next three tokens as finite x, y, z coordinates.
+pub(crate) fn parse_xyz<'t>(
+    tokens: &mut impl Iterator<Item = &'t str>,
+    file: &str,
+    line: Option<usize>,
+) -> Result<[f64; 3]> {
+    let mut c = [0.0; 3];
+    for (k, value) in c.iter_mut().enumerate() {
+        let token = tokens.next().ok_or_else(|| AnatomyError::Parse {
+            file: file.to_owned(),
+            line,
+            message: "vertex with fewer than 3 coordinates".into(),
+        })?;
+        *value = parse_f64(token, file, line, ["x", "y", "z"][k])?;
+    }
+    Ok(c)
+}
+
 /// The file's text, or a parse error if it is not UTF-8.
 pub(crate) fn utf8<'a>(bytes: &'a [u8], file: &str) -> Result<&'a str> {
     std::str::from_utf8(bytes).map_err(|e| AnatomyError::Parse {

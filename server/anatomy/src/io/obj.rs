@@ -6,7 +6,7 @@ use std::path::Path;
 
 use nalgebra::Point3;
 
-use super::{LengthUnit, check_plausible_extent, parse_f64, read_bytes, utf8};
+use super::{LengthUnit, check_plausible_extent, parse_xyz, read_bytes, utf8};
 use crate::error::{AnatomyError, Result};
 use crate::mesh::TriangleMesh;
 
@@ -20,16 +20,8 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<TriangleMesh>
         let mut tokens = raw.split_whitespace();
         match tokens.next() {
             Some("v") => {
-                let mut c = [0.0; 3];
-                for (k, value) in c.iter_mut().enumerate() {
-                    let token = tokens.next().ok_or_else(|| AnatomyError::Parse {
-                        file: file.to_owned(),
-                        line,
-                        message: "vertex with fewer than 3 coordinates".into(),
-                    })?;
-                    *value = parse_f64(token, file, line, ["x", "y", "z"][k])? * unit.metres();
-                }
-                vertices.push(Point3::from(c));
+                let c = parse_xyz(&mut tokens, file, line)?;
+                vertices.push(Point3::from(c) * unit.metres());
             }
             Some("f") => {
                 let mut corners = Vec::with_capacity(4);

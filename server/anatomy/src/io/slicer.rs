@@ -6,7 +6,7 @@ use std::path::Path;
 use nalgebra::Point3;
 use serde_json::Value;
 
-use super::{LengthUnit, check_plausible_extent, read_bytes, utf8};
+use super::{LengthUnit, check_plausible_extent, parse_error, read_bytes, utf8};
 use crate::error::{AnatomyError, Result};
 
 /// A centerline curve read from a file.
@@ -18,14 +18,6 @@ pub struct Centerline {
     pub points: Vec<Point3<f64>>,
     /// Lumen radius per point (m).
     pub radii: Vec<f64>,
-}
-
-fn parse_error(file: &str, message: impl Into<String>) -> AnatomyError {
-    AnatomyError::Parse {
-        file: file.to_owned(),
-        line: None,
-        message: message.into(),
-    }
 }
 
 /// Parses every curve markup in a Markups JSON document. `default_name` names unnamed curves.

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use nalgebra::Point3;
 
-use super::{LengthUnit, check_plausible_extent, parse_f64, read_bytes, utf8};
+use super::{LengthUnit, check_plausible_extent, parse_xyz, read_bytes, utf8};
 use crate::error::{AnatomyError, Result};
 use crate::mesh::TriangleMesh;
 
@@ -111,15 +111,6 @@ fn parse_ascii(bytes: &[u8], file: &str) -> Result<Vec<[f64; 3]>> {
         });
     }
     let text = utf8(bytes, file)?;
-    if !text.trim_start().starts_with("solid") {
-        return Err(AnatomyError::Parse {
-            file: file.to_owned(),
-            line: Some(1),
-            message: "neither binary STL (size does not match the facet count) nor ASCII STL \
-                      (no leading 'solid')"
-                .into(),
-        });
-    }
     let mut corners = Vec::new();
     let mut in_facet = 0usize;
     let mut ended = false;
@@ -128,15 +119,7 @@ fn parse_ascii(bytes: &[u8], file: &str) -> Result<Vec<[f64; 3]>> {
         let mut tokens = raw.split_whitespace();
         match tokens.next() {
             Some("vertex") => {
-                let mut c = [0.0; 3];
-                for (k, value) in c.iter_mut().enumerate() {
-                    let token = tokens.next().ok_or_else(|| AnatomyError::Parse {
-                        file: file.to_owned(),
-                        line,
-                        message: "vertex with fewer than 3 coordinates".into(),
-                    })?;
-                    *value = parse_f64(token, file, line, ["x", "y", "z"][k])?;
-                }
+                let c = parse_xyz(&mut tokens, file, line)?;
                 corners.push(c);
                 in_facet += 1;
             }

@@ -9,7 +9,7 @@ use base64::Engine as _;
 use nalgebra::Point3;
 
 use super::slicer::Centerline;
-use super::{LengthUnit, check_plausible_extent, read_bytes, utf8};
+use super::{LengthUnit, check_plausible_extent, parse_error, read_bytes, utf8};
 use crate::error::{AnatomyError, Result};
 use crate::mesh::TriangleMesh;
 
@@ -23,14 +23,6 @@ pub struct PolyData {
     pub surface: Option<TriangleMesh>,
     /// Each polyline with its radius array (empty radii when the file has none).
     pub lines: Vec<Centerline>,
-}
-
-fn error(file: &str, message: impl Into<String>) -> AnatomyError {
-    AnatomyError::Parse {
-        file: file.to_owned(),
-        line: None,
-        message: message.into(),
-    }
 }
 
 /// Reads one `<DataArray>` as f64 values.
@@ -47,7 +39,7 @@ fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Re
                     .ok()
                     .filter(|v| v.is_finite())
                     .ok_or_else(|| {
-                        error(file, format!("array {name}: {t:?} is not a finite number"))
+                        parse_error(file, format!("array {name}: {t:?} is not a finite number"))
                     })
             })
             .collect(),
@@ -55,10 +47,10 @@ fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Re
             let compact: String = text.chars().filter(|c| !c.is_whitespace()).collect();
             let bytes = base64::engine::general_purpose::STANDARD
                 .decode(compact.as_bytes())
-                .map_err(|e| error(file, format!("array {name}: bad base64: {e}")))?;
+                .map_err(|e| parse_error(file, format!("array {name}: bad base64: {e}")))?;
             let header = if header_u64 { 8 } else { 4 };
             if bytes.len() < header {
-                return Err(error(
+                return Err(parse_error(
                     file,
                     format!("array {name}: truncated binary header"),
                 ));
@@ -70,7 +62,7 @@ fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Re
             };
             let body = &bytes[header..];
             if declared > body.len() {
-                return Err(error(
+                return Err(parse_error(
                     file,
                     format!(
                         "array {name}: truncated ({declared} bytes declared, {} present)",
@@ -85,14 +77,14 @@ fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Re
                 "Int8" | "UInt8" => 1,
                 "Int16" | "UInt16" => 2,
                 other => {
-                    return Err(error(
+                    return Err(parse_error(
                         file,
                         format!("array {name}: unsupported type {other}"),
                     ));
                 }
             };
             if body.len() % width != 0 {
-                return Err(error(
+                return Err(parse_error(
                     file,
                     format!(
                         "array {name}: {} bytes is not a whole number of {kind}",
@@ -117,16 +109,16 @@ fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Re
                     if v.is_finite() {
                         Ok(v)
                     } else {
-                        Err(error(file, format!("array {name}: non-finite value")))
+                        Err(parse_error(file, format!("array {name}: non-finite value")))
                     }
                 })
                 .collect()
         }
-        "appended" => Err(error(
+        "appended" => Err(parse_error(
             file,
             format!("array {name}: appended data is not supported; save as ascii or inline binary"),
         )),
-        other => Err(error(
+        other => Err(parse_error(
             file,
             format!("array {name}: unknown format {other:?}"),
         )),
@@ -154,16 +146,16 @@ fn cells(
     file: &str,
 ) -> Result<Vec<Vec<u32>>> {
     let connectivity = named_array(section, "connectivity")
-        .ok_or_else(|| error(file, format!("{what}: no connectivity array")))?;
+        .ok_or_else(|| parse_error(file, format!("{what}: no connectivity array")))?;
     let offsets = named_array(section, "offsets")
-        .ok_or_else(|| error(file, format!("{what}: no offsets array")))?;
+        .ok_or_else(|| parse_error(file, format!("{what}: no offsets array")))?;
     let connectivity = read_array(connectivity, header_u64, file)?;
     let offsets = read_array(offsets, header_u64, file)?;
     let mut out = Vec::with_capacity(offsets.len());
     let mut begin = 0usize;
     for (c, &end) in offsets.iter().enumerate() {
         if end.fract() != 0.0 || end < begin as f64 || end > connectivity.len() as f64 {
-            return Err(error(
+            return Err(parse_error(
                 file,
                 format!("{what}: offset {c} = {end} is out of range"),
             ));
@@ -172,7 +164,7 @@ fn cells(
         let mut cell = Vec::with_capacity(end - begin);
         for &i in &connectivity[begin..end] {
             if i.fract() != 0.0 || i < 0.0 || i >= points as f64 {
-                return Err(error(
+                return Err(parse_error(
                     file,
                     format!("{what}: cell {c} refers to point {i} of {points}"),
                 ));
@@ -195,10 +187,10 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
     })?;
     let root = doc.root_element();
     if !root.has_tag_name("VTKFile") || root.attribute("type") != Some("PolyData") {
-        return Err(error(file, "not a VTKFile of type PolyData"));
+        return Err(parse_error(file, "not a VTKFile of type PolyData"));
     }
     if let Some(c) = root.attribute("compressor") {
-        return Err(error(
+        return Err(parse_error(
             file,
             format!("compressed data ({c}) is not supported; save uncompressed"),
         ));
@@ -206,10 +198,10 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
     let header_u64 = root.attribute("header_type") == Some("UInt64");
     let piece = child(root, "PolyData")
         .and_then(|p| child(p, "Piece"))
-        .ok_or_else(|| error(file, "no PolyData/Piece element"))?;
+        .ok_or_else(|| parse_error(file, "no PolyData/Piece element"))?;
     let points_node = child(piece, "Points")
         .and_then(|p| child(p, "DataArray"))
-        .ok_or_else(|| error(file, "no Points/DataArray"))?;
+        .ok_or_else(|| parse_error(file, "no Points/DataArray"))?;
     let flat = read_array(points_node, header_u64, file)?;
     if flat.len() % 3 != 0 || flat.is_empty() {
         return Err(AnatomyError::Empty {
@@ -236,7 +228,7 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
             .enumerate()
         {
             if cell.len() < 3 {
-                return Err(error(
+                return Err(parse_error(
                     file,
                     format!("Polys: polygon {c} has {} points", cell.len()),
                 ));
@@ -259,7 +251,7 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
             Some(node) => {
                 let values = read_array(node, header_u64, file)?;
                 if values.len() != points.len() {
-                    return Err(error(
+                    return Err(parse_error(
                         file,
                         format!(
                             "radius array has {} values for {} points",
@@ -269,7 +261,7 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
                     ));
                 }
                 if let Some(v) = values.iter().find(|v| **v <= 0.0) {
-                    return Err(error(file, format!("radius {v} is not positive")));
+                    return Err(parse_error(file, format!("radius {v} is not positive")));
                 }
                 values.iter().map(|r| r * unit.metres()).collect()
             }
@@ -280,7 +272,7 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
             .enumerate()
         {
             if cell.len() < 2 {
-                return Err(error(
+                return Err(parse_error(
                     file,
                     format!("Lines: line {c} has {} points", cell.len()),
                 ));
