@@ -24,17 +24,22 @@ use crate::network::FlowNetwork;
 pub enum Limiter {
     /// No correction: first-order upwind (diffusive; shown for comparison).
     Upwind,
-    /// van Leer's smooth limiter: second order, no overshoot, little clipping.
-    #[default]
+    /// van Leer's smooth limiter: second order, no overshoot.
     VanLeer,
     /// Roe's superbee: the most compressive TVD limiter (squares off smooth peaks).
     Superbee,
+    /// The monotonized-central limiter: second order, keeps bolus peaks better than van Leer
+    /// with a lower L1 error on both plugs and Gaussians (the default).
+    #[default]
+    MonotonizedCentral,
 }
 
 /// Discretization settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ContrastSettings {
-    /// Target cell length (m); each vessel gets `max(2, ⌈L / cell_length⌉)` equal cells.
+    /// Target cell length (m); each vessel gets `max(2, ⌈L / cell_length⌉)` equal cells. The
+    /// default, 0.25 mm, is about a detector pixel at the isocentre, so contrast is resolved as
+    /// finely as the X-ray image shows it.
     pub cell_length: f64,
     /// Largest Courant number of a sub-step (0 < CFL ≤ 1).
     pub cfl: f64,
@@ -43,12 +48,12 @@ pub struct ContrastSettings {
 }
 
 impl Default for ContrastSettings {
-    /// 1 mm cells, CFL 0.9, van Leer.
+    /// 0.25 mm cells, CFL 0.9, monotonized-central limiter.
     fn default() -> Self {
         Self {
-            cell_length: 1e-3,
+            cell_length: 0.25e-3,
             cfl: 0.9,
-            limiter: Limiter::VanLeer,
+            limiter: Limiter::MonotonizedCentral,
         }
     }
 }
@@ -65,6 +70,17 @@ struct Layout {
     cells: usize,
     /// Cell length (m).
     dx: f64,
+    /// Which way the flow runs through the vessel's interior faces.
+    direction: Direction,
+}
+
+/// Flow direction through a vessel's faces (mixed only where an injection reverses the flow
+/// upstream of the tip).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Direction {
+    Forward,
+    Backward,
+    Mixed,
 }
 
 /// A contrast-filled piece of vessel, for rendering: a truncated cone with a uniform
@@ -107,6 +123,8 @@ pub struct Contrast {
     injected: f64,
     washed_out: f64,
     time: f64,
+    /// The largest stable step for the current flow (s).
+    stable_dt: f64,
 }
 
 impl Contrast {
@@ -133,6 +151,7 @@ impl Contrast {
                 face,
                 cells,
                 dx,
+                direction: Direction::Forward,
             });
             volume.push(0.0);
             for i in 0..cells {
@@ -160,6 +179,7 @@ impl Contrast {
             injected: 0.0,
             washed_out: 0.0,
             time: 0.0,
+            stable_dt: f64::INFINITY,
         })
     }
 
@@ -184,7 +204,7 @@ impl Contrast {
                 requirement: "equal to the contrast field's vessel count",
             });
         }
-        for (l, f) in self.layout.iter().zip(&solution.vessels) {
+        for (l, f) in self.layout.iter_mut().zip(&solution.vessels) {
             let split_cell = if f.split_arc >= l.dx * l.cells as f64 {
                 l.cells
             } else {
@@ -197,7 +217,16 @@ impl Contrast {
                     f.distal
                 };
             }
+            let faces = &self.face_flow[l.face..=l.face + l.cells];
+            l.direction = if faces.iter().all(|&q| q >= 0.0) {
+                Direction::Forward
+            } else if faces.iter().all(|&q| q < 0.0) {
+                Direction::Backward
+            } else {
+                Direction::Mixed
+            };
         }
+        self.stable_dt = self.compute_max_time_step();
         self.external.iter_mut().for_each(|e| *e = 0.0);
         self.external[network.inlet.node] += solution.inlet_flow;
         for (o, q) in network.outlets.iter().zip(&solution.outlet_flows) {
@@ -217,6 +246,10 @@ impl Contrast {
     /// The largest stable time step for the current flow (s): the smallest cell volume over its
     /// outflow, times the CFL number. Infinite when nothing flows.
     pub fn max_time_step(&self) -> f64 {
+        self.stable_dt
+    }
+
+    fn compute_max_time_step(&self) -> f64 {
         let mut dt = f64::INFINITY;
         for l in &self.layout {
             for i in 0..l.cells {
@@ -260,50 +293,72 @@ impl Contrast {
 
     fn substep(&mut self, h: f64) {
         self.mix_at_nodes(h);
-        let limited = self.settings.limiter != Limiter::Upwind;
-        let superbee = self.settings.limiter == Limiter::Superbee;
-        let (conc, inv_volume, face_flow, flux) = (
-            &mut self.conc,
-            &self.inv_volume,
-            &self.face_flow,
-            &mut self.flux,
-        );
-        for l in &self.layout {
-            let c = &conc[l.ext..l.ext + l.cells + 2];
-            let iv = &inv_volume[l.ext..l.ext + l.cells + 2];
-            let q = &face_flow[l.face..l.face + l.cells + 1];
-            let f = &mut flux[l.face..l.face + l.cells + 1];
-            let n = l.cells;
-            // Junction faces: first-order upwind (the ghosts hold the node concentration).
-            f[0] = q[0] * if q[0] >= 0.0 { c[0] } else { c[1] };
-            f[n] = q[n] * if q[n] >= 0.0 { c[n] } else { c[n + 1] };
-            for k in 1..n {
-                let qk = q[k];
-                let (u, uu, d) = if qk >= 0.0 {
-                    (k, k - 1, k + 1)
-                } else {
-                    (k + 1, k + 2, k)
-                };
-                let mut face_value = c[u];
-                if limited {
-                    let nu = qk.abs() * h * iv[u];
-                    let slope = if superbee {
-                        superbee_slope(c[u] - c[uu], c[d] - c[u])
-                    } else {
-                        van_leer_slope(c[u] - c[uu], c[d] - c[u])
-                    };
-                    face_value += 0.5 * (1.0 - nu) * slope;
-                }
-                f[k] = qk * face_value;
-            }
-            let c = &mut conc[l.ext..l.ext + l.cells + 2];
-            for i in 0..n {
-                c[i + 1] += h * iv[i + 1] * (f[i] - f[i + 1]);
-            }
+        match self.settings.limiter {
+            Limiter::Upwind => self.transport(h, |_, _| 0.0),
+            Limiter::VanLeer => self.transport(h, van_leer_slope),
+            Limiter::MonotonizedCentral => self.transport(h, mc_slope),
+            Limiter::Superbee => self.transport(h, superbee_slope),
         }
         if let Some((cell, rate)) = self.source {
             self.conc[cell] += h * self.inv_volume[cell] * rate;
             self.injected += h * rate;
+        }
+    }
+
+    /// Face fluxes and the cell update along every vessel, for one limited slope.
+    #[inline(always)]
+    fn transport(&mut self, h: f64, slope: impl Fn(f64, f64) -> f64 + Copy) {
+        // Flux of a face from its upwind cell u, the cell beyond it uu and the downwind cell d.
+        let face = |q: f64, cu: f64, cuu: f64, cd: f64, inv_volume_u: f64| {
+            let nu = q.abs() * h * inv_volume_u;
+            q * (cu + 0.5 * (1.0 - nu) * slope(cu - cuu, cd - cu))
+        };
+        for l in &self.layout {
+            let n = l.cells;
+            let c = &mut self.conc[l.ext..l.ext + n + 2];
+            let iv = &self.inv_volume[l.ext..l.ext + n + 2];
+            let q = &self.face_flow[l.face..l.face + n + 1];
+            let f = &mut self.flux[l.face..l.face + n + 1];
+            // Junction faces: first-order upwind (the ghosts hold the node concentration).
+            f[0] = q[0] * if q[0] >= 0.0 { c[0] } else { c[1] };
+            f[n] = q[n] * if q[n] >= 0.0 { c[n] } else { c[n + 1] };
+            // Interior face k lies between extended cells k and k + 1.
+            match l.direction {
+                Direction::Forward => {
+                    for (((w, &qk), &ivu), fk) in c[..=n]
+                        .windows(3)
+                        .zip(&q[1..n])
+                        .zip(&iv[1..n])
+                        .zip(&mut f[1..n])
+                    {
+                        *fk = face(qk, w[1], w[0], w[2], ivu);
+                    }
+                }
+                Direction::Backward => {
+                    for (((w, &qk), &ivu), fk) in c[1..]
+                        .windows(3)
+                        .zip(&q[1..n])
+                        .zip(&iv[2..=n])
+                        .zip(&mut f[1..n])
+                    {
+                        *fk = face(qk, w[1], w[2], w[0], ivu);
+                    }
+                }
+                Direction::Mixed => {
+                    for k in 1..n {
+                        f[k] = if q[k] >= 0.0 {
+                            face(q[k], c[k], c[k - 1], c[k + 1], iv[k])
+                        } else {
+                            face(q[k], c[k + 1], c[k + 2], c[k], iv[k + 1])
+                        };
+                    }
+                }
+            }
+            // The update is a convex combination for ν ≤ 1; `max` only removes rounding
+            // residues (~1e-160) below zero.
+            for ((ci, &ivi), fw) in c[1..=n].iter_mut().zip(&iv[1..=n]).zip(f.windows(2)) {
+                *ci = (*ci + h * ivi * (fw[0] - fw[1])).max(0.0);
+            }
         }
     }
 
@@ -452,18 +507,33 @@ impl Contrast {
 
 /// van Leer's limited slope: the harmonic mean `2ab/(a+b)` of the two one-sided differences
 /// when they have the same sign, else 0. Branch-free and safe at a = b = 0.
-#[inline]
+#[inline(always)]
 fn van_leer_slope(backward: f64, forward: f64) -> f64 {
     let p = backward * forward;
     (p + p.abs()) * forward.signum() / (backward.abs() + forward.abs() + f64::MIN_POSITIVE)
 }
 
 /// Superbee's limited slope: `max(min(2|a|, |b|), min(|a|, 2|b|))` with the common sign, else 0.
-#[inline]
+#[inline(always)]
 fn superbee_slope(backward: f64, forward: f64) -> f64 {
-    if backward * forward <= 0.0 {
-        return 0.0;
-    }
     let (a, b) = (backward.abs(), forward.abs());
-    (2.0 * a).min(b).max(a.min(2.0 * b)) * forward.signum()
+    let magnitude = (2.0 * a).min(b).max(a.min(2.0 * b));
+    if backward * forward > 0.0 {
+        magnitude.copysign(forward)
+    } else {
+        0.0
+    }
+}
+
+/// Monotonized-central limited slope: `min(2|a|, (|a| + |b|)/2, 2|b|)` with the common sign,
+/// else 0.
+#[inline(always)]
+fn mc_slope(backward: f64, forward: f64) -> f64 {
+    let (a, b) = (backward.abs(), forward.abs());
+    let magnitude = (2.0 * a).min(0.5 * (a + b)).min(2.0 * b);
+    if backward * forward > 0.0 {
+        magnitude.copysign(forward)
+    } else {
+        0.0
+    }
 }

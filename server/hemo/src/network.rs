@@ -479,3 +479,59 @@ impl FlowNetwork {
         Ok(())
     }
 }
+
+/// Seeded random networks for tests and benchmarks: a random tree of `nodes` nodes (node 0 is
+/// the inlet, at 100 mmHg) with `extra` loop-closing vessels, radii 0.5–4 mm, lengths 5–100 mm,
+/// and an outlet (terminal resistance 0–5·10⁹ Pa·s/m³, venous 0–10 mmHg) at every third node.
+pub fn random_network(seed: u64, nodes: usize, extra: usize) -> Result<FlowNetwork> {
+    use rand::{RngExt, SeedableRng, rngs::StdRng};
+    if nodes < 4 {
+        return Err(HemoError::InvalidParameter {
+            name: "random network node count".into(),
+            value: nodes as f64,
+            requirement: "at least 4",
+        });
+    }
+    let mut rng = StdRng::seed_from_u64(seed);
+    let mut vessels = Vec::with_capacity(nodes + extra);
+    for node in 1..nodes {
+        let parent = rng.random_range(0..node);
+        vessels.push(Vessel::tapered(
+            format!("t{node}"),
+            parent,
+            node,
+            rng.random_range(0.005..0.1),
+            rng.random_range(0.5e-3..4e-3),
+            rng.random_range(0.5e-3..4e-3),
+        ));
+    }
+    for e in 0..extra {
+        let a = rng.random_range(0..nodes);
+        let b = (a + 1 + rng.random_range(0..nodes - 1)) % nodes;
+        vessels.push(Vessel::uniform(
+            format!("x{e}"),
+            a,
+            b,
+            rng.random_range(0.005..0.1),
+            rng.random_range(0.5e-3..3e-3),
+        ));
+    }
+    let outlets = (1..nodes)
+        .filter(|n| n % 3 == 0)
+        .map(|node| Outlet {
+            node,
+            resistance: rng.random_range(0.0..5e9),
+            pressure: rng.random_range(0.0..10.0 * MMHG),
+        })
+        .collect();
+    FlowNetwork::new(
+        nodes,
+        vessels,
+        Inlet {
+            node: 0,
+            condition: InletCondition::Pressure(100.0 * MMHG),
+        },
+        outlets,
+        Blood::default(),
+    )
+}

@@ -207,52 +207,8 @@ fn dense_solve(network: &FlowNetwork, conductance: &[f64]) -> Vec<f64> {
     p.iter().copied().collect()
 }
 
-/// A random connected network: a random tree plus `extra` loop-closing vessels.
 fn random_network(seed: u64, nodes: usize, extra: usize) -> FlowNetwork {
-    let mut rng = StdRng::seed_from_u64(seed);
-    let mut vessels = Vec::new();
-    for node in 1..nodes {
-        let parent = rng.random_range(0..node);
-        vessels.push(Vessel::tapered(
-            format!("t{node}"),
-            parent,
-            node,
-            rng.random_range(0.005..0.1),
-            rng.random_range(0.5e-3..4e-3),
-            rng.random_range(0.5e-3..4e-3),
-        ));
-    }
-    for e in 0..extra {
-        let a = rng.random_range(0..nodes);
-        let b = (a + 1 + rng.random_range(0..nodes - 1)) % nodes;
-        vessels.push(Vessel::uniform(
-            format!("x{e}"),
-            a,
-            b,
-            rng.random_range(0.005..0.1),
-            rng.random_range(0.5e-3..3e-3),
-        ));
-    }
-    // Outlets: every other leaf-ish node except 0.
-    let outlets = (1..nodes)
-        .filter(|n| n % 3 == 0)
-        .map(|node| Outlet {
-            node,
-            resistance: rng.random_range(0.0..5e9),
-            pressure: rng.random_range(0.0..10.0 * MMHG),
-        })
-        .collect();
-    FlowNetwork::new(
-        nodes,
-        vessels,
-        Inlet {
-            node: 0,
-            condition: InletCondition::Pressure(100.0 * MMHG),
-        },
-        outlets,
-        blood(),
-    )
-    .unwrap()
+    cathlab_hemo::network::random_network(seed, nodes, extra).unwrap()
 }
 
 proptest! {
