@@ -12,6 +12,7 @@ pub mod flow;
 pub mod graph;
 pub mod network;
 pub mod openbf;
+pub mod scenarios;
 
 pub use contrast::{Contrast, ContrastSegment, ContrastSettings, Limiter};
 pub use error::{HemoError, Result};

@@ -4,160 +4,17 @@
 
 use std::path::PathBuf;
 
+use cathlab_hemo::scenarios::{BolusShape, advect_bolus};
 use cathlab_hemo::{
     Blood, Contrast, ContrastSettings, FlowNetwork, FlowSolver, Injection, Inlet, InletCondition,
     Limiter, MMHG, OpenBfBoundary, Outlet, Vessel, read_openbf,
 };
 use proptest::prelude::*;
 
-/// A straight tube of `length` (m) and radius 2 mm carrying blood at `speed` (m/s).
-fn tube(length: f64, speed: f64) -> FlowNetwork {
-    let radius = 2e-3;
-    FlowNetwork::new(
-        2,
-        vec![Vessel::uniform("tube", 0, 1, length, radius)],
-        Inlet {
-            node: 0,
-            condition: InletCondition::Flow(speed * std::f64::consts::PI * radius * radius),
-        },
-        vec![Outlet {
-            node: 1,
-            resistance: 0.0,
-            pressure: 0.0,
-        }],
-        Blood::default(),
-    )
-    .unwrap()
-}
-
-/// Average of `f` over `[a, b]` (Simpson, 16 intervals).
-fn cell_average(f: impl Fn(f64) -> f64, a: f64, b: f64) -> f64 {
-    let n = 16;
-    let h = (b - a) / n as f64;
-    let mut sum = f(a) + f(b);
-    for i in 1..n {
-        sum += f(a + i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
-    }
-    sum * h / 3.0 / (b - a)
-}
-
-struct BolusRun {
-    profile: Vec<f64>,
-    exact: Vec<f64>,
-    dx: f64,
-}
-
-/// The bolus shapes: a plug (top hat) of the given length, or a Gaussian of that FWHM.
-#[derive(Debug, Clone, Copy)]
-enum Shape {
-    Plug,
-    Gaussian,
-}
-
-/// Advects a bolus of `shape` and `width` (centred at 20 mm, or 6σ for wide Gaussians)
-/// `distance` metres down a tube at CFL `cfl` on cells of `dx`; returns the final and exact
-/// cell averages.
-fn run_bolus(
-    limiter: Limiter,
-    shape: Shape,
-    dx: f64,
-    cfl: f64,
-    width: f64,
-    distance: f64,
-) -> BolusRun {
-    let speed = 0.2;
-    let network = tube(0.25, speed);
-    let solution = FlowSolver::new(network.clone())
-        .unwrap()
-        .solve(None)
-        .unwrap();
-    let mut contrast = Contrast::new(
-        &network,
-        ContrastSettings {
-            cell_length: dx,
-            cfl: 1.0,
-            limiter,
-        },
-    )
-    .unwrap();
-    contrast.set_flow(&network, &solution).unwrap();
-    let dx = contrast.cell_length(0);
-    let sigma = width / (8.0 * 2f64.ln()).sqrt();
-    let x0 = (6.0 * sigma).max(0.02);
-    let bolus = |x0: f64| {
-        move |x: f64| match shape {
-            Shape::Gaussian => 300.0 * (-0.5 * ((x - x0) / sigma).powi(2)).exp(),
-            Shape::Plug => {
-                if (x - x0).abs() <= 0.5 * width {
-                    300.0
-                } else {
-                    0.0
-                }
-            }
-        }
-    };
-    let initial = bolus(x0);
-    contrast
-        .fill(0, |x| cell_average(&initial, x - 0.5 * dx, x + 0.5 * dx))
-        .unwrap();
-    // Time steps at exactly the requested Courant number.
-    let dt = cfl * dx / speed;
-    let steps = (distance / (speed * dt)).round() as usize;
-    for _ in 0..steps {
-        assert_eq!(contrast.step(dt).unwrap(), 1);
-    }
-    let travelled = steps as f64 * speed * dt;
-    let target = bolus(x0 + travelled);
-    let exact = contrast
-        .cell_centers(0)
-        .iter()
-        .map(|&x| cell_average(&target, x - 0.5 * dx, x + 0.5 * dx))
-        .collect();
-    BolusRun {
-        profile: contrast.concentration(0).to_vec(),
-        exact,
-        dx,
-    }
-}
-
-fn peak(values: &[f64]) -> (usize, f64) {
-    values.iter().copied().enumerate().fold(
-        (0, f64::MIN),
-        |best, (i, v)| if v > best.1 { (i, v) } else { best },
-    )
-}
-
-/// Position (cell index, fractional) of the middle of the span above half the maximum: the
-/// bolus position for plugs and Gaussians alike.
-fn half_maximum_centre(values: &[f64]) -> f64 {
-    let (_, top) = peak(values);
-    let above: Vec<usize> = (0..values.len())
-        .filter(|&i| values[i] >= 0.5 * top)
-        .collect();
-    let crossing = |i: usize, j: usize| {
-        // Linear interpolation of the half-maximum crossing between cells i and j.
-        let (a, b) = (values[i], values[j]);
-        i as f64 + (0.5 * top - a) / (b - a) * (j as f64 - i as f64)
-    };
-    let first = *above.first().unwrap();
-    let last = *above.last().unwrap();
-    let front = if first > 0 {
-        crossing(first - 1, first)
-    } else {
-        0.0
-    };
-    let back = if last + 1 < values.len() {
-        crossing(last, last + 1)
-    } else {
-        last as f64
-    };
-    0.5 * (front + back)
-}
-
 #[test]
 fn bolus_arrives_on_time_and_keeps_its_peak_not_with_upwind() {
     println!("| bolus (5 mm) | cells | limiter | peak kept | arrival error (cells) |");
-    for shape in [Shape::Plug, Shape::Gaussian] {
+    for shape in [BolusShape::Plug, BolusShape::Gaussian] {
         for dx in [1e-3, 0.5e-3, 0.25e-3] {
             for limiter in [
                 Limiter::Upwind,
@@ -165,9 +22,9 @@ fn bolus_arrives_on_time_and_keeps_its_peak_not_with_upwind() {
                 Limiter::MonotonizedCentral,
                 Limiter::Superbee,
             ] {
-                let run = run_bolus(limiter, shape, dx, 0.5, 5e-3, 0.15);
-                let kept = peak(&run.profile).1 / peak(&run.exact).1;
-                let shift = half_maximum_centre(&run.profile) - half_maximum_centre(&run.exact);
+                let run = advect_bolus(limiter, shape, dx, 0.5, 5e-3, 0.15).unwrap();
+                let kept = run.peak_kept();
+                let shift = run.arrival_error_cells();
                 println!(
                     "| {shape:?} | {:.2} mm | {limiter:?} | {:.1} % | {shift:+.2} |",
                     dx * 1e3,
@@ -193,12 +50,8 @@ fn bolus_arrives_on_time_and_keeps_its_peak_not_with_upwind() {
 #[test]
 fn van_leer_converges_at_second_order_and_upwind_at_first() {
     let l1_error = |limiter, dx| {
-        let run = run_bolus(limiter, Shape::Gaussian, dx, 0.5, 20e-3, 0.05);
-        run.profile
-            .iter()
-            .zip(&run.exact)
-            .map(|(a, b)| (a - b).abs() * run.dx)
-            .sum::<f64>()
+        let run = advect_bolus(limiter, BolusShape::Gaussian, dx, 0.5, 20e-3, 0.05).unwrap();
+        run.relative_l1_error()
     };
     for (limiter, lo, hi) in [(Limiter::VanLeer, 1.6, 2.3), (Limiter::Upwind, 0.8, 1.2)] {
         let errors: Vec<f64> = [2e-3, 1e-3, 0.5e-3, 0.25e-3]
@@ -206,7 +59,7 @@ fn van_leer_converges_at_second_order_and_upwind_at_first() {
             .map(|&dx| l1_error(limiter, dx))
             .collect();
         let order = (errors[2] / errors[3]).log2();
-        println!("{limiter:?}: L1 errors {errors:?}, observed order {order:.2}");
+        println!("{limiter:?}: relative L1 errors {errors:?}, observed order {order:.2}");
         assert!((lo..=hi).contains(&order), "{limiter:?} order {order}");
     }
 }
