@@ -19,6 +19,9 @@ use crate::error::{HemoError, Result, require_positive};
 use crate::flow::FlowSolution;
 use crate::network::FlowNetwork;
 
+/// The most CFL sub-steps one [`Contrast::step`] may take.
+pub const MAX_SUBSTEPS: usize = 100_000;
+
 /// The slope limiter of the flux-limited scheme.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Limiter {
@@ -279,10 +282,20 @@ impl Contrast {
         }
         let max = self.max_time_step();
         let substeps = if max.is_finite() {
-            ((dt / max).ceil() as usize).max(1)
+            (dt / max).ceil().max(1.0)
         } else {
-            1
+            1.0
         };
+        if substeps > MAX_SUBSTEPS as f64 {
+            return Err(HemoError::InvalidParameter {
+                name: format!(
+                    "contrast time step (s) (needs {substeps:.0} CFL sub-steps of {max:.2e} s)"
+                ),
+                value: dt,
+                requirement: "short enough for at most 100,000 sub-steps: take shorter steps or coarser cells",
+            });
+        }
+        let substeps = substeps as usize;
         let h = dt / substeps as f64;
         for _ in 0..substeps {
             self.substep(h);
