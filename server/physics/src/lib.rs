@@ -6,6 +6,7 @@
 //! blocks that contact response needs. Plain synchronous, deterministic library: SI units, f64.
 
 pub mod beam;
+pub mod contact;
 pub mod device;
 pub mod elastica;
 pub mod element;
@@ -15,6 +16,7 @@ pub mod section;
 pub mod substructure;
 
 pub use beam::{BeamModel, ElementSpec, SolverSettings, StepMode, StepReport};
+pub use contact::{Contact, ContactResponse, ContactSettings};
 pub use device::{Device, RestShape, Section, presets};
 pub use error::{PhysicsError, Result};
 pub use section::{BeamProperties, CircularSection, Material};

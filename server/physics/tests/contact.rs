@@ -1,0 +1,346 @@
+//! Contact response: the O(M + N) Gauss–Seidel against the explicit-Delassus projected
+//! Gauss–Seidel on random problems (with and without friction), the Signorini and Coulomb
+//! conditions checked on the result, and the analytic stick/slip threshold of a pressed wire.
+
+use cathlab_physics::contact::{Contact, ContactSettings, dense_reference, gauss_seidel};
+use cathlab_physics::{
+    BeamModel, BeamProperties, CircularSection, Material, SolverSettings, Substructure,
+};
+use nalgebra::{Vector3, Vector6};
+use proptest::prelude::*;
+
+fn wire(elements: usize) -> BeamModel {
+    let section = CircularSection::solid(0.2e-3);
+    let material = Material {
+        young_modulus_pa: 60e9,
+        poisson_ratio: 0.33,
+        density_kg_m3: 6450.0,
+    };
+    BeamModel::straight(
+        BeamProperties::new(&section, &material),
+        0.1,
+        elements,
+        SolverSettings::default(),
+    )
+    .unwrap()
+}
+
+fn tight() -> ContactSettings {
+    ContactSettings {
+        tolerance: 1e-13,
+        absolute_tolerance_n: 0.0,
+        max_iterations: 2_000_000,
+        relaxation: 1.0,
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(40))]
+
+    /// Random contact problems as a device in a vessel meets them: points anywhere along the
+    /// device (several may share an element or a node), normals across the device axis from
+    /// one side of the vessel (within ±60° of a random direction), gaps from 0.1 mm clear to
+    /// 0.05 mm penetrating, a random push as the free motion.
+    #[test]
+    fn gauss_seidel_equals_the_explicit_delassus_solve(
+        elements in 4usize..30,
+        raw in proptest::collection::vec((0.0f64..1.0, 0.0f64..1.0, -1.0f64..1.0, -0.5e-4f64..1e-4, 0.0f64..0.5), 1..16),
+        side in 0.0f64..std::f64::consts::TAU,
+        with_friction in proptest::bool::ANY,
+        push in proptest::array::uniform3(-1.0f64..1.0),
+    ) {
+        let mut model = wire(elements);
+        let k = model.tangent_stiffness().clone();
+        let flexibility = Substructure::new(&k).unwrap().flexibility();
+        // Free increment: the response to a random tip load (so it is a real displacement).
+        let mut load = vec![Vector6::zeros(); elements];
+        load[elements - 1] = Vector6::new(push[0] * 0.05, push[1] * 0.002, push[2] * 0.002, 0.0, 0.0, 0.0);
+        let free = Substructure::new(&k).unwrap().solve(&load);
+        let contacts: Vec<Contact> = raw
+            .iter()
+            .map(|&(e, t, spread, gap, mu)| {
+                let angle = side + spread * std::f64::consts::FRAC_PI_3;
+                Contact {
+                    element: ((e * elements as f64) as usize).min(elements - 1),
+                    t,
+                    // The wire lies along x: radial normals are in the y–z plane.
+                    normal: Vector3::new(0.0, angle.cos(), angle.sin()),
+                    gap,
+                    friction: if with_friction { mu } else { 0.0 },
+                }
+            })
+            .collect();
+        let fast = gauss_seidel(&flexibility, &free, &contacts, &tight(), None).unwrap();
+        let dense = dense_reference(&k.to_dense(), &free, &contacts, &tight()).unwrap();
+        prop_assert!(fast.converged && dense.converged, "iterations {} / {}", fast.iterations, dense.iterations);
+        let scale = dense.local.iter().map(|l| l.norm()).fold(1e-12, f64::max);
+        let mut worst: f64 = 0.0;
+        for (a, b) in fast.local.iter().zip(&dense.local) {
+            worst = worst.max((a - b).norm() / scale);
+        }
+        prop_assert!(worst <= 1e-6, "relative force difference {worst}");
+        // Without friction the solution is unique: check it against every active set.
+        if !with_friction && contacts.len() <= 10 {
+            let exact = enumerate_frictionless(&k.to_dense(), &free, &contacts);
+            for (a, b) in fast.local.iter().zip(&exact) {
+                prop_assert!((a.x - b).abs() <= 1e-6 * scale, "{} vs exact {b}", a.x);
+            }
+        }
+    }
+}
+
+/// Exact frictionless solution by enumerating active sets: for each subset A, solve
+/// W_AA λ_A = −(gap + δ_free)_A and accept the first λ ≥ 0 with every gap ≥ 0. An
+/// independent brute force (no iteration at all).
+fn enumerate_frictionless(
+    k_dense: &nalgebra::DMatrix<f64>,
+    free: &[Vector6<f64>],
+    contacts: &[Contact],
+) -> Vec<f64> {
+    let k_inv = k_dense.clone().try_inverse().unwrap();
+    let m = contacts.len();
+    let n = free.len();
+    let mut h = nalgebra::DMatrix::<f64>::zeros(m, 6 * n);
+    for (i, c) in contacts.iter().enumerate() {
+        for (node, weight) in [
+            (c.element.checked_sub(1), 1.0 - c.t),
+            (Some(c.element), c.t),
+        ] {
+            if let Some(node) = node {
+                for d in 0..3 {
+                    h[(i, 6 * node + d)] += weight * c.normal[d];
+                }
+            }
+        }
+    }
+    let w = &h * &k_inv * h.transpose();
+    let u = nalgebra::DVector::from_iterator(6 * n, free.iter().flat_map(|v| v.iter().copied()));
+    let q = &h * u + nalgebra::DVector::from_iterator(m, contacts.iter().map(|c| c.gap));
+    let mut best: Option<(f64, Vec<f64>)> = None;
+    for mask in 0u32..(1 << m) {
+        let active: Vec<usize> = (0..m).filter(|i| mask & (1 << i) != 0).collect();
+        let mut lambda = vec![0.0; m];
+        if !active.is_empty() {
+            let waa = nalgebra::DMatrix::from_fn(active.len(), active.len(), |a, b| {
+                w[(active[a], active[b])]
+            });
+            let rhs = nalgebra::DVector::from_iterator(active.len(), active.iter().map(|&i| -q[i]));
+            let Some(solution) = waa.lu().solve(&rhs) else {
+                continue;
+            };
+            for (a, &i) in active.iter().enumerate() {
+                lambda[i] = solution[a];
+            }
+        }
+        let gaps = &q + &w * nalgebra::DVector::from_vec(lambda.clone());
+        let scale = q.amax().max(1e-12);
+        // Feasibility violation of this active set (0 for the solution).
+        let violation = lambda.iter().map(|l| (-l).max(0.0)).fold(0.0, f64::max)
+            + gaps
+                .iter()
+                .map(|g| (-g / scale).max(0.0))
+                .fold(0.0, f64::max);
+        if best.as_ref().is_none_or(|b| violation < b.0) {
+            best = Some((violation, lambda));
+        }
+    }
+    best.unwrap().1
+}
+
+#[test]
+fn solution_satisfies_signorini_and_coulomb() {
+    // Contacts along a wire pushed sideways into a wall at y = -0.5 mm, with friction.
+    let elements = 40;
+    let mut model = wire(elements);
+    let k = model.tangent_stiffness().clone();
+    let mut substructure = Substructure::new(&k).unwrap();
+    let flexibility = substructure.flexibility();
+    let mut load = vec![Vector6::zeros(); elements];
+    for (i, l) in load.iter_mut().enumerate() {
+        *l = Vector6::new(
+            0.002,
+            -0.0005 * (i as f64 / elements as f64),
+            0.0003,
+            0.0,
+            0.0,
+            0.0,
+        );
+    }
+    let free = substructure.solve(&load);
+    let contacts: Vec<Contact> = (0..elements)
+        .filter(|e| e % 4 == 1)
+        .map(|e| Contact {
+            element: e,
+            t: 0.5,
+            normal: Vector3::y(),
+            gap: 0.5e-3 - 1e-6 * e as f64,
+            friction: 0.3,
+        })
+        .collect();
+    let response = gauss_seidel(&flexibility, &free, &contacts, &tight(), None).unwrap();
+    assert!(response.converged);
+    // Independent check: apply the forces, solve the beam, measure each contact point.
+    let u = substructure.solve(
+        &free
+            .iter()
+            .zip(&response.nodal_loads)
+            .map(|(_, f)| *f)
+            .collect::<Vec<_>>(),
+    );
+    let total: Vec<Vector6<f64>> = free.iter().zip(&u).map(|(a, b)| a + b).collect();
+    let mut active = 0;
+    for (c, (l, f)) in contacts
+        .iter()
+        .zip(response.local.iter().zip(&response.forces))
+    {
+        let node = |i: usize| {
+            if i == 0 {
+                Vector3::zeros()
+            } else {
+                total[i - 1].fixed_rows::<3>(0).into_owned()
+            }
+        };
+        let delta = node(c.element) * (1.0 - c.t) + node(c.element + 1) * c.t;
+        let gap_after = c.gap + c.normal.dot(&delta);
+        assert!(gap_after >= -1e-9 * 0.5e-3, "penetration {gap_after}");
+        assert!(l.x >= 0.0);
+        let tangential = (delta - c.normal * c.normal.dot(&delta)).norm();
+        if l.x > 0.0 {
+            active += 1;
+            assert!(
+                gap_after.abs() < 1e-9 * 0.5e-3,
+                "active contact not closed: {gap_after}"
+            );
+            let ft = l.y.hypot(l.z);
+            assert!(ft <= 0.3 * l.x * (1.0 + 1e-9));
+            if ft < 0.3 * l.x * (1.0 - 1e-6) {
+                assert!(tangential < 1e-9, "sticking contact slipped {tangential}");
+            } else if tangential > 1e-12 {
+                // Sliding: friction opposes the slip.
+                let slip = (delta - c.normal * c.normal.dot(&delta)) / tangential;
+                let friction = f - c.normal * c.normal.dot(f);
+                assert!(friction.normalize().dot(&slip) < -0.999);
+            }
+        }
+    }
+    println!(
+        "{active} of {} contacts active after {} sweeps",
+        contacts.len(),
+        response.iterations
+    );
+    assert!(active >= 3);
+}
+
+#[test]
+fn a_pressed_wire_slides_only_past_mu_n() {
+    // Cantilever along x; its tip pressed down (−y) onto a wall with normal +y by N = 10 mN,
+    // then pushed sideways (z) by T. Coulomb: it sticks for T ≤ μN and slides by
+    // W_tt (T − μN) beyond.
+    let elements = 20;
+    let mut model = wire(elements);
+    let k = model.tangent_stiffness().clone();
+    let mut substructure = Substructure::new(&k).unwrap();
+    let flexibility = substructure.flexibility();
+    let mu = 0.2;
+    let normal_force = 0.01;
+    let compliance_z = flexibility.diagonal[elements - 1][(2, 2)];
+    for ratio in [0.5, 0.99, 1.01, 1.5] {
+        let tangential_force = ratio * mu * normal_force;
+        let mut load = vec![Vector6::zeros(); elements];
+        load[elements - 1] = Vector6::new(0.0, -normal_force, tangential_force, 0.0, 0.0, 0.0);
+        let free = substructure.solve(&load);
+        let contact = Contact {
+            element: elements - 1,
+            t: 1.0,
+            normal: Vector3::y(),
+            gap: 0.0,
+            friction: mu,
+        };
+        let response = gauss_seidel(&flexibility, &free, &[contact], &tight(), None).unwrap();
+        let force = response.forces[0];
+        let slip = free[elements - 1].z + compliance_z * force.z;
+        println!(
+            "T = {ratio:.2} μN: normal {:.6} N, friction {:.6} N, tip slip {:.3e} m",
+            force.y, force.z, slip
+        );
+        assert!((force.y - normal_force).abs() < 1e-9 * normal_force);
+        if ratio <= 1.0 {
+            assert!(
+                (force.z + tangential_force).abs() < 1e-9 * normal_force,
+                "sticks"
+            );
+            assert!(slip.abs() < 1e-12, "no slip below μN");
+        } else {
+            assert!(
+                (force.z + mu * normal_force).abs() < 1e-9 * normal_force,
+                "friction at μN"
+            );
+            let expected = compliance_z * (tangential_force - mu * normal_force);
+            assert!(
+                (slip - expected).abs() < 1e-9 * expected,
+                "slip {slip} vs {expected}"
+            );
+        }
+    }
+}
+
+#[test]
+fn bad_contacts_give_clear_errors() {
+    let elements = 5;
+    let mut model = wire(elements);
+    let k = model.tangent_stiffness().clone();
+    let flexibility = Substructure::new(&k).unwrap().flexibility();
+    let free = vec![Vector6::zeros(); elements];
+    let good = Contact {
+        element: 2,
+        t: 0.5,
+        normal: Vector3::y(),
+        gap: 0.0,
+        friction: 0.1,
+    };
+    let cases = [
+        (Contact { element: 9, ..good }, "element index"),
+        (Contact { t: 1.5, ..good }, "contact 0"),
+        (
+            Contact {
+                gap: f64::NAN,
+                ..good
+            },
+            "contact 0",
+        ),
+        (
+            Contact {
+                friction: -0.1,
+                ..good
+            },
+            "contact 0",
+        ),
+        (
+            Contact {
+                normal: Vector3::new(0.0, 2.0, 0.0),
+                ..good
+            },
+            "normal",
+        ),
+    ];
+    for (contact, needle) in cases {
+        let err = gauss_seidel(
+            &flexibility,
+            &free,
+            &[contact],
+            &ContactSettings::default(),
+            None,
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains(needle), "{err}");
+    }
+    let err = gauss_seidel(
+        &flexibility,
+        &free[..3],
+        &[good],
+        &ContactSettings::default(),
+        None,
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("free displacement"), "{err}");
+}
