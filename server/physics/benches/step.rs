@@ -46,6 +46,9 @@ fn equilibrium(c: &mut Criterion) {
         },
         geometric_stiffness: true,
         compute_flexibility: false,
+        drag: None,
+        max_step_increment: None,
+        geometric_stiffness_in_compression: true,
     };
     let result = tip_loaded_cantilever(1.0, 100, settings, 1, 0).unwrap();
     assert!(result.converged && result.tip_error < 1e-4, "{result:?}");

@@ -26,6 +26,7 @@
 
 use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3, Vector6};
 
+use crate::contact::{Contact, ContactResponse, ContactSettings, gauss_seidel};
 use crate::device::Device;
 use crate::element::{BendingCoefficients, local_geometric_stiffness, local_stiffness};
 use crate::error::{PhysicsError, Result, require_finite, require_positive};
@@ -72,6 +73,30 @@ pub struct SolverSettings {
     pub geometric_stiffness: bool,
     /// Compute the flexibility blocks (diagonal of K⁻¹ and couplings) each step.
     pub compute_flexibility: bool,
+    /// Viscous drag of the surrounding fluid, which turns each quasi-static step into a step
+    /// of overdamped motion: `(K + C/Δt) Δu = f_ext − f_int`. It leaves every equilibrium
+    /// unchanged (Δu = 0 there) and keeps steps bounded where K is near-singular (buckling).
+    pub drag: Option<ViscousDrag>,
+    /// Largest node translation (m) and rotation (rad) of the free motion in a step with
+    /// contacts; a larger free increment is scaled down as a whole before the contacts are
+    /// solved, so a violent event such as buckling proceeds over several steps.
+    pub max_step_increment: Option<(f64, f64)>,
+    /// Include the geometric stiffness of compressed elements too. Off, only tension stiffens
+    /// the tangent: the tangent stays positive definite however hard the device is pushed, and
+    /// the step relaxes into a buckled shape instead of following an unstable straight branch
+    /// (see the buckling test).
+    pub geometric_stiffness_in_compression: bool,
+}
+
+/// Viscous drag per unit length on the device (Levenberg–Marquardt regularization with a
+/// physical meaning).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ViscousDrag {
+    /// Drag force per unit length per unit velocity (N·s/m²); rotations get the drag of a rod
+    /// segment turning about its centre, c·ℓ³/12 per node.
+    pub per_length_n_s_per_m2: f64,
+    /// The time step it acts over (s).
+    pub time_step_s: f64,
 }
 
 impl Default for SolverSettings {
@@ -80,6 +105,9 @@ impl Default for SolverSettings {
             mode: StepMode::PAPER,
             geometric_stiffness: true,
             compute_flexibility: true,
+            drag: None,
+            max_step_increment: None,
+            geometric_stiffness_in_compression: true,
         }
     }
 }
@@ -99,6 +127,20 @@ pub struct StepReport {
     pub last_translation_increment_m: f64,
     /// Largest node rotation increment of the last iteration (rad).
     pub last_rotation_increment_rad: f64,
+}
+
+/// What a step with contacts did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ContactStep {
+    /// The beam step (one linear solve plus the contact correction).
+    pub report: StepReport,
+    /// The contacts detected for this step.
+    pub contacts: Vec<Contact>,
+    /// Their forces.
+    pub response: ContactResponse,
+    /// The deepest penetration the last detection saw in the solved configuration (m; 0 when
+    /// none, or when only one detection round ran).
+    pub penetration_m: f64,
 }
 
 /// Rest data and constant matrices of one element.
@@ -190,6 +232,20 @@ impl AxisymmetricBlock6 {
 }
 
 impl Element {
+    /// An element from its rest geometry alone (the offsets are relative, so the pose of the
+    /// rest shape does not matter).
+    fn from_spec(spec: &ElementSpec) -> Result<Self> {
+        require_positive(|| "element length_m".into(), spec.length_m)?;
+        require_finite(|| "element curvature_per_m".into(), spec.curvature_per_m)?;
+        let (dp, dq) = arc_increment(spec.curvature_per_m, spec.length_m);
+        let frame = element_frame(&UnitQuaternion::identity(), &dq, &dp);
+        Ok(Self::new(
+            spec.props,
+            dp.norm(),
+            [frame, dq.inverse() * frame],
+        ))
+    }
+
     fn new(props: BeamProperties, rest_length_m: f64, offsets: [UnitQuaternion<f64>; 2]) -> Self {
         let split = |k: &crate::element::Matrix12| {
             [(0, 0), (0, 6), (6, 6)].map(|(i, j)| {
@@ -518,6 +574,121 @@ impl BeamModel {
         self.set_base_pose(self.positions[0] + axis * insertion_m, twist * q)
     }
 
+    /// Moves only node 0 (the driven base) to a new pose, leaving every other node where it is:
+    /// the next step carries the change along the device through its stiffness (a push or a
+    /// twist at the entry point of a device that lies in a vessel).
+    pub fn place_base(
+        &mut self,
+        position: Vector3<f64>,
+        rotation: UnitQuaternion<f64>,
+    ) -> Result<()> {
+        for (i, v) in position.iter().chain(rotation.coords.iter()).enumerate() {
+            require_finite(|| format!("base pose component {i}"), *v)?;
+        }
+        self.positions[0] = position;
+        self.rotations[0] = rotation;
+        Ok(())
+    }
+
+    /// Moves every node to the given positions (m) and frames, e.g. a kinematic predictor
+    /// before a step. The lengths must match the node count.
+    pub fn set_nodes(
+        &mut self,
+        positions: &[Vector3<f64>],
+        rotations: &[UnitQuaternion<f64>],
+    ) -> Result<()> {
+        for (what, len) in [
+            ("node positions", positions.len()),
+            ("node rotations", rotations.len()),
+        ] {
+            if len != self.node_count() {
+                return Err(PhysicsError::LengthMismatch {
+                    what,
+                    expected: self.node_count(),
+                    actual: len,
+                });
+            }
+        }
+        for (i, p) in positions.iter().enumerate() {
+            for v in p.iter() {
+                require_finite(|| format!("node {i} position"), *v)?;
+            }
+        }
+        self.positions.copy_from_slice(positions);
+        self.rotations.copy_from_slice(rotations);
+        Ok(())
+    }
+
+    /// Rest length of element `index` (m).
+    pub fn element_rest_length(&self, index: usize) -> f64 {
+        self.elements[index].rest_length_m
+    }
+
+    /// Replaces the rest geometry of element 0 (next to the base), e.g. as the device slides
+    /// in or out through the entry point; the nodes stay where they are.
+    pub fn set_base_element(&mut self, spec: ElementSpec) -> Result<()> {
+        let element = Element::from_spec(&spec)?;
+        self.length_m += element.rest_length_m - self.elements[0].rest_length_m;
+        self.elements[0] = element;
+        Ok(())
+    }
+
+    /// Splits element 0 by a new node 1 on its chord, `distal_length` (m, rest) from node 1
+    /// (the old node 1 becomes node 2): the shape does not jump. `base` and `distal` are the two
+    /// new elements' rest geometries.
+    pub fn insert_node_after_base(&mut self, base: ElementSpec, distal: ElementSpec) -> Result<()> {
+        let first = Element::from_spec(&base)?;
+        let second = Element::from_spec(&distal)?;
+        let total = first.rest_length_m + second.rest_length_m;
+        let fraction = first.rest_length_m / total;
+        let (p0, p1) = (self.positions[0], self.positions[1]);
+        let (q0, q1) = (self.rotations[0], self.rotations[1]);
+        let position = p0 + (p1 - p0) * fraction;
+        let rotation = q0.slerp(&q1, fraction);
+        self.length_m += total - self.elements[0].rest_length_m;
+        self.elements[0] = second;
+        self.elements.insert(0, first);
+        self.positions.insert(1, position);
+        self.rotations.insert(1, rotation);
+        self.rest_positions.insert(1, position);
+        self.rest_rotations.insert(1, rotation);
+        self.external.insert(1, Vector6::zeros());
+        self.resize_work_buffers();
+        Ok(())
+    }
+
+    /// Removes node 1, joining elements 0 and 1 into one with rest geometry `merged` (as the
+    /// device is pulled out through the entry point). Needs at least two elements.
+    pub fn remove_node_after_base(&mut self, merged: ElementSpec) -> Result<()> {
+        if self.elements.len() < 2 {
+            return Err(PhysicsError::TooFewElements {
+                count: self.elements.len(),
+                min: 2,
+            });
+        }
+        let element = Element::from_spec(&merged)?;
+        self.length_m +=
+            element.rest_length_m - self.elements[0].rest_length_m - self.elements[1].rest_length_m;
+        self.elements.remove(0);
+        self.elements[0] = element;
+        for v in [&mut self.positions, &mut self.rest_positions] {
+            v.remove(1);
+        }
+        for v in [&mut self.rotations, &mut self.rest_rotations] {
+            v.remove(1);
+        }
+        self.external.remove(1);
+        self.resize_work_buffers();
+        Ok(())
+    }
+
+    fn resize_work_buffers(&mut self) {
+        let nodes = self.positions.len();
+        self.stiffness = BlockTridiagonal::zeros(nodes - 1);
+        self.internal.resize(nodes, Vector6::zeros());
+        self.rhs.resize(nodes - 1, Vector6::zeros());
+    }
+
     /// Advances one step with the configured mode.
     pub fn step(&mut self) -> Result<StepReport> {
         self.saved_positions.clone_from(&self.positions);
@@ -578,6 +749,16 @@ impl BeamModel {
 
     /// One linearisation and solve; returns the largest increments (m, rad).
     fn iterate(&mut self, gamma: f64, flexibility: bool) -> Result<(f64, f64)> {
+        self.solve_free(gamma, flexibility)?;
+        let increments = std::mem::take(&mut self.rhs);
+        let result = self.apply_increments(&increments);
+        self.rhs = increments;
+        result
+    }
+
+    /// Assembles, factors and solves K Δu = f_ext − γ f_int: leaves the free increment of every
+    /// unknown node in `self.rhs` (and the flexibility blocks, if asked).
+    fn solve_free(&mut self, gamma: f64, flexibility: bool) -> Result<()> {
         self.assemble();
         for (i, rhs) in self.rhs.iter_mut().enumerate() {
             *rhs = self.external[i + 1] - gamma * self.internal[i + 1];
@@ -587,9 +768,15 @@ impl BeamModel {
         if flexibility {
             self.substructure.flexibility_into(&mut self.flexibility);
         }
+        Ok(())
+    }
+
+    /// Applies increments (one per unknown node) after the divergence checks; returns the
+    /// largest translation (m) and rotation (rad) increment.
+    fn apply_increments(&mut self, increments: &[Vector6<f64>]) -> Result<(f64, f64)> {
         let mut max_dx: f64 = 0.0;
         let mut max_dtheta: f64 = 0.0;
-        for (i, du) in self.rhs.iter().enumerate() {
+        for (i, du) in increments.iter().enumerate() {
             let dx = du.fixed_rows::<3>(0).into_owned();
             let dtheta = du.fixed_rows::<3>(3).into_owned();
             let diverged = |quantity| PhysicsError::Diverged {
@@ -610,11 +797,162 @@ impl BeamModel {
             }
             max_dx = max_dx.max(dx.norm());
             max_dtheta = max_dtheta.max(dtheta.norm());
-            self.positions[i + 1] += dx;
-            let q = UnitQuaternion::from_scaled_axis(dtheta) * self.rotations[i + 1];
+        }
+        for (i, du) in increments.iter().enumerate() {
+            self.positions[i + 1] += du.fixed_rows::<3>(0).into_owned();
+            let q = UnitQuaternion::from_scaled_axis(du.fixed_rows::<3>(3).into_owned())
+                * self.rotations[i + 1];
             self.rotations[i + 1] = UnitQuaternion::new_normalize(q.into_inner());
         }
         Ok((max_dx, max_dtheta))
+    }
+
+    /// One paper-mode step with contact: the free increment is solved, `detect` turns the
+    /// configuration and the free increment into contacts (positions, rotations, free increment
+    /// per unknown node), Gauss–Seidel finds the contact forces through the flexibility blocks,
+    /// and one more O(N) solve adds their effect. The contact forces are totals, not increments:
+    /// the next step's residual no longer contains them, and its contact solve finds them again
+    /// (warm-started from what `warm_start` returns for the detected contacts: local forces per
+    /// contact). With `settings.detection_rounds` > 1, detection runs again at the solved
+    /// configuration, and if it finds a wall penetrated by more than
+    /// `settings.penetration_tolerance_m` that the contact set lacks, the contacts are solved
+    /// again with it (the report's `iterations` counts the rounds). Nothing changes on error.
+    pub fn step_with_contacts(
+        &mut self,
+        detect: impl FnMut(
+            &[Vector3<f64>],
+            &[UnitQuaternion<f64>],
+            &[Vector6<f64>],
+        ) -> Result<Vec<Contact>>,
+        settings: &ContactSettings,
+        warm_start: impl FnOnce(&[Contact]) -> Option<Vec<Vector3<f64>>>,
+    ) -> Result<ContactStep> {
+        self.saved_positions.clone_from(&self.positions);
+        self.saved_rotations.clone_from(&self.rotations);
+        let result = self.step_with_contacts_inner(detect, settings, warm_start);
+        self.step_count += 1;
+        if result.is_err() {
+            self.positions.clone_from(&self.saved_positions);
+            self.rotations.clone_from(&self.saved_rotations);
+        }
+        result
+    }
+
+    fn step_with_contacts_inner(
+        &mut self,
+        mut detect: impl FnMut(
+            &[Vector3<f64>],
+            &[UnitQuaternion<f64>],
+            &[Vector6<f64>],
+        ) -> Result<Vec<Contact>>,
+        settings: &ContactSettings,
+        warm_start: impl FnOnce(&[Contact]) -> Option<Vec<Vector3<f64>>>,
+    ) -> Result<ContactStep> {
+        let gamma = match self.settings.mode {
+            StepMode::Incremental { gamma } => gamma,
+            StepMode::Converged { .. } => 1.0,
+        };
+        self.solve_free(gamma, true)?;
+        let mut free = self.rhs.clone();
+        if let Some((max_dx, max_dtheta)) = self.settings.max_step_increment {
+            // Step-size control on the free motion only: the contact solve then makes the end
+            // state feasible whatever the scale.
+            let (dx, dtheta) = free.iter().fold((0.0f64, 0.0f64), |(a, b), du| {
+                (
+                    a.max(du.fixed_rows::<3>(0).norm()),
+                    b.max(du.fixed_rows::<3>(3).norm()),
+                )
+            });
+            let scale = (max_dx / dx).min(max_dtheta / dtheta).min(1.0);
+            if scale < 1.0 {
+                free.iter_mut().for_each(|du| *du *= scale);
+            }
+        }
+        let mut contacts = detect(&self.positions, &self.rotations, &free)?;
+        let mut warm = if contacts.is_empty() {
+            None
+        } else {
+            warm_start(&contacts)
+        };
+        let rounds = settings.detection_rounds.max(1);
+        let mut increments;
+        let mut response;
+        let mut round = 0;
+        let mut penetration: f64 = 0.0;
+        loop {
+            response = if contacts.is_empty() {
+                ContactResponse {
+                    nodal_loads: vec![Vector6::zeros(); free.len()],
+                    converged: true,
+                    ..Default::default()
+                }
+            } else {
+                gauss_seidel(
+                    &self.flexibility,
+                    &free,
+                    &contacts,
+                    settings,
+                    warm.as_deref(),
+                )?
+            };
+            increments = response.nodal_loads.clone();
+            if !contacts.is_empty() {
+                self.substructure.solve_in_place(&mut increments);
+            }
+            for (du, f) in increments.iter_mut().zip(&free) {
+                *du += f;
+            }
+            round += 1;
+            if rounds == 1 || contacts.is_empty() {
+                break;
+            }
+            // Look again where the contact forces moved the device: a wall it now penetrates
+            // (one the contact set lacks, such as a corner's other wall, or one whose
+            // linearization went stale as the device slid along a curved wall) means another
+            // round with fresh contacts there.
+            let mut next = detect(&self.positions, &self.rotations, &increments)?;
+            let depth = |c: &Contact| {
+                let at = |node: usize| -> Vector3<f64> {
+                    if node == 0 {
+                        Vector3::zeros()
+                    } else {
+                        increments[node - 1].fixed_rows::<3>(0).into_owned()
+                    }
+                };
+                let delta = at(c.element) * (1.0 - c.t) + at(c.element + 1) * c.t;
+                -(c.gap + c.normal.dot(&delta))
+            };
+            penetration = next.iter().map(depth).fold(0.0, f64::max);
+            if penetration <= settings.penetration_tolerance_m || round >= rounds {
+                break;
+            }
+            // Keep the earlier rounds' contacts too (a wall the contact forces pushed the device
+            // away from still bounds it), ordered along the device.
+            for old in &contacts {
+                if !next.iter().any(|c| same_contact(c, old)) {
+                    next.push(*old);
+                }
+            }
+            next.sort_by(|a, b| {
+                (a.element, a.t)
+                    .partial_cmp(&(b.element, b.t))
+                    .unwrap_or(std::cmp::Ordering::Equal)
+            });
+            warm = Some(carry_forces(&next, &contacts, &response.local));
+            contacts = next;
+        }
+        let (dx, dtheta) = self.apply_increments(&increments)?;
+        Ok(ContactStep {
+            report: StepReport {
+                iterations: round,
+                converged: response.converged,
+                last_translation_increment_m: dx,
+                last_rotation_increment_rad: dtheta,
+            },
+            contacts,
+            response,
+            penetration_m: penetration,
+        })
     }
 
     /// Internal forces f_int = Λᵀ K̄e(ū − ū0) and the tangent stiffness of the unknown nodes.
@@ -631,8 +969,13 @@ impl BeamModel {
 
             let mut k = element.stiffness;
             if geometric {
+                let force = if self.settings.geometric_stiffness_in_compression {
+                    axial_force
+                } else {
+                    axial_force.max(0.0)
+                };
                 for (block, g) in k.iter_mut().zip(&element.geometric_per_newton) {
-                    *block = block.scaled_add(g, axial_force);
+                    *block = block.scaled_add(g, force);
                 }
             }
             let axis = r.column(0).into_owned();
@@ -640,6 +983,24 @@ impl BeamModel {
             if e > 0 {
                 k[0].add_world_to(&axis, &mut self.stiffness.diagonal[e - 1]);
                 k[1].add_world_to(&axis, &mut self.stiffness.upper[e - 1]);
+            }
+        }
+        if let Some(drag) = self.settings.drag {
+            let rate = drag.per_length_n_s_per_m2 / drag.time_step_s;
+            let elements = self.elements.len();
+            for (i, block) in self.stiffness.diagonal.iter_mut().enumerate() {
+                // Unknown i is node i + 1: half of each adjacent element.
+                let node = i + 1;
+                let mut share = 0.5 * self.elements[node - 1].rest_length_m;
+                if node < elements {
+                    share += 0.5 * self.elements[node].rest_length_m;
+                }
+                let translational = rate * share;
+                let rotational = rate * share.powi(3) / 12.0;
+                for d in 0..3 {
+                    block[(d, d)] += translational;
+                    block[(d + 3, d + 3)] += rotational;
+                }
             }
         }
     }
@@ -672,12 +1033,53 @@ impl BeamModel {
         &self.stiffness
     }
 
+    /// Elastic energy stored in the device (J): ½ Σ ū·K̄e ū over the elements, with the local
+    /// deformation ū measured from the rest shape.
+    pub fn elastic_energy(&self) -> f64 {
+        (0..self.elements.len())
+            .map(|e| {
+                let element = &self.elements[e];
+                let state = self.element_state(e);
+                let (f1, f2, axial) = element_forces(element, &state);
+                let [t1, t2] = state.theta;
+                let torsion = f1[3];
+                0.5 * (axial * (state.chord_m - element.rest_length_m)
+                    + torsion * (t1.x - t2.x)
+                    + f1[4] * t1.y
+                    + f2[4] * t2.y
+                    + f1[5] * t1.z
+                    + f2[5] * t2.z)
+            })
+            .sum()
+    }
+
     /// Reaction wrench at the base (force N, moment N·m, world frame): what the operator's
     /// hand must apply to hold the device where it is.
     pub fn base_reaction(&mut self) -> Vector6<f64> {
         self.assemble();
         self.internal[0] - self.external[0]
     }
+}
+
+/// Whether two contacts are the same wall touching the same point: same element and
+/// parameter, normals within about 25°.
+fn same_contact(a: &Contact, b: &Contact) -> bool {
+    a.element == b.element && (a.t - b.t).abs() <= 1e-9 && a.normal.dot(&b.normal) > 0.9
+}
+
+/// Forces of `old` contacts carried over to the same `new` ones (zero for the rest): the
+/// warm start of a repeated detection round.
+fn carry_forces(new: &[Contact], old: &[Contact], forces: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+    new.iter()
+        .map(|c| {
+            old.iter()
+                .zip(forces)
+                .filter(|(o, _)| same_contact(o, c))
+                .map(|(_, f)| *f)
+                .next()
+                .unwrap_or_else(Vector3::zeros)
+        })
+        .collect()
 }
 
 /// Rotation vector (axis × angle, rad) of a unit quaternion, accurate near the identity.

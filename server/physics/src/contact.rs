@@ -71,6 +71,19 @@ pub struct ContactSettings {
     /// Over-relaxation factor ω ∈ (0, 2): each contact moves ω times its Gauss–Seidel update,
     /// then is projected back onto the friction cone (projected SOR). 1 is plain Gauss–Seidel.
     pub relaxation: f64,
+    /// Detection-and-solve rounds per beam step (see `BeamModel::step_with_contacts`).
+    pub detection_rounds: usize,
+    /// A new round runs when the solved configuration penetrates a wall by more than this (m).
+    pub penetration_tolerance_m: f64,
+    /// Anderson acceleration of the Gauss–Seidel iteration: how many past sweeps to mix
+    /// (0 = plain Gauss–Seidel). The accelerated iterate is projected back onto the friction
+    /// cones and the history restarts whenever the update grows; each sweep still costs
+    /// O(M + N), plus O(depth² M) for the mixing.
+    pub acceleration_depth: usize,
+    /// When Gauss–Seidel runs out of sweeps, finish the normal forces with an active-set
+    /// solve (the tangential forces held): exact non-penetration for O(A·N + A³) work, A the
+    /// active contacts.
+    pub polish: bool,
 }
 
 impl Default for ContactSettings {
@@ -80,6 +93,10 @@ impl Default for ContactSettings {
             absolute_tolerance_n: 1e-9,
             max_iterations: 200,
             relaxation: 1.0,
+            detection_rounds: 1,
+            penetration_tolerance_m: 1e-6,
+            acceleration_depth: 0,
+            polish: false,
         }
     }
 }
@@ -97,6 +114,9 @@ pub struct ContactResponse {
     pub iterations: usize,
     /// Whether the tolerance was met.
     pub converged: bool,
+    /// Whether the normal forces were finished by the active-set solve after Gauss–Seidel ran
+    /// out of sweeps.
+    pub polished: bool,
 }
 
 /// Per-contact data fixed during a solve.
@@ -289,6 +309,266 @@ pub fn solve_local(w: &Matrix3<f64>, b: &Vector3<f64>, gap: f64, mu: f64) -> Vec
     }
 }
 
+/// The normal force that closes the gap with the tangential force `own.yz` held, the latter
+/// clipped to the cone of the new normal force.
+fn normal_with_fixed_tangent(
+    w: &Matrix3<f64>,
+    b: &Vector3<f64>,
+    gap: f64,
+    own: &Vector3<f64>,
+    mu: f64,
+) -> Vector3<f64> {
+    if w[(0, 0)].is_nan() || w[(0, 0)] <= 0.0 {
+        return Vector3::zeros();
+    }
+    let normal = (-(b.x + gap + w[(0, 1)] * own.y + w[(0, 2)] * own.z) / w[(0, 0)]).max(0.0);
+    project_on_cone(&Vector3::new(normal, own.y, own.z), mu)
+}
+
+/// Displacements of every unknown node under nodal `loads`, u = K⁻¹ F, by the propagation
+/// u_i = B_i + D_i A_i of the module documentation: O(N).
+fn node_displacements(flexibility: &Flexibility, loads: &[Vector6<f64>]) -> Vec<Vector6<f64>> {
+    let d = &flexibility.diagonal;
+    let h = &flexibility.coupling;
+    let n = d.len();
+    let mut u = vec![Vector6::zeros(); n];
+    let mut next = Vector6::zeros();
+    for i in (0..n).rev() {
+        let b = d[i] * loads[i]
+            + if i + 1 < n {
+                h[i] * next
+            } else {
+                Vector6::zeros()
+            };
+        u[i] = b;
+        next = b;
+    }
+    let mut base_ward = Vector6::zeros();
+    for i in 0..n {
+        if i > 0 {
+            base_ward = h[i - 1].transpose() * (base_ward + loads[i - 1]);
+        }
+        u[i] += d[i] * base_ward;
+    }
+    u
+}
+
+/// Normal displacement of contact `p` (its frame's first axis) under node displacements `u`.
+fn normal_displacement(p: &Prepared, u: &[Vector6<f64>]) -> f64 {
+    let mut delta = translation(&u[p.second]) * p.t;
+    if let Some(i) = p.first {
+        delta += translation(&u[i]) * (1.0 - p.t);
+    }
+    p.frame.column(0).dot(&delta)
+}
+
+/// Active-set solve of the normal forces with the tangential forces held: the set starts from
+/// the contacts pushing or penetrating; each pass solves W_AA λ_A = −c_A exactly (W from K⁻¹
+/// by propagation, one O(N) solve per active contact), drops the most negative force or adds
+/// the most penetrated inactive contact, until neither exists. Returns false (leaving `local`
+/// alone) if it does not settle in 2M passes.
+fn polish_normals(
+    flexibility: &Flexibility,
+    prepared: &[Prepared],
+    local: &mut [Vector3<f64>],
+) -> bool {
+    let m = prepared.len();
+    let n = flexibility.diagonal.len();
+    // Gaps with zero normal forces: free motion plus the held tangential forces.
+    let mut tangential_loads = vec![Vector6::zeros(); n];
+    let tangential: Vec<Vector3<f64>> = local.iter().map(|l| Vector3::new(0.0, l.y, l.z)).collect();
+    accumulate_loads(prepared, &tangential, &mut tangential_loads);
+    let u_t = node_displacements(flexibility, &tangential_loads);
+    let c: Vec<f64> = prepared
+        .iter()
+        .map(|p| p.gap + p.free.x + normal_displacement(p, &u_t))
+        .collect();
+    // Column j of W restricted to normal components, computed on demand.
+    let mut columns: Vec<Option<Vec<f64>>> = vec![None; m];
+    let mut column = |j: usize| -> Vec<f64> {
+        columns[j]
+            .get_or_insert_with(|| {
+                let mut unit = vec![Vector3::zeros(); m];
+                unit[j] = Vector3::x();
+                let mut loads = vec![Vector6::zeros(); n];
+                accumulate_loads(prepared, &unit, &mut loads);
+                let u = node_displacements(flexibility, &loads);
+                prepared
+                    .iter()
+                    .map(|p| normal_displacement(p, &u))
+                    .collect()
+            })
+            .clone()
+    };
+    let tolerance = 1e-9;
+    let scale = c.iter().fold(1e-12f64, |a, b| a.max(b.abs()));
+    let mut active: Vec<bool> = (0..m).map(|k| local[k].x > 0.0 || c[k] < 0.0).collect();
+    for _ in 0..2 * m.max(1) {
+        let set: Vec<usize> = (0..m).filter(|&k| active[k]).collect();
+        let cols: Vec<Vec<f64>> = set.iter().map(|&j| column(j)).collect();
+        let lambda = if set.is_empty() {
+            DVector::zeros(0)
+        } else {
+            let w = DMatrix::from_fn(set.len(), set.len(), |a, b| cols[b][set[a]]);
+            let rhs = DVector::from_iterator(set.len(), set.iter().map(|&k| -c[k]));
+            match w.clone().cholesky() {
+                Some(ch) => ch.solve(&rhs),
+                None => match w.lu().solve(&rhs) {
+                    Some(x) => x,
+                    None => return false,
+                },
+            }
+        };
+        if let Some((a, _)) = lambda
+            .iter()
+            .enumerate()
+            .filter(|(_, l)| **l < 0.0)
+            .min_by(|x, y| x.1.total_cmp(y.1))
+        {
+            active[set[a]] = false;
+            continue;
+        }
+        // Gaps of the inactive contacts under the active forces.
+        let worst = (0..m)
+            .filter(|&k| !active[k])
+            .map(|k| {
+                let g = c[k]
+                    + set
+                        .iter()
+                        .zip(&cols)
+                        .zip(lambda.iter())
+                        .map(|((_, col), l)| col[k] * l)
+                        .sum::<f64>();
+                (k, g)
+            })
+            .filter(|(_, g)| *g < -tolerance * scale)
+            .min_by(|x, y| x.1.total_cmp(&y.1));
+        if let Some((k, _)) = worst {
+            active[k] = true;
+            continue;
+        }
+        for l in local.iter_mut() {
+            l.x = 0.0;
+        }
+        for (&k, l) in set.iter().zip(lambda.iter()) {
+            local[k].x = *l;
+        }
+        for (p, l) in prepared.iter().zip(local.iter_mut()) {
+            *l = project_on_cone(l, p.friction);
+        }
+        return true;
+    }
+    false
+}
+
+/// Adds the nodal loads of contact forces `local` into `loads`.
+fn accumulate_loads(prepared: &[Prepared], local: &[Vector3<f64>], loads: &mut [Vector6<f64>]) {
+    for (p, l) in prepared.iter().zip(local) {
+        let f = p.frame * l;
+        loads[p.second] += force6(&(f * p.t));
+        if let Some(i) = p.first {
+            loads[i] += force6(&(f * (1.0 - p.t)));
+        }
+    }
+}
+
+/// Projects a local force onto the friction cone (λ_n ≥ 0, |λ_t| ≤ μ λ_n, radially).
+fn project_on_cone(l: &Vector3<f64>, mu: f64) -> Vector3<f64> {
+    if l.x <= 0.0 {
+        return Vector3::zeros();
+    }
+    let tangential = l.y.hypot(l.z);
+    if tangential > mu * l.x {
+        let scale = if tangential > 0.0 {
+            mu * l.x / tangential
+        } else {
+            0.0
+        };
+        Vector3::new(l.x, l.y * scale, l.z * scale)
+    } else {
+        *l
+    }
+}
+
+/// Anderson acceleration (type II) of a fixed-point iteration x ← G(x): mixes the last few
+/// iterates to minimise the linearized residual G(x) − x.
+struct Anderson {
+    depth: usize,
+    /// Past G(x) values and residuals G(x) − x, flattened.
+    values: std::collections::VecDeque<DVector<f64>>,
+    residuals: std::collections::VecDeque<DVector<f64>>,
+    size: usize,
+}
+
+impl Anderson {
+    fn new(depth: usize, size: usize) -> Self {
+        Self {
+            depth,
+            values: Default::default(),
+            residuals: Default::default(),
+            size,
+        }
+    }
+
+    fn active(&self) -> bool {
+        self.depth > 0 && self.size > 0
+    }
+
+    /// Records the sweep `before → after` and replaces `after` by the mixed iterate; false when
+    /// there is not yet enough history (or it was reset).
+    fn mix(&mut self, before: &[Vector3<f64>], after: &mut [Vector3<f64>]) -> bool {
+        let flat = |v: &[Vector3<f64>]| {
+            DVector::from_iterator(self.size, v.iter().flat_map(|l| l.iter().copied()))
+        };
+        let g = flat(after);
+        let f = &g - flat(before);
+        if let Some(last) = self.residuals.back()
+            && f.norm() > 2.0 * last.norm()
+        {
+            // The iteration is not contracting in this region: restart the history.
+            self.values.clear();
+            self.residuals.clear();
+        }
+        self.values.push_back(g.clone());
+        self.residuals.push_back(f.clone());
+        if self.values.len() > self.depth + 1 {
+            self.values.pop_front();
+            self.residuals.pop_front();
+        }
+        let m = self.values.len() - 1;
+        if m == 0 {
+            return false;
+        }
+        let delta_f = DMatrix::from_fn(self.size, m, |r, c| {
+            self.residuals[c + 1][r] - self.residuals[c][r]
+        });
+        let delta_g = DMatrix::from_fn(self.size, m, |r, c| {
+            self.values[c + 1][r] - self.values[c][r]
+        });
+        let mut normal = delta_f.transpose() * &delta_f;
+        let scale = normal.diagonal().amax().max(f64::MIN_POSITIVE);
+        for i in 0..m {
+            normal[(i, i)] += 1e-12 * scale;
+        }
+        let Some(gamma) = normal
+            .cholesky()
+            .map(|c| c.solve(&(delta_f.transpose() * &f)))
+        else {
+            return false;
+        };
+        let mixed = &g - delta_g * gamma;
+        if !mixed.iter().all(|v| v.is_finite()) {
+            return false;
+        }
+        // Mix the normal forces only: the tangential ones follow the friction law of the
+        // Gauss–Seidel sweep (mixing them can cycle between sliding directions).
+        for (k, l) in after.iter_mut().enumerate() {
+            l.x = mixed[3 * k];
+        }
+        true
+    }
+}
+
 /// Over-relaxes a local update and projects it onto the friction cone.
 fn relax(own: &Vector3<f64>, updated: Vector3<f64>, omega: f64, mu: f64) -> Vector3<f64> {
     if omega == 1.0 {
@@ -335,18 +615,25 @@ pub fn gauss_seidel(
     };
     // Nodal loads of the current forces.
     let mut loads = vec![Vector6::<f64>::zeros(); n];
-    for (p, l) in prepared.iter().zip(&local) {
-        let f = p.frame * l;
-        loads[p.second] += force6(&(f * p.t));
-        if let Some(i) = p.first {
-            loads[i] += force6(&(f * (1.0 - p.t)));
-        }
-    }
+    accumulate_loads(&prepared, &local, &mut loads);
+    let mut anderson = Anderson::new(settings.acceleration_depth, 3 * contacts.len());
     let d = &flexibility.diagonal;
     let h = &flexibility.coupling;
     let mut tip_ward = vec![Vector6::<f64>::zeros(); n];
     let mut response = ContactResponse::default();
-    for sweep in 0..settings.max_iterations.max(1) {
+    // Phase 1: the full Coulomb law. Gauss–Seidel on frictional contact can cycle instead of
+    // converging; then phase 2 freezes the tangential forces (clipped to the cones) and solves
+    // the normal forces alone, a convex problem, so non-penetration holds whatever friction did.
+    let with_friction = prepared.iter().any(|p| p.friction > 0.0);
+    let budget = settings.max_iterations.max(1);
+    let mut frozen = false;
+    let mut sweep = 0;
+    while sweep < if with_friction { 2 * budget } else { budget } {
+        if sweep == budget {
+            frozen = true;
+            anderson = Anderson::new(settings.acceleration_depth, 3 * contacts.len());
+        }
+        let before = anderson.active().then(|| local.clone());
         // B_i = D_i F_i + H_i B_{i+1}, from the tip.
         let mut next = Vector6::zeros();
         for i in (0..n).rev() {
@@ -383,12 +670,16 @@ pub fn gauss_seidel(
             let point = u_first * (1.0 - p.t) + u_second * p.t;
             let own = local[k];
             let b = p.free + p.frame.transpose() * point - p.compliance * own;
-            let updated = relax(
-                &own,
-                solve_local(&p.compliance, &b, p.gap, p.friction),
-                settings.relaxation,
-                p.friction,
-            );
+            let updated = if frozen {
+                normal_with_fixed_tangent(&p.compliance, &b, p.gap, &own, p.friction)
+            } else {
+                relax(
+                    &own,
+                    solve_local(&p.compliance, &b, p.gap, p.friction),
+                    settings.relaxation,
+                    p.friction,
+                )
+            };
             let change = updated - own;
             if change != Vector3::zeros() {
                 let df = p.frame * change;
@@ -406,11 +697,33 @@ pub fn gauss_seidel(
             largest_change = largest_change.max(change.norm());
             largest_force = largest_force.max(updated.norm());
         }
-        response.iterations = sweep + 1;
+        sweep += 1;
+        response.iterations = sweep;
         if largest_change <= (settings.tolerance * largest_force).max(settings.absolute_tolerance_n)
         {
-            response.converged = true;
+            // Converged; with frozen friction only the normal forces are exact.
+            response.converged = !frozen;
             break;
+        }
+        if sweep == budget && !with_friction {
+            break;
+        }
+        if let Some(before) = before
+            && anderson.mix(&before, &mut local)
+        {
+            for (p, l) in prepared.iter().zip(local.iter_mut()) {
+                *l = project_on_cone(l, p.friction);
+            }
+            loads.iter_mut().for_each(|l| l.fill(0.0));
+            accumulate_loads(&prepared, &local, &mut loads);
+        }
+    }
+    if !response.converged && settings.polish {
+        // Gauss–Seidel ran out of sweeps: solve the normal forces of the active set directly.
+        if polish_normals(flexibility, &prepared, &mut local) {
+            loads.iter_mut().for_each(|l| l.fill(0.0));
+            accumulate_loads(&prepared, &local, &mut loads);
+            response.polished = true;
         }
     }
     if local.iter().any(|l| !l.iter().all(|v| v.is_finite())) {

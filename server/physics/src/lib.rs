@@ -11,13 +11,19 @@ pub mod device;
 pub mod elastica;
 pub mod element;
 pub mod error;
+pub mod navigation;
 pub mod scenarios;
 pub mod section;
 pub mod substructure;
+pub mod wall;
 
-pub use beam::{BeamModel, ElementSpec, SolverSettings, StepMode, StepReport};
+pub use beam::{
+    BeamModel, ContactStep, ElementSpec, SolverSettings, StepMode, StepReport, ViscousDrag,
+};
 pub use contact::{Contact, ContactResponse, ContactSettings};
 pub use device::{Device, RestShape, Section, presets};
 pub use error::{PhysicsError, Result};
+pub use navigation::{Command, Insertion, Navigation, NavigationReport, NavigationSettings, Twist};
 pub use section::{BeamProperties, CircularSection, Material};
 pub use substructure::{BlockTridiagonal, Flexibility, Substructure};
+pub use wall::{CappedTube, Wall, WallProbe};

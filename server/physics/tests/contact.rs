@@ -31,6 +31,7 @@ fn tight() -> ContactSettings {
         absolute_tolerance_n: 0.0,
         max_iterations: 2_000_000,
         relaxation: 1.0,
+        ..Default::default()
     }
 }
 

@@ -1,0 +1,655 @@
+//! Navigation: a device pushed, pulled and twisted at an entry point (the sheath) into a
+//! vessel, of which only the inserted length is simulated. Nodes are material points of the
+//! device, spaced finely near the tip and coarsely along the shaft; as the device slides in,
+//! the element next to the entry point grows and is split when it is 1.5 element lengths
+//! long, and as it slides out it shrinks and is merged when it is half an element long — the
+//! new node is placed on the current chord, so the shape never jumps. Each step: proximal
+//! control (clamped speeds), collision detection at the predicted configuration, the beam solve
+//! with Gauss–Seidel contact and Coulomb friction, and the proximal reaction on request.
+
+use nalgebra::{UnitQuaternion, Vector3, Vector6};
+
+use crate::beam::{BeamModel, ContactStep, ElementSpec, SolverSettings, StepMode, ViscousDrag};
+use crate::contact::{Contact, ContactSettings};
+use crate::device::Device;
+use crate::error::{PhysicsError, Result, require_finite, require_positive};
+use crate::wall::Wall;
+
+/// Discretization, control limits and contact settings of a navigation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NavigationSettings {
+    /// Physics time step (s); 1/500 s by default.
+    pub time_step_s: f64,
+    /// Largest insertion speed either way (m/s).
+    pub max_insertion_speed_m_s: f64,
+    /// Largest twist rate either way (rad/s).
+    pub max_twist_rate_rad_s: f64,
+    /// Element length near the tip (m).
+    pub tip_element_m: f64,
+    /// Element length along the shaft (m).
+    pub shaft_element_m: f64,
+    /// Length from the tip discretized with `tip_element_m`; the spacing then grows linearly to
+    /// `shaft_element_m` over the same length again (m).
+    pub tip_zone_m: f64,
+    /// Points closer to the wall than this (device surface to wall, m) become contacts, whose
+    /// force may still come out zero.
+    pub contact_margin_m: f64,
+    /// Collision points along each element are at most this far apart (m).
+    pub sample_spacing_m: f64,
+    /// Viscous drag per unit length (N·s/m²) regularizing each step (see
+    /// [`crate::beam::ViscousDrag`]): it slows motion in directions the device offers no
+    /// stiffness (buckling) without changing any equilibrium.
+    pub drag_n_s_per_m2: f64,
+    /// Largest translation (m) of any node in one step, beyond the commanded sliding.
+    pub max_step_m: f64,
+    /// Largest rotation (rad) of any node in one step.
+    pub max_step_rad: f64,
+    /// A step whose solved configuration still penetrates the wall by more than this (m) is
+    /// redone as two half steps.
+    pub substep_penetration_m: f64,
+    /// Gauss–Seidel settings.
+    pub contact: ContactSettings,
+}
+
+impl Default for NavigationSettings {
+    fn default() -> Self {
+        Self {
+            time_step_s: 1.0 / 500.0,
+            max_insertion_speed_m_s: 0.15,
+            max_twist_rate_rad_s: 4.0 * std::f64::consts::PI,
+            tip_element_m: 1.5e-3,
+            shaft_element_m: 5e-3,
+            tip_zone_m: 30e-3,
+            contact_margin_m: 0.3e-3,
+            sample_spacing_m: 1e-3,
+            drag_n_s_per_m2: 10.0,
+            max_step_m: 0.2e-3,
+            max_step_rad: 0.2,
+            substep_penetration_m: 0.02e-3,
+            contact: ContactSettings {
+                tolerance: 1e-4,
+                absolute_tolerance_n: 1e-7,
+                max_iterations: 300,
+                relaxation: 1.0,
+                detection_rounds: 4,
+                penetration_tolerance_m: 0.01e-3,
+                acceleration_depth: 5,
+                polish: true,
+            },
+        }
+    }
+}
+
+/// How many times a step may be halved when it would penetrate the wall.
+pub const MAX_SUBSTEP_DEPTH: usize = 3;
+
+/// Push/pull command.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Insertion {
+    /// Insertion speed (m/s; negative pulls).
+    Velocity(f64),
+    /// Inserted length to move to (m).
+    Target(f64),
+}
+
+/// Twist command (about the device axis at the entry point).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Twist {
+    /// Twist rate (rad/s).
+    Rate(f64),
+    /// Twist angle to move to (rad).
+    Target(f64),
+}
+
+/// The operator's command at the device's proximal end.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Command {
+    /// Push/pull.
+    pub insertion: Insertion,
+    /// Twist.
+    pub twist: Twist,
+}
+
+impl Default for Command {
+    fn default() -> Self {
+        Self {
+            insertion: Insertion::Velocity(0.0),
+            twist: Twist::Rate(0.0),
+        }
+    }
+}
+
+/// What one navigation step did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NavigationReport {
+    /// Contacts detected.
+    pub contacts: usize,
+    /// Contacts with a positive normal force.
+    pub active_contacts: usize,
+    /// Gauss–Seidel sweeps.
+    pub sweeps: usize,
+    /// Whether Gauss–Seidel met its tolerance.
+    pub converged: bool,
+    /// Inserted length after the step (m).
+    pub inserted_m: f64,
+    /// Twist angle after the step (rad).
+    pub twist_rad: f64,
+    /// Elements simulated.
+    pub elements: usize,
+}
+
+/// A device being navigated through a vessel.
+#[derive(Debug, Clone)]
+pub struct Navigation<W: Wall> {
+    device: Device,
+    wall: W,
+    settings: NavigationSettings,
+    model: BeamModel,
+    entry_position: Vector3<f64>,
+    entry_rotation: UnitQuaternion<f64>,
+    /// Material coordinate (m from the proximal end) of every simulated node, base to tip.
+    material: Vec<f64>,
+    twist_rad: f64,
+    command: Command,
+    time_s: f64,
+    last: Option<ContactStep>,
+    /// Material coordinates and local forces of the last contacts (for warm starts).
+    previous_contacts: Vec<(f64, Vector3<f64>)>,
+}
+
+impl<W: Wall> Navigation<W> {
+    /// Starts with `inserted_m` of `device` through the entry point at `entry_position`, heading
+    /// along `entry_direction`, in its rest shape.
+    pub fn new(
+        device: Device,
+        wall: W,
+        entry_position: Vector3<f64>,
+        entry_direction: Vector3<f64>,
+        inserted_m: f64,
+        settings: NavigationSettings,
+    ) -> Result<Self> {
+        device.validate()?;
+        require_positive(|| "time_step_s".into(), settings.time_step_s)?;
+        require_positive(|| "tip_element_m".into(), settings.tip_element_m)?;
+        require_positive(|| "shaft_element_m".into(), settings.shaft_element_m)?;
+        require_positive(|| "sample_spacing_m".into(), settings.sample_spacing_m)?;
+        require_positive(
+            || "max_insertion_speed_m_s".into(),
+            settings.max_insertion_speed_m_s,
+        )?;
+        require_positive(
+            || "max_twist_rate_rad_s".into(),
+            settings.max_twist_rate_rad_s,
+        )?;
+        require_finite(|| "contact_margin_m".into(), settings.contact_margin_m)?;
+        for (i, v) in entry_position
+            .iter()
+            .chain(entry_direction.iter())
+            .enumerate()
+        {
+            require_finite(|| format!("entry pose component {i}"), *v)?;
+        }
+        let length = device.length_m();
+        if !(inserted_m >= settings.tip_element_m && inserted_m <= length) {
+            return Err(PhysicsError::OutOfRange {
+                what: "initial inserted length (m)".into(),
+                range: "between the tip element length and the device length",
+                value: inserted_m,
+            });
+        }
+        let direction =
+            entry_direction
+                .try_normalize(1e-12)
+                .ok_or_else(|| PhysicsError::OutOfRange {
+                    what: "entry direction length".into(),
+                    range: "non-zero",
+                    value: entry_direction.norm(),
+                })?;
+        let entry_rotation = UnitQuaternion::rotation_between(&Vector3::x(), &direction)
+            .unwrap_or_else(|| {
+                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI)
+            });
+        // Nodes from the tip back to the entry point.
+        let base = length - inserted_m;
+        let mut material = vec![length];
+        loop {
+            let last = *material.last().unwrap();
+            let next = last - spacing(&settings, length, last);
+            if next <= base + 0.5 * spacing(&settings, length, last) {
+                material.push(base);
+                break;
+            }
+            material.push(next);
+        }
+        material.reverse();
+        let specs: Vec<ElementSpec> = material
+            .windows(2)
+            .map(|w| element_spec(&device, w[0], w[1]))
+            .collect();
+        let model = BeamModel::new(
+            &specs,
+            entry_position,
+            entry_rotation,
+            SolverSettings {
+                mode: StepMode::PAPER,
+                geometric_stiffness: true,
+                compute_flexibility: true,
+                drag: (settings.drag_n_s_per_m2 > 0.0).then_some(ViscousDrag {
+                    per_length_n_s_per_m2: settings.drag_n_s_per_m2,
+                    time_step_s: settings.time_step_s,
+                }),
+                max_step_increment: Some((settings.max_step_m, settings.max_step_rad)),
+                geometric_stiffness_in_compression: false,
+            },
+        )?;
+        Ok(Self {
+            device,
+            wall,
+            settings,
+            model,
+            entry_position,
+            entry_rotation,
+            material,
+            twist_rad: 0.0,
+            command: Command::default(),
+            time_s: 0.0,
+            last: None,
+            previous_contacts: Vec::new(),
+        })
+    }
+
+    /// Replaces the operator's command (applied from the next step on).
+    pub fn set_command(&mut self, command: Command) -> Result<()> {
+        let value = match command.insertion {
+            Insertion::Velocity(v) | Insertion::Target(v) => v,
+        };
+        require_finite(|| "insertion command".into(), value)?;
+        let value = match command.twist {
+            Twist::Rate(v) | Twist::Target(v) => v,
+        };
+        require_finite(|| "twist command".into(), value)?;
+        self.command = command;
+        Ok(())
+    }
+
+    /// The beam model of the inserted part.
+    pub fn model(&self) -> &BeamModel {
+        &self.model
+    }
+
+    /// The device.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// The wall.
+    pub fn wall(&self) -> &W {
+        &self.wall
+    }
+
+    /// Inserted length (m).
+    pub fn inserted_m(&self) -> f64 {
+        self.device.length_m() - self.material[0]
+    }
+
+    /// Twist applied at the entry point (rad).
+    pub fn twist_rad(&self) -> f64 {
+        self.twist_rad
+    }
+
+    /// Simulated time (s).
+    pub fn time_s(&self) -> f64 {
+        self.time_s
+    }
+
+    /// Material coordinate of every node (m from the device's proximal end), base to tip.
+    pub fn node_material_m(&self) -> &[f64] {
+        &self.material
+    }
+
+    /// The contacts and forces of the last step.
+    pub fn last_contacts(&self) -> Option<&ContactStep> {
+        self.last.as_ref()
+    }
+
+    /// Tip position (m).
+    pub fn tip_position(&self) -> Vector3<f64> {
+        self.model.tip_position()
+    }
+
+    /// The wrench the operator's hand feels at the entry point (force N, moment N·m, world
+    /// frame): the base reaction of the device in its current configuration.
+    pub fn proximal_reaction(&mut self) -> Vector6<f64> {
+        self.model.base_reaction()
+    }
+
+    /// Advances one time step.
+    pub fn step(&mut self) -> Result<NavigationReport> {
+        let dt = self.settings.time_step_s;
+        let length = self.device.length_m();
+        // 1. Proximal control, clamped.
+        let max_push = self.settings.max_insertion_speed_m_s * dt;
+        let inserted = self.inserted_m();
+        let wanted = match self.command.insertion {
+            Insertion::Velocity(v) => v * dt,
+            Insertion::Target(x) => x - inserted,
+        };
+        let min_inserted = self.settings.tip_element_m;
+        let push = wanted
+            .clamp(-max_push, max_push)
+            .clamp(min_inserted - inserted, length - inserted);
+        let max_turn = self.settings.max_twist_rate_rad_s * dt;
+        let turn = match self.command.twist {
+            Twist::Rate(w) => w * dt,
+            Twist::Target(a) => a - self.twist_rad,
+        }
+        .clamp(-max_turn, max_turn);
+        let report = self.advance(push, turn, 0)?;
+        self.time_s += dt;
+        Ok(report)
+    }
+
+    /// Advances by `push` (m) and `turn` (rad); where the solved step still penetrates the wall
+    /// by more than the sub-step threshold (a violent event: buckling, a slide along a curved
+    /// wall), the step is undone and taken as two halves, up to [`MAX_SUBSTEP_DEPTH`] times.
+    fn advance(&mut self, push: f64, turn: f64, depth: usize) -> Result<NavigationReport> {
+        let saved = (depth < MAX_SUBSTEP_DEPTH).then(|| {
+            (
+                self.model.clone(),
+                self.material.clone(),
+                self.twist_rad,
+                self.previous_contacts.clone(),
+            )
+        });
+        let report = self.single_step(push, turn)?;
+        let penetration = self.last.as_ref().map_or(0.0, |s| s.penetration_m);
+        if penetration > self.settings.substep_penetration_m
+            && let Some((model, material, twist, previous)) = saved
+        {
+            self.model = model;
+            self.material = material;
+            self.twist_rad = twist;
+            self.previous_contacts = previous;
+            self.advance(0.5 * push, 0.5 * turn, depth + 1)?;
+            return self.advance(0.5 * push, 0.5 * turn, depth + 1);
+        }
+        Ok(report)
+    }
+
+    /// One solve: slide, twist, detect, solve.
+    fn single_step(&mut self, push: f64, turn: f64) -> Result<NavigationReport> {
+        self.slide(push)?;
+        self.twist_rad += turn;
+        let twist = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), self.twist_rad);
+        self.model
+            .place_base(self.entry_position, self.entry_rotation * twist)?;
+        // 2–4. Detection at the predicted configuration, beam solve with contacts.
+        let samples = self.sample_layout();
+        let wall = &self.wall;
+        let margin = self.settings.contact_margin_m;
+        let material = &self.material;
+        let previous = &self.previous_contacts;
+        let tolerance = self.settings.sample_spacing_m;
+        let step = self.model.step_with_contacts(
+            |positions, _rotations, free| Ok(detect(wall, &samples, positions, free, margin)),
+            &self.settings.contact,
+            |contacts| warm_start(contacts, material, previous, tolerance),
+        )?;
+        self.previous_contacts = step
+            .contacts
+            .iter()
+            .zip(&step.response.local)
+            .map(|(c, l)| (material_of(&self.material, c), *l))
+            .collect();
+        let report = NavigationReport {
+            contacts: step.contacts.len(),
+            active_contacts: step.response.local.iter().filter(|l| l.x > 0.0).count(),
+            sweeps: step.response.iterations,
+            converged: step.response.converged,
+            inserted_m: self.inserted_m(),
+            twist_rad: self.twist_rad,
+            elements: self.model.element_count(),
+        };
+        self.last = Some(step);
+        Ok(report)
+    }
+
+    /// Slides the device in (`push` > 0) or out through the entry point, growing or shrinking
+    /// the element next to it and splitting or merging it as needed.
+    fn slide(&mut self, push: f64) -> Result<()> {
+        if push == 0.0 {
+            return Ok(());
+        }
+        let length = self.device.length_m();
+        // Predictor. Follow the leader along the straight part: every node moves along the
+        // device's current shape by `push` (behind the entry along the entry axis), so the
+        // material slides along its own path and nothing is compressed. A curved rest shape at
+        // the tip (angled or J) is carried rigidly by the last straight node, which moves along
+        // its own axis: sliding material through a bend would strain it.
+        let positions = self.model.positions().to_vec();
+        let rotations = self.model.rotations().to_vec();
+        let last = self.material.len() - 1;
+        let curved_from = (0..self.model.element_count())
+            .find(|&e| {
+                let mid = 0.5 * (self.material[e] + self.material[e + 1]);
+                self.device.rest_curvature_at(mid) != 0.0
+            })
+            .map_or(last, |e| e.max(1));
+        let along = |s: f64| -> (Vector3<f64>, UnitQuaternion<f64>) {
+            let m = &self.material;
+            if s <= m[0] {
+                let q = rotations[0];
+                (positions[0] - q * Vector3::x() * (m[0] - s), q)
+            } else {
+                let k = m.partition_point(|&x| x <= s).clamp(1, last) - 1;
+                let f = ((s - m[k]) / (m[k + 1] - m[k])).min(1.0);
+                (
+                    positions[k] + (positions[k + 1] - positions[k]) * f,
+                    rotations[k].slerp(&rotations[k + 1], f),
+                )
+            }
+        };
+        let mut new_positions = positions.clone();
+        let mut new_rotations = rotations.clone();
+        for i in 1..curved_from {
+            (new_positions[i], new_rotations[i]) = along(self.material[i] + push);
+        }
+        let carried = rotations[curved_from] * Vector3::x() * push;
+        for p in &mut new_positions[curved_from..] {
+            *p += carried;
+        }
+        self.model.set_nodes(&new_positions, &new_rotations)?;
+        self.material[0] -= push;
+        loop {
+            let base = self.material[0];
+            let first = self.material[1];
+            let h = spacing(&self.settings, length, first);
+            let element = first - base;
+            // Only split while pushing and only merge while pulling: with a spacing that varies
+            // along the device, doing both could alternate forever.
+            if push > 0.0 && element > 1.5 * h {
+                let split = first - h;
+                self.model.insert_node_after_base(
+                    element_spec(&self.device, base, split),
+                    element_spec(&self.device, split, first),
+                )?;
+                self.material.insert(1, split);
+            } else if push < 0.0 && element < 0.5 * h && self.material.len() > 2 {
+                let second = self.material[2];
+                self.model
+                    .remove_node_after_base(element_spec(&self.device, base, second))?;
+                self.material.remove(1);
+            } else {
+                return self
+                    .model
+                    .set_base_element(element_spec(&self.device, base, first));
+            }
+        }
+    }
+
+    /// Collision points per element: (element, t, device radius, friction).
+    fn sample_layout(&self) -> Vec<Sample> {
+        let mut samples = Vec::new();
+        let elements = self.model.element_count();
+        for e in 0..elements {
+            let (a, b) = (self.material[e], self.material[e + 1]);
+            let (section, _) = self.device.section_at(0.5 * (a + b));
+            let radius = section.cross_section.outer_radius_m;
+            let friction = section.friction_coefficient;
+            let count = ((b - a) / self.settings.sample_spacing_m).ceil().max(1.0) as usize;
+            // t = 0 belongs to the element (node e); the tip (t = 1) only to the last element.
+            let last = if e + 1 == elements { count } else { count - 1 };
+            for j in 0..=last {
+                samples.push(Sample {
+                    element: e,
+                    t: j as f64 / count as f64,
+                    radius,
+                    friction,
+                });
+            }
+        }
+        samples
+    }
+
+    /// The largest penetration of the device into the wall in the current configuration (m;
+    /// 0 when nothing penetrates), over the collision points.
+    pub fn max_penetration_m(&self) -> f64 {
+        let positions = self.model.positions();
+        self.sample_layout()
+            .iter()
+            .filter_map(|s| {
+                let p = positions[s.element] * (1.0 - s.t) + positions[s.element + 1] * s.t;
+                self.wall
+                    .probe(&p, s.radius)
+                    .map(|probe| s.radius - probe.clearance_m)
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
+/// Material coordinate of a contact point (m from the proximal end).
+fn material_of(material: &[f64], contact: &Contact) -> f64 {
+    let (a, b) = (material[contact.element], material[contact.element + 1]);
+    a + contact.t * (b - a)
+}
+
+/// The previous step's forces for contacts within `tolerance` (m, along the device) of the
+/// same material point, as a Gauss–Seidel warm start; both lists are ordered along the device.
+fn warm_start(
+    contacts: &[Contact],
+    material: &[f64],
+    previous: &[(f64, Vector3<f64>)],
+    tolerance: f64,
+) -> Option<Vec<Vector3<f64>>> {
+    if previous.is_empty() {
+        return None;
+    }
+    let mut j = 0;
+    let warm = contacts
+        .iter()
+        .map(|c| {
+            let s = material_of(material, c);
+            while j + 1 < previous.len()
+                && (previous[j + 1].0 - s).abs() <= (previous[j].0 - s).abs()
+            {
+                j += 1;
+            }
+            if (previous[j].0 - s).abs() <= tolerance {
+                previous[j].1
+            } else {
+                Vector3::zeros()
+            }
+        })
+        .collect();
+    Some(warm)
+}
+
+/// One collision point.
+#[derive(Debug, Clone, Copy)]
+struct Sample {
+    element: usize,
+    t: f64,
+    radius: f64,
+    friction: f64,
+}
+
+/// Node spacing at material coordinate `s` (m from the proximal end) of a device of `length`.
+fn spacing(settings: &NavigationSettings, length: f64, s: f64) -> f64 {
+    let from_tip = length - s;
+    let ramp = ((from_tip - settings.tip_zone_m) / settings.tip_zone_m).clamp(0.0, 1.0);
+    settings.tip_element_m + ramp * (settings.shaft_element_m - settings.tip_element_m)
+}
+
+/// Rest geometry of the device between material coordinates `a` < `b`.
+fn element_spec(device: &Device, a: f64, b: f64) -> ElementSpec {
+    let mid = 0.5 * (a + b);
+    ElementSpec {
+        props: device.section_at(mid).0.beam_properties(),
+        length_m: b - a,
+        curvature_per_m: device.rest_curvature_at(mid),
+    }
+}
+
+/// Contacts at the predicted configuration x + Δu_free: for each element the deepest collision
+/// point within the margin, with its gap shifted back so that `gap + n·δ_free` is the
+/// predicted gap (the contact solver linearizes about the free motion, so a fast push cannot
+/// tunnel through the wall).
+fn detect<W: Wall>(
+    wall: &W,
+    samples: &[Sample],
+    positions: &[Vector3<f64>],
+    free: &[Vector6<f64>],
+    margin: f64,
+) -> Vec<Contact> {
+    let moved = |node: usize| -> Vector3<f64> {
+        if node == 0 {
+            Vector3::zeros()
+        } else {
+            free[node - 1].fixed_rows::<3>(0).into_owned()
+        }
+    };
+    let mut contacts: Vec<Contact> = Vec::new();
+    // Predicted gaps of the contacts of the current element (parallel to its tail of
+    // `contacts`): one contact per element and wall direction, the deepest.
+    let mut deepest: Vec<f64> = Vec::new();
+    let mut element_start = 0;
+    for s in samples {
+        let delta = moved(s.element) * (1.0 - s.t) + moved(s.element + 1) * s.t;
+        let at = positions[s.element] * (1.0 - s.t) + positions[s.element + 1] * s.t + delta;
+        let Some(probe) = wall.probe(&at, s.radius + margin) else {
+            continue;
+        };
+        let predicted_gap = probe.clearance_m - s.radius;
+        if predicted_gap > margin {
+            continue;
+        }
+        let contact = Contact {
+            element: s.element,
+            t: s.t,
+            normal: probe.normal,
+            gap: predicted_gap - probe.normal.dot(&delta),
+            friction: s.friction,
+        };
+        if contacts.last().is_none_or(|c| c.element != s.element) {
+            element_start = contacts.len();
+            deepest.clear();
+        }
+        // One contact per element half and wall direction: an element lying along the wall
+        // keeps a contact near each end.
+        let same_wall = contacts[element_start..]
+            .iter()
+            .position(|c| c.normal.dot(&contact.normal) > 0.9 && (c.t < 0.5) == (contact.t < 0.5));
+        match same_wall {
+            Some(k) if predicted_gap < deepest[k] => {
+                contacts[element_start + k] = contact;
+                deepest[k] = predicted_gap;
+            }
+            Some(_) => {}
+            None => {
+                contacts.push(contact);
+                deepest.push(predicted_gap);
+            }
+        }
+    }
+    contacts
+}

@@ -1,0 +1,102 @@
+//! The vessel wall as the device sees it: a probe that tells, for a point on the device's
+//! centerline, how far it is from the wall and which way the wall pushes. Implemented for the
+//! anatomy's lumen surfaces and for analytic walls (a capped tube) that tests use as exact
+//! references.
+
+use std::sync::Arc;
+
+use cathlab_anatomy::Lumen;
+use cathlab_anatomy::lumen::Proximity;
+use nalgebra::{Point3, Vector3};
+
+/// What a probe sees at a point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WallProbe {
+    /// Distance from the point to the wall (m): positive inside the lumen, negative outside.
+    pub clearance_m: f64,
+    /// Unit normal of the wall at the closest point, pointing into the lumen (the direction the
+    /// wall pushes the device).
+    pub normal: Vector3<f64>,
+}
+
+/// A vessel wall.
+pub trait Wall {
+    /// The probe at `point` (m) if the wall is within `search_m` of it or the point is outside
+    /// the lumen; `None` when the point is inside and farther than `search_m` from the wall.
+    fn probe(&self, point: &Vector3<f64>, search_m: f64) -> Option<WallProbe>;
+}
+
+impl<T: Wall + ?Sized> Wall for &T {
+    fn probe(&self, point: &Vector3<f64>, search_m: f64) -> Option<WallProbe> {
+        (**self).probe(point, search_m)
+    }
+}
+
+impl<T: Wall + ?Sized> Wall for Arc<T> {
+    fn probe(&self, point: &Vector3<f64>, search_m: f64) -> Option<WallProbe> {
+        (**self).probe(point, search_m)
+    }
+}
+
+impl Wall for Lumen {
+    fn probe(&self, point: &Vector3<f64>, search_m: f64) -> Option<WallProbe> {
+        let p = Point3::from(*point);
+        let query = match self.proximity(&p, search_m) {
+            Proximity::Near(q) => q,
+            Proximity::Far { inside: true } => return None,
+            Proximity::Far { inside: false } => self.query(&p),
+        };
+        Some(WallProbe {
+            clearance_m: -query.signed_distance,
+            normal: -query.outward_normal,
+        })
+    }
+}
+
+/// A straight tube of `radius` from `start` along unit `axis` for `length`, closed by a flat
+/// cap at the far end (a dead end) and open at the start. Exact distances and normals.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CappedTube {
+    /// Centre of the open end (m).
+    pub start: Vector3<f64>,
+    /// Unit axis direction.
+    pub axis: Vector3<f64>,
+    /// Length to the cap (m).
+    pub length_m: f64,
+    /// Lumen radius (m).
+    pub radius_m: f64,
+}
+
+impl Wall for CappedTube {
+    fn probe(&self, point: &Vector3<f64>, search_m: f64) -> Option<WallProbe> {
+        let d = point - self.start;
+        let along = d.dot(&self.axis);
+        let radial = d - self.axis * along;
+        let rho = radial.norm();
+        let radial_unit = if rho > 1e-300 {
+            radial / rho
+        } else {
+            // On the axis: any radial direction; pick one deterministically.
+            let helper = if self.axis.x.abs() < 0.6 {
+                Vector3::x()
+            } else {
+                Vector3::y()
+            };
+            (helper - self.axis * self.axis.dot(&helper)).normalize()
+        };
+        let to_side = self.radius_m - rho;
+        let to_cap = self.length_m - along;
+        let probe = if to_cap < to_side {
+            WallProbe {
+                clearance_m: to_cap,
+                normal: -self.axis,
+            }
+        } else {
+            WallProbe {
+                clearance_m: to_side,
+                normal: -radial_unit,
+            }
+        };
+        (probe.clearance_m < 0.0 || probe.clearance_m <= search_m).then_some(probe)
+    }
+}

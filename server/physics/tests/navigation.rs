@@ -1,0 +1,241 @@
+//! Navigation scenarios: a device pushed, pulled and twisted through walls, with the
+//! penetration, stability and determinism checks of the contact model.
+
+use cathlab_physics::navigation::{Command, Insertion, Navigation, NavigationSettings, Twist};
+use cathlab_physics::wall::{CappedTube, Wall};
+use cathlab_physics::{BeamModel, SolverSettings, presets};
+use nalgebra::Vector3;
+
+/// Penetration tolerance of every scenario (m): 0.05 mm, a tenth of a guidewire's diameter.
+const PENETRATION: f64 = 0.05e-3;
+
+fn tube(length: f64, radius: f64) -> CappedTube {
+    CappedTube {
+        start: Vector3::zeros(),
+        axis: Vector3::x(),
+        length_m: length,
+        radius_m: radius,
+    }
+}
+
+fn navigation<W: Wall>(wall: W, inserted: f64) -> Navigation<W> {
+    Navigation::new(
+        presets::micro_guidewire_014(),
+        wall,
+        Vector3::zeros(),
+        Vector3::x(),
+        inserted,
+        NavigationSettings::default(),
+    )
+    .unwrap()
+}
+
+fn push(speed: f64) -> Command {
+    Command {
+        insertion: Insertion::Velocity(speed),
+        twist: Twist::Rate(0.0),
+    }
+}
+
+#[test]
+fn elastic_energy_matches_clapeyron() {
+    // A cantilever under a small tip load stores ½ F·δ (linear regime).
+    let props = presets::micro_guidewire_014().sections[0].beam_properties();
+    let mut model = BeamModel::straight(props, 0.05, 40, SolverSettings::default()).unwrap();
+    let force = 1e-4;
+    model
+        .set_load(40, Vector3::new(0.0, force, 0.0), Vector3::zeros())
+        .unwrap();
+    for _ in 0..20 {
+        model.step().unwrap();
+    }
+    let work = 0.5 * force * model.tip_position().y;
+    let energy = model.elastic_energy();
+    assert!((energy - work).abs() < 1e-3 * work, "{energy} vs {work}");
+}
+
+#[test]
+fn free_push_translates_an_angled_tip_exactly() {
+    // In free space a push moves the whole inserted device along the entry axis, its angled
+    // tip unchanged: the predictor slides the shaft along itself and carries the tip rigidly.
+    let mut nav = navigation(tube(1.0, 0.5), 0.01);
+    let tip0 = nav.tip_position();
+    nav.set_command(push(0.05)).unwrap();
+    for _ in 0..100 {
+        let report = nav.step().unwrap();
+        assert_eq!(report.contacts, 0);
+    }
+    let moved = nav.tip_position() - tip0;
+    let expected = Vector3::x() * (0.05 * 100.0 / 500.0);
+    assert!((moved - expected).norm() < 1e-12, "{moved:?}");
+    assert!(nav.model().elastic_energy() < 1e-15);
+    assert!((nav.inserted_m() - 0.02).abs() < 1e-12);
+    // Pulling back the same way returns the same shape.
+    nav.set_command(push(-0.05)).unwrap();
+    for _ in 0..100 {
+        nav.step().unwrap();
+    }
+    assert!((nav.tip_position() - tip0).norm() < 1e-9);
+}
+
+/// Runs `steps` steps of `command`, checking every step: finite state, penetration below the
+/// tolerance, and the device inside the tube's radius and before its cap. Returns the largest
+/// penetration, elastic energy and hand work seen.
+fn run_checked(
+    nav: &mut Navigation<CappedTube>,
+    command: Command,
+    steps: usize,
+) -> (f64, f64, f64) {
+    nav.set_command(command).unwrap();
+    let wall = *nav.wall();
+    let (mut worst, mut energy, mut work) = (0.0f64, 0.0f64, 0.0f64);
+    for step in 0..steps {
+        let before = nav.inserted_m();
+        let report = nav.step().unwrap_or_else(|e| panic!("step {step}: {e}"));
+        let reaction = nav.proximal_reaction();
+        // The hand applies the base reaction; its axial part does work on the insertion.
+        work += reaction[0] * (nav.inserted_m() - before);
+        let penetration = nav.max_penetration_m();
+        worst = worst.max(penetration);
+        energy = energy.max(nav.model().elastic_energy());
+        assert!(
+            penetration < PENETRATION,
+            "step {step}: penetration {:.4} mm ({report:?})",
+            penetration * 1e3
+        );
+        for p in nav.model().positions() {
+            assert!(p.iter().all(|v| v.is_finite()));
+            let radial = (p.y * p.y + p.z * p.z).sqrt();
+            assert!(
+                radial < wall.radius_m && p.x < wall.length_m,
+                "escaped at {p:?}"
+            );
+        }
+    }
+    (worst, energy, work)
+}
+
+#[test]
+fn pushing_into_a_dead_end_for_ten_seconds_buckles_and_loops_without_escape() {
+    // 0.014" wire in a 4 mm tube closed 40 mm in, pushed at 10 mm/s for 10 s: 100 mm of wire
+    // into 30 mm of tube. It hits the cap, buckles, folds and loops back.
+    let mut nav = navigation(tube(0.04, 2e-3), 0.01);
+    let (worst, energy, work) = run_checked(&mut nav, push(0.01), 5000);
+    println!(
+        "dead end: worst penetration {:.4} mm, peak elastic energy {energy:.3e} J, hand work \
+         {work:.3e} J, tip at {:?} mm",
+        worst * 1e3,
+        (nav.tip_position() * 1e3).as_slice()
+    );
+    assert!(nav.inserted_m() > 0.105);
+    // Bounded energy: no more than bending the whole inserted wire to the tightest fold the
+    // tube allows, κ = 2/(D − d), twice over (torsion and stretch included).
+    let props = nav.device().sections[0].beam_properties();
+    let kappa = 2.0 / (4e-3 - 2.0 * nav.device().sections[0].cross_section.outer_radius_m);
+    let bound = props.bending_stiffness_nm2 * kappa * kappa * nav.inserted_m();
+    assert!(
+        energy < bound,
+        "energy {energy} J above the fold bound {bound} J"
+    );
+    assert!(work > 0.0, "the hand pushed");
+    assert!(nav.tip_position().x < 0.038, "the wire folded back");
+}
+
+#[test]
+fn twenty_turns_of_twist_stay_stable() {
+    // A wire 60 mm into a tube, twisted 20 turns at 2 turns/s with a slow push.
+    let mut nav = navigation(tube(0.2, 1.5e-3), 0.06);
+    let command = Command {
+        insertion: Insertion::Velocity(0.002),
+        twist: Twist::Rate(4.0 * std::f64::consts::PI),
+    };
+    let (worst, energy, _) = run_checked(&mut nav, command, 5000);
+    println!(
+        "20 turns: worst penetration {:.4} mm, peak energy {energy:.3e} J",
+        worst * 1e3
+    );
+    assert!((nav.twist_rad() - 40.0 * std::f64::consts::PI).abs() < 1e-9);
+    assert!(energy < 1e-3, "energy {energy}");
+}
+
+#[test]
+fn a_fast_push_does_not_tunnel_through_the_cap() {
+    // 100 mm/s straight into the cap: the tip never passes it.
+    let mut nav = navigation(tube(0.05, 2e-3), 0.01);
+    let (worst, _, _) = run_checked(&mut nav, push(0.1), 800);
+    println!(
+        "100 mm/s into the cap: worst penetration {:.4} mm",
+        worst * 1e3
+    );
+}
+
+#[test]
+fn the_tip_node_takes_contacts_from_two_walls_in_a_corner() {
+    let mut nav = navigation(tube(0.03, 2e-3), 0.01);
+    nav.set_command(push(0.05)).unwrap();
+    let mut most = 0;
+    for _ in 0..600 {
+        nav.step().unwrap();
+        let step = nav.last_contacts().unwrap();
+        let tip_element = nav.model().element_count() - 1;
+        let at_tip: Vec<_> = step
+            .contacts
+            .iter()
+            .zip(&step.response.local)
+            .filter(|(c, l)| c.element == tip_element && c.t > 0.5 && l.x > 0.0)
+            .collect();
+        most = most.max(at_tip.len());
+        assert!(nav.max_penetration_m() < PENETRATION);
+    }
+    assert!(most >= 2, "corner contacts on the tip: {most}");
+}
+
+#[test]
+fn scripted_runs_are_bit_identical() {
+    let script = |nav: &mut Navigation<CappedTube>| {
+        for (speed, twist, steps) in [(0.05, 0.0, 300), (0.02, 3.0, 300), (-0.03, -2.0, 200)] {
+            nav.set_command(Command {
+                insertion: Insertion::Velocity(speed),
+                twist: Twist::Rate(twist),
+            })
+            .unwrap();
+            for _ in 0..steps {
+                nav.step().unwrap();
+            }
+        }
+        nav.model().positions().to_vec()
+    };
+    let a = script(&mut navigation(tube(0.06, 2e-3), 0.01));
+    let b = script(&mut navigation(tube(0.06, 2e-3), 0.01));
+    assert_eq!(a.len(), b.len());
+    for (p, q) in a.iter().zip(&b) {
+        assert_eq!(p.map(f64::to_bits), q.map(f64::to_bits));
+    }
+}
+
+#[test]
+fn bad_commands_and_settings_give_clear_errors() {
+    let mut nav = navigation(tube(0.05, 2e-3), 0.01);
+    let err = nav.set_command(push(f64::NAN)).unwrap_err();
+    assert!(err.to_string().contains("insertion"), "{err}");
+    let err = Navigation::new(
+        presets::micro_guidewire_014(),
+        tube(0.05, 2e-3),
+        Vector3::zeros(),
+        Vector3::zeros(),
+        0.01,
+        NavigationSettings::default(),
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("entry direction"), "{err}");
+    let err = Navigation::new(
+        presets::micro_guidewire_014(),
+        tube(0.05, 2e-3),
+        Vector3::zeros(),
+        Vector3::x(),
+        5.0,
+        NavigationSettings::default(),
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("inserted length"), "{err}");
+}
