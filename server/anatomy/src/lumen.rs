@@ -141,8 +141,19 @@ impl std::fmt::Debug for Lumen {
 
 impl Lumen {
     /// Prepares `mesh`, which must be a closed, consistently oriented 2-manifold; a surface
-    /// whose faces all point into the lumen is flipped. `source` names it in errors.
-    pub fn new(mut mesh: TriangleMesh, source: &str) -> Result<Self> {
+    /// whose faces all point into the lumen is flipped. `source` names it in errors. The query
+    /// grid uses [`GridSettings::default`].
+    pub fn new(mesh: TriangleMesh, source: &str) -> Result<Self> {
+        Self::with_grid_settings(mesh, source, GridSettings::default())
+    }
+
+    /// As [`Lumen::new`] with the query grid built to `settings` (for example a narrower band
+    /// for contact queries only, which builds much faster on finely meshed surfaces).
+    pub fn with_grid_settings(
+        mut mesh: TriangleMesh,
+        source: &str,
+        settings: GridSettings,
+    ) -> Result<Self> {
         mesh.require_closed_manifold(source)?;
         let volume = mesh.enclosed_volume();
         if volume < 0.0 {
@@ -220,7 +231,7 @@ impl Lumen {
             trimesh,
             grid: CellGrid::default(),
         };
-        lumen.grid = lumen.build_grid(GridSettings::default())?;
+        lumen.grid = lumen.build_grid(settings)?;
         Ok(lumen)
     }
 

@@ -239,3 +239,84 @@ fn bad_commands_and_settings_give_clear_errors() {
     .unwrap_err();
     assert!(err.to_string().contains("inserted length"), "{err}");
 }
+
+/// The Y bifurcation of the anatomy crate (parent r = 2 mm along +z, children r = 1.6 mm at
+/// ±30° towards +x (left) and −x (right)), meshed and wrapped as a lumen.
+fn y_lumen() -> (cathlab_anatomy::VesselGraph, cathlab_anatomy::Lumen) {
+    use cathlab_anatomy::phantom::analytic::y_bifurcation;
+    use cathlab_anatomy::surface::{SurfaceSettings, lumen_surface};
+    let graph = y_bifurcation(2e-3, 1.6e-3, 0.04, 0.04, 0.52).unwrap();
+    let mesh = lumen_surface(
+        &graph,
+        &SurfaceSettings {
+            cells_per_radius: 1.5,
+            smoothing_iterations: 1,
+            ..SurfaceSettings::default()
+        },
+    )
+    .unwrap();
+    // Contact queries look at most a millimetre from the wall: a narrow band builds fast.
+    let lumen = cathlab_anatomy::Lumen::with_grid_settings(
+        mesh,
+        "Y bifurcation",
+        cathlab_anatomy::lumen::GridSettings {
+            cell_size: Some(0.25e-3),
+            band: 1.5e-3,
+        },
+    )
+    .unwrap();
+    (graph, lumen)
+}
+
+#[test]
+fn twisting_an_angled_tip_selects_the_branch_of_a_y_bifurcation() {
+    let (graph, lumen) = y_lumen();
+    for (branch, sign) in [("left", 1.0), ("right", -1.0)] {
+        let mut nav = Navigation::new(
+            presets::micro_guidewire_014(),
+            &lumen,
+            Vector3::new(0.0, 0.0, -0.036),
+            Vector3::z(),
+            0.01,
+            NavigationSettings::default(),
+        )
+        .unwrap();
+        // The tip's bend points this way at zero twist; turn it towards the wanted branch.
+        let bend = nav.tip_position() - Vector3::new(0.0, 0.0, nav.tip_position().z);
+        let twist = (0.0f64).atan2(sign) - bend.y.atan2(bend.x);
+        nav.set_command(Command {
+            insertion: Insertion::Velocity(0.0),
+            twist: Twist::Target(twist),
+        })
+        .unwrap();
+        for _ in 0..250 {
+            nav.step().unwrap();
+        }
+        nav.set_command(Command {
+            insertion: Insertion::Velocity(0.03),
+            twist: Twist::Target(twist),
+        })
+        .unwrap();
+        let mut worst: f64 = 0.0;
+        // 27 mm of push: the tip passes the carina (z = 0) and runs 20 mm up a branch.
+        for step in 0..900 {
+            nav.step()
+                .unwrap_or_else(|e| panic!("{branch} step {step}: {e}"));
+            worst = worst.max(nav.max_penetration_m());
+        }
+        let tip = nav.tip_position();
+        let location = graph
+            .nearest(&nalgebra::Point3::from(tip))
+            .expect("the tip is near the graph");
+        println!(
+            "{branch}: tip at {:?} mm in {:?}, worst penetration {:.4} mm",
+            (tip * 1e3).as_slice(),
+            graph.branches[location.branch].name,
+            worst * 1e3
+        );
+        assert_eq!(graph.branches[location.branch].name, branch);
+        assert!(tip.z > 0.015, "the tip went well into the branch");
+        assert!(tip.x * sign > 0.008, "on the {branch} side");
+        assert!(worst < PENETRATION, "penetration {worst}");
+    }
+}
