@@ -130,6 +130,8 @@ struct Prepared {
     frame: Matrix3<f64>,
     /// Local 3×3 compliance in the contact frame.
     compliance: Matrix3<f64>,
+    /// Its inverse, where it has one.
+    compliance_inverse: Option<Matrix3<f64>>,
     /// Free displacement of the contact point in the contact frame.
     free: Vector3<f64>,
     gap: f64,
@@ -204,12 +206,14 @@ fn prepare(
                 d += translation(&free[i]) * a;
             }
             let frame = c.frame();
+            let compliance = frame.transpose() * w * frame;
             Ok(Prepared {
+                compliance_inverse: compliance.try_inverse(),
                 first,
                 second,
                 t: c.t,
                 frame,
-                compliance: frame.transpose() * w * frame,
+                compliance,
                 free: frame.transpose() * d,
                 gap: c.gap,
                 friction: c.friction,
@@ -222,6 +226,17 @@ fn prepare(
 /// it would have without its own force (its frame) and its gap, returns the force that closes
 /// the gap with sticking friction, or slides on the friction cone, or separates.
 pub fn solve_local(w: &Matrix3<f64>, b: &Vector3<f64>, gap: f64, mu: f64) -> Vector3<f64> {
+    local_law(w, w.try_inverse().as_ref(), b, gap, mu)
+}
+
+/// [`solve_local`] with the inverse compliance supplied (computed once per solve).
+fn local_law(
+    w: &Matrix3<f64>,
+    w_inverse: Option<&Matrix3<f64>>,
+    b: &Vector3<f64>,
+    gap: f64,
+    mu: f64,
+) -> Vector3<f64> {
     // A contact on the driven base cannot move: the base reaction takes it.
     if w[(0, 0)].is_nan() || w[(0, 0)] <= 0.0 {
         return Vector3::zeros();
@@ -236,7 +251,8 @@ pub fn solve_local(w: &Matrix3<f64>, b: &Vector3<f64>, gap: f64, mu: f64) -> Vec
     }
     // Stick: δ = b + W λ = (−gap, 0, 0).
     let target = Vector3::new(-gap, 0.0, 0.0);
-    if let Some(stick) = w.try_inverse().map(|wi| wi * (target - b))
+    let stick = w_inverse.map(|wi| wi * (target - b));
+    if let Some(stick) = stick
         && stick.x > 0.0
         && stick.y.hypot(stick.z) <= mu * stick.x
     {
@@ -245,12 +261,9 @@ pub fn solve_local(w: &Matrix3<f64>, b: &Vector3<f64>, gap: f64, mu: f64) -> Vec
     // Slide: λ_t = μ λ_n d(φ), d = (cos φ, sin φ) opposite to the slip. For each φ the normal
     // equation gives λ_n(φ); the slip s(φ) = b_t + W_tn λ_n + W_tt λ_t must be anti-parallel
     // to d: find the root of s × d (with s · d < 0) nearest the sticking force's direction.
-    let guess = {
-        let stick = w.try_inverse().map(|wi| wi * (target - b));
-        match stick {
-            Some(s) if s.y.hypot(s.z) > 0.0 => s.z.atan2(s.y),
-            _ => (-b.z).atan2(-b.y),
-        }
+    let guess = match stick {
+        Some(s) if s.y.hypot(s.z) > 0.0 => s.z.atan2(s.y),
+        _ => (-b.z).atan2(-b.y),
     };
     let evaluate = |phi: f64| -> Option<(f64, f64, Vector3<f64>)> {
         let (dy, dz) = (phi.cos(), phi.sin());
@@ -263,42 +276,61 @@ pub fn solve_local(w: &Matrix3<f64>, b: &Vector3<f64>, gap: f64, mu: f64) -> Vec
         let slip = b + w * force;
         Some((slip.y * dz - slip.z * dy, slip.y * dy + slip.z * dz, force))
     };
-    const SAMPLES: usize = 72;
+    // Search brackets outward from the guess (k = 0, +1, −1, +2, …), so the first valid root
+    // is the one nearest the sticking direction; refine it by the Illinois method.
+    const SAMPLES: i32 = 72;
     let step = std::f64::consts::TAU / SAMPLES as f64;
     let mut best: Option<(f64, Vector3<f64>)> = None;
-    for i in 0..SAMPLES {
-        let (lo, hi) = (
-            guess + i as f64 * step - std::f64::consts::PI,
-            guess + (i + 1) as f64 * step - std::f64::consts::PI,
-        );
+    for k in 0..SAMPLES {
+        let offset = if k % 2 == 0 { k / 2 } else { -(k + 1) / 2 };
+        let lo = guess + (offset as f64 - 0.5) * step;
+        let hi = lo + step;
         let (Some((f_lo, _, _)), Some((f_hi, _, _))) = (evaluate(lo), evaluate(hi)) else {
             continue;
         };
         if f_lo * f_hi > 0.0 {
             continue;
         }
-        let (mut a, mut c, mut fa) = (lo, hi, f_lo);
-        for _ in 0..60 {
-            let mid = 0.5 * (a + c);
-            let Some((fm, _, _)) = evaluate(mid) else {
+        let (mut a, mut c, mut fa, mut fc) = (lo, hi, f_lo, f_hi);
+        let mut side = 0i8;
+        let mut phi = 0.5 * (a + c);
+        for _ in 0..100 {
+            phi = if fc != fa {
+                (a * fc - c * fa) / (fc - fa)
+            } else {
+                0.5 * (a + c)
+            };
+            if !(phi > a.min(c) && phi < a.max(c)) {
+                phi = 0.5 * (a + c);
+            }
+            let Some((fm, _, _)) = evaluate(phi) else {
                 break;
             };
-            if fm * fa <= 0.0 {
-                c = mid;
+            if fm == 0.0 || (c - a).abs() < 1e-14 {
+                break;
+            }
+            if fm * fc > 0.0 {
+                c = phi;
+                fc = fm;
+                if side == -1 {
+                    fa *= 0.5;
+                }
+                side = -1;
             } else {
-                a = mid;
+                a = phi;
                 fa = fm;
+                if side == 1 {
+                    fc *= 0.5;
+                }
+                side = 1;
             }
         }
-        let phi = 0.5 * (a + c);
         if let Some((_, along, force)) = evaluate(phi)
             && along <= 0.0
             && force.x > 0.0
         {
-            let distance = (phi - guess).abs();
-            if best.as_ref().is_none_or(|(d, _)| distance < *d) {
-                best = Some((distance, force));
-            }
+            best = Some(((phi - guess).abs(), force));
+            break;
         }
     }
     match best {
@@ -658,15 +690,17 @@ pub fn gauss_seidel(
                 base_ward = h[cursor].transpose() * (base_ward + loads[cursor]);
                 cursor += 1;
             }
-            // Displacements of the element's nodes under the current contact loads.
+            // Displacements of the element's nodes under the current contact loads (their
+            // translations only: the top three rows of D).
             let (u_first, a_second) = match p.first {
-                Some(i) => {
-                    let u = tip_ward[i] + d[i] * base_ward;
-                    (translation(&u), h[i].transpose() * (base_ward + loads[i]))
-                }
+                Some(i) => (
+                    translation(&tip_ward[i]) + d[i].fixed_rows::<3>(0) * base_ward,
+                    h[i].transpose() * (base_ward + loads[i]),
+                ),
                 None => (Vector3::zeros(), base_ward),
             };
-            let u_second = translation(&(tip_ward[p.second] + d[p.second] * a_second));
+            let u_second =
+                translation(&tip_ward[p.second]) + d[p.second].fixed_rows::<3>(0) * a_second;
             let point = u_first * (1.0 - p.t) + u_second * p.t;
             let own = local[k];
             let b = p.free + p.frame.transpose() * point - p.compliance * own;
@@ -675,22 +709,29 @@ pub fn gauss_seidel(
             } else {
                 relax(
                     &own,
-                    solve_local(&p.compliance, &b, p.gap, p.friction),
+                    local_law(
+                        &p.compliance,
+                        p.compliance_inverse.as_ref(),
+                        &b,
+                        p.gap,
+                        p.friction,
+                    ),
                     settings.relaxation,
                     p.friction,
                 )
             };
             let change = updated - own;
             if change != Vector3::zeros() {
+                // Contact loads are forces: only the first three columns of D act on them.
                 let df = p.frame * change;
-                let df_second = force6(&(df * p.t));
-                loads[p.second] += df_second;
-                let db_second = d[p.second] * df_second;
+                let df_second = df * p.t;
+                loads[p.second] += force6(&df_second);
+                let db_second = d[p.second].fixed_columns::<3>(0) * df_second;
                 tip_ward[p.second] += db_second;
                 if let Some(i) = p.first {
-                    let df_first = force6(&(df * (1.0 - p.t)));
-                    loads[i] += df_first;
-                    tip_ward[i] += d[i] * df_first + h[i] * db_second;
+                    let df_first = df * (1.0 - p.t);
+                    loads[i] += force6(&df_first);
+                    tip_ward[i] += d[i].fixed_columns::<3>(0) * df_first + h[i] * db_second;
                 }
             }
             local[k] = updated;
