@@ -3,7 +3,10 @@
 //! Devices are chains of 3D Timoshenko beams (after Cotin et al., MICCAI 2005) whose frames
 //! are updated every step from the previous solution; each step is one block-tridiagonal
 //! linear solve done in O(N) by substructure analysis, which also yields the flexibility
-//! blocks that contact response needs. Plain synchronous, deterministic library: SI units, f64.
+//! blocks that contact response needs. Contacts with the vessel wall (Signorini with Coulomb
+//! friction) are solved by Gauss–Seidel through those blocks, and a navigation simulates only
+//! the inserted length under push, pull and twist. Plain synchronous, deterministic library:
+//! SI units, f64.
 
 pub mod beam;
 pub mod contact;
