@@ -1,0 +1,120 @@
+//! Work in progress (issue 4): an autopilot for the real arch-to-circle-of-Willis anatomy —
+//! push along the route, twist the angled tip towards the route ahead, pull back when the tip
+//! strays into a side branch. It does not reach its targets yet: the 5 F catheter enters the
+//! left subclavian and the retry twist runs away. Run it with
+//! `TARGET=LCCA cargo run --release -p cathlab-physics --example arch_to_cow_autopilot`.
+
+use std::path::Path;
+
+use cathlab_anatomy::real::{ARCH_TO_COW_ACCESS_M, load_arch_to_cow};
+use cathlab_physics::navigation::{Command, Insertion, Navigation, NavigationSettings, Twist};
+use cathlab_physics::presets;
+use nalgebra::Point3;
+
+fn main() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/anatomy/arch-to-cow");
+    let t0 = std::time::Instant::now();
+    let anatomy = load_arch_to_cow(&dir).unwrap();
+    println!("loaded in {:.1} s", t0.elapsed().as_secs_f64());
+    let access = Point3::from(ARCH_TO_COW_ACCESS_M);
+    let target = std::env::var("TARGET").unwrap_or("LCCA".into());
+    let path = anatomy.graph.path_to(&access, &target).unwrap();
+    let route: Vec<(Point3<f64>, f64)> = anatomy.graph.sample_path(&path, 1e-3);
+    let entry = route[0].0.coords;
+    let direction = (route[10].0 - route[0].0).normalize();
+    println!(
+        "route {:.0} mm, entry {:?}, dir {:?}",
+        path.length * 1e3,
+        (entry * 1e3).as_slice(),
+        direction.as_slice()
+    );
+    let device = match std::env::var("DEVICE").as_deref() {
+        Ok("wire") => presets::guidewire_035(),
+        Ok("micro") => presets::micro_guidewire_014(),
+        _ => presets::diagnostic_catheter_5f(),
+    };
+    let mut nav = Navigation::new(
+        device,
+        &anatomy.lumen,
+        entry,
+        direction,
+        0.01,
+        NavigationSettings::default(),
+    )
+    .unwrap();
+    let mut twist_target = 0.0;
+    let mut worst: f64 = 0.0;
+    let mut max_step = 0.0f64;
+    let mut pull_until: Option<f64> = None;
+    let mut retries = 0usize;
+    for step in 0..15000 {
+        // Where is the tip along the route?
+        let tip = nav.tip_position();
+        let (index, distance) = route
+            .iter()
+            .enumerate()
+            .map(|(i, (p, _))| (i, (p.coords - tip).norm()))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap();
+        let radius = route[index].1;
+        let positions = nav.model().positions();
+        let n = positions.len();
+        let t_tip = (positions[n - 1] - positions[n - 2]).normalize();
+        let back = n.saturating_sub(8).max(1);
+        let t_shaft = (positions[back] - positions[back - 1]).normalize();
+        let ahead = route[(index + 15).min(route.len() - 1)].0.coords;
+        let d = (ahead - tip).normalize();
+        let bend = t_tip - t_shaft * t_tip.dot(&t_shaft);
+        let want = d - t_shaft * d.dot(&t_shaft);
+        if bend.norm() > 1e-3 && want.norm() > 0.05 {
+            let angle = bend.cross(&want).dot(&t_shaft).atan2(bend.dot(&want));
+            // After each wrong turn, try the next quarter turn off the aim, as a clinician would.
+            twist_target = nav.twist_rad() + angle + retries as f64 * std::f64::consts::FRAC_PI_2;
+        }
+        let here = anatomy.graph.nearest(&Point3::from(tip)).unwrap().branch;
+        let off_route = !path.legs.iter().any(|l| l.branch == here);
+        if off_route && pull_until.is_none() {
+            // Strayed into a side branch: back off 15 mm, twisting towards the route.
+            pull_until = Some(nav.inserted_m() - 0.015);
+            retries += 1;
+        }
+        if pull_until.is_some_and(|x| nav.inserted_m() <= x) {
+            pull_until = None;
+        }
+        let speed = if pull_until.is_some() { -0.02 } else { 0.02 };
+        nav.set_command(Command {
+            insertion: Insertion::Velocity(speed),
+            twist: Twist::Target(twist_target),
+        })
+        .unwrap();
+        let t = std::time::Instant::now();
+        let report = nav.step().unwrap_or_else(|e| panic!("step {step}: {e}"));
+        max_step = max_step.max(t.elapsed().as_secs_f64());
+        let pen = nav.max_penetration_m();
+        worst = worst.max(pen);
+        if step % 500 == 0 {
+            println!(
+                "{step}: route {index}/{} ({:.1} mm off, r {:.1}), inserted {:.0} mm, twist {:.2}, {:?} contacts, pen {:.3} mm",
+                route.len(),
+                distance * 1e3,
+                radius * 1e3,
+                report.inserted_m * 1e3,
+                nav.twist_rad(),
+                report.active_contacts,
+                pen * 1e3
+            );
+        }
+        if index + 5 >= route.len() {
+            println!("reached at step {step}");
+            break;
+        }
+    }
+    let tip = Point3::from(nav.tip_position());
+    let location = anatomy.graph.nearest(&tip).unwrap();
+    println!(
+        "tip in {:?}, worst penetration {:.3} mm, slowest step {:.2} ms",
+        anatomy.graph.branches[location.branch].name,
+        worst * 1e3,
+        max_step * 1e3
+    );
+}
