@@ -47,6 +47,13 @@ fn main() {
     let mut max_step = 0.0f64;
     let mut pull_until: Option<f64> = None;
     let mut retries = 0usize;
+    let mut aim_offset = 0.0;
+    let offsets = [
+        0.0,
+        std::f64::consts::FRAC_PI_2,
+        -std::f64::consts::FRAC_PI_2,
+        std::f64::consts::PI,
+    ];
     for step in 0..15000 {
         // Where is the tip along the route?
         let tip = nav.tip_position();
@@ -57,26 +64,25 @@ fn main() {
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .unwrap();
         let radius = route[index].1;
-        let positions = nav.model().positions();
-        let n = positions.len();
-        let t_tip = (positions[n - 1] - positions[n - 2]).normalize();
-        let back = n.saturating_sub(8).max(1);
-        let t_shaft = (positions[back] - positions[back - 1]).normalize();
+        let axis = nav.tip_axis();
         let ahead = route[(index + 15).min(route.len() - 1)].0.coords;
         let d = (ahead - tip).normalize();
-        let bend = t_tip - t_shaft * t_tip.dot(&t_shaft);
-        let want = d - t_shaft * d.dot(&t_shaft);
-        if bend.norm() > 1e-3 && want.norm() > 0.05 {
-            let angle = bend.cross(&want).dot(&t_shaft).atan2(bend.dot(&want));
-            // After each wrong turn, try the next quarter turn off the aim, as a clinician would.
-            twist_target = nav.twist_rad() + angle + retries as f64 * std::f64::consts::FRAC_PI_2;
+        let want = d - axis * d.dot(&axis);
+        if let Some(bend) = nav.tip_bend_direction()
+            && want.norm() > 0.05
+        {
+            // Aim the bend at the route ahead, turned by the retry offset.
+            let angle = bend.cross(&want).dot(&axis).atan2(bend.dot(&want));
+            twist_target = nav.twist_rad() + angle + aim_offset;
         }
         let here = anatomy.graph.nearest(&Point3::from(tip)).unwrap().branch;
-        let off_route = !path.legs.iter().any(|l| l.branch == here);
+        // Strayed: nearest to a branch off the route and outside the route's own lumen.
+        let off_route = !path.legs.iter().any(|l| l.branch == here) && distance > radius;
         if off_route && pull_until.is_none() {
             // Strayed into a side branch: back off 15 mm, twisting towards the route.
             pull_until = Some(nav.inserted_m() - 0.015);
             retries += 1;
+            aim_offset = offsets[retries % offsets.len()];
         }
         if pull_until.is_some_and(|x| nav.inserted_m() <= x) {
             pull_until = None;

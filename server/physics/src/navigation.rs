@@ -317,6 +317,31 @@ impl<W: Wall> Navigation<W> {
         self.model.tip_position()
     }
 
+    /// Where a curved tip (angled or J) points, across the device: the material +y axis (the
+    /// side the rest shape bends to) of the node where the curved part starts, as a unit world
+    /// vector perpendicular to the device there. `None` for a straight device.
+    pub fn tip_bend_direction(&self) -> Option<Vector3<f64>> {
+        let e = (0..self.model.element_count()).find(|&e| {
+            let mid = 0.5 * (self.material[e] + self.material[e + 1]);
+            self.device.rest_curvature_at(mid) != 0.0
+        })?;
+        let q = self.model.rotations()[e];
+        let tangent = q * Vector3::x();
+        let side = q * Vector3::y();
+        (side - tangent * tangent.dot(&side)).try_normalize(1e-12)
+    }
+
+    /// Unit tangent of the device at the start of its curved tip (or at the tip if straight).
+    pub fn tip_axis(&self) -> Vector3<f64> {
+        let e = (0..self.model.element_count())
+            .find(|&e| {
+                let mid = 0.5 * (self.material[e] + self.material[e + 1]);
+                self.device.rest_curvature_at(mid) != 0.0
+            })
+            .unwrap_or(self.model.element_count());
+        self.model.rotations()[e] * Vector3::x()
+    }
+
     /// The wrench the operator's hand feels at the entry point (force N, moment N·m, world
     /// frame): the base reaction of the device in its current configuration.
     pub fn proximal_reaction(&mut self) -> Vector6<f64> {

@@ -320,3 +320,26 @@ fn twisting_an_angled_tip_selects_the_branch_of_a_y_bifurcation() {
         assert!(worst < PENETRATION, "penetration {worst}");
     }
 }
+
+#[test]
+fn tip_bend_direction_follows_the_twist_in_free_space() {
+    let mut nav = navigation(tube(1.0, 0.5), 0.02);
+    let before = nav.tip_bend_direction().expect("angled tip");
+    // The tip's sideways offset is along the bend direction.
+    let offset = nav.tip_position() - Vector3::x() * nav.tip_position().x;
+    assert!(before.dot(&offset.normalize()) > 0.999);
+    nav.set_command(Command {
+        insertion: Insertion::Velocity(0.0),
+        twist: Twist::Target(std::f64::consts::FRAC_PI_2),
+    })
+    .unwrap();
+    for _ in 0..200 {
+        nav.step().unwrap();
+    }
+    let after = nav.tip_bend_direction().unwrap();
+    // A free device carries the twist to its tip: the bend turned a quarter turn about x
+    // (to the drag-regularized steps' residual lag).
+    let turned = Vector3::x().cross(&before);
+    assert!((after - turned).norm() < 1e-3, "{after:?} vs {turned:?}");
+    assert!((nav.tip_axis() - Vector3::x()).norm() < 1e-3);
+}
