@@ -20,6 +20,30 @@ fn main() {
     let target = std::env::var("TARGET").unwrap_or("LCCA".into());
     let path = anatomy.graph.path_to(&access, &target).unwrap();
     let route: Vec<(Point3<f64>, f64)> = anatomy.graph.sample_path(&path, 1e-3);
+    if std::env::var("LEGS").is_ok() {
+        let mut at = 0.0;
+        for leg in &path.legs {
+            let b = &anatomy.graph.branches[leg.branch];
+            println!(
+                "leg {} from {:.0} mm: {:.0}..{:.0} mm of {:.0}",
+                b.name,
+                at * 1e3,
+                leg.from_arc * 1e3,
+                leg.to_arc * 1e3,
+                b.length() * 1e3
+            );
+            at += (leg.to_arc - leg.from_arc).abs();
+        }
+        for b in &anatomy.graph.branches {
+            println!(
+                "branch {}: start {:?} end {:?} r0 {:.1} mm",
+                b.name,
+                (b.points[0].coords * 1e3).as_slice(),
+                (b.points.last().unwrap().coords * 1e3).as_slice(),
+                b.radii[0] * 1e3
+            );
+        }
+    }
     let entry = route[0].0.coords;
     let direction = (route[10].0 - route[0].0).normalize();
     println!(
@@ -74,10 +98,24 @@ fn main() {
             // Aim the bend at the route ahead, turned by the retry offset.
             let angle = bend.cross(&want).dot(&axis).atan2(bend.dot(&want));
             twist_target = nav.twist_rad() + angle + aim_offset;
+            if std::env::var("LEGS").is_ok() && (1800..2700).contains(&step) && step % 50 == 0 {
+                println!(
+                    "  step {step}: aim error {angle:+.2} rad, twist {:.2}, tip {:?}",
+                    nav.twist_rad(),
+                    (tip * 1e3).map(|v| v.round()).as_slice()
+                );
+            }
         }
         let here = anatomy.graph.nearest(&Point3::from(tip)).unwrap().branch;
         // Strayed: nearest to a branch off the route and outside the route's own lumen.
         let off_route = !path.legs.iter().any(|l| l.branch == here) && distance > radius;
+        if off_route && pull_until.is_none() && std::env::var("LEGS").is_ok() {
+            println!(
+                "strayed at step {step}: tip {:?} mm near {}",
+                (tip * 1e3).as_slice(),
+                anatomy.graph.branches[here].name
+            );
+        }
         if off_route && pull_until.is_none() {
             // Strayed into a side branch: back off 15 mm, twisting towards the route.
             pull_until = Some(nav.inserted_m() - 0.015);
