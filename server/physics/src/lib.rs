@@ -29,4 +29,4 @@ pub use error::{PhysicsError, Result};
 pub use navigation::{Command, Insertion, Navigation, NavigationReport, NavigationSettings, Twist};
 pub use section::{BeamProperties, CircularSection, Material};
 pub use substructure::{BlockTridiagonal, Flexibility, Substructure};
-pub use wall::{CappedTube, Wall, WallProbe};
+pub use wall::{CappedTube, RingTube, Wall, WallProbe};

@@ -100,3 +100,43 @@ impl Wall for CappedTube {
         (probe.clearance_m < 0.0 || probe.clearance_m <= search_m).then_some(probe)
     }
 }
+
+/// A closed ring of tube: the torus with core circle of `major_radius_m` about `axis` through
+/// `center`, and lumen radius `minor_radius_m`. A device pushed along it hugs the outer wall
+/// with contacts along its whole length. Exact distances and normals.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RingTube {
+    /// Centre of the core circle (m).
+    pub center: Vector3<f64>,
+    /// Unit axis of the ring.
+    pub axis: Vector3<f64>,
+    /// Radius of the core circle (m).
+    pub major_radius_m: f64,
+    /// Lumen radius (m).
+    pub minor_radius_m: f64,
+}
+
+impl Wall for RingTube {
+    fn probe(&self, point: &Vector3<f64>, search_m: f64) -> Option<WallProbe> {
+        let d = point - self.center;
+        let height = d.dot(&self.axis);
+        let in_plane = d - self.axis * height;
+        let radial = in_plane.try_normalize(1e-300).unwrap_or_else(|| {
+            let helper = if self.axis.x.abs() < 0.6 {
+                Vector3::x()
+            } else {
+                Vector3::y()
+            };
+            (helper - self.axis * self.axis.dot(&helper)).normalize()
+        });
+        let core = self.center + radial * self.major_radius_m;
+        let offset = point - core;
+        let distance = offset.norm();
+        let outward = offset.try_normalize(1e-300).unwrap_or(radial);
+        let clearance = self.minor_radius_m - distance;
+        (clearance < 0.0 || clearance <= search_m).then_some(WallProbe {
+            clearance_m: clearance,
+            normal: -outward,
+        })
+    }
+}
