@@ -68,6 +68,10 @@ pub struct ContactSettings {
     pub absolute_tolerance_n: f64,
     /// Sweep cap.
     pub max_iterations: usize,
+    /// Also require every contact's gap, as the sweep found it, to be violated by at most this
+    /// much (m) before stopping: a loose force tolerance then still keeps penetration small.
+    /// Infinite disables the check.
+    pub violation_tolerance_m: f64,
     /// Over-relaxation factor ω ∈ (0, 2): each contact moves ω times its Gauss–Seidel update,
     /// then is projected back onto the friction cone (projected SOR). 1 is plain Gauss–Seidel.
     pub relaxation: f64,
@@ -92,6 +96,7 @@ impl Default for ContactSettings {
             tolerance: 1e-6,
             absolute_tolerance_n: 1e-9,
             max_iterations: 200,
+            violation_tolerance_m: f64::INFINITY,
             relaxation: 1.0,
             detection_rounds: 1,
             penetration_tolerance_m: 1e-6,
@@ -683,6 +688,7 @@ pub fn gauss_seidel(
         let mut base_ward = Vector6::<f64>::zeros();
         let mut largest_change: f64 = 0.0;
         let mut largest_force: f64 = 0.0;
+        let mut largest_violation: f64 = 0.0;
         for &k in &order {
             let p = &prepared[k];
             let window = p.first.unwrap_or(p.second);
@@ -703,6 +709,8 @@ pub fn gauss_seidel(
                 translation(&tip_ward[p.second]) + d[p.second].fixed_rows::<3>(0) * a_second;
             let point = u_first * (1.0 - p.t) + u_second * p.t;
             let own = local[k];
+            largest_violation =
+                largest_violation.max(-(p.gap + p.free.x + p.frame.column(0).dot(&point)));
             let b = p.free + p.frame.transpose() * point - p.compliance * own;
             let updated = if frozen {
                 normal_with_fixed_tangent(&p.compliance, &b, p.gap, &own, p.friction)
@@ -741,6 +749,7 @@ pub fn gauss_seidel(
         sweep += 1;
         response.iterations = sweep;
         if largest_change <= (settings.tolerance * largest_force).max(settings.absolute_tolerance_n)
+            && largest_violation <= settings.violation_tolerance_m
         {
             // Converged; with frozen friction only the normal forces are exact.
             response.converged = !frozen;

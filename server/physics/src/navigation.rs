@@ -67,8 +67,9 @@ impl Default for NavigationSettings {
             max_step_rad: 0.2,
             substep_penetration_m: 0.02e-3,
             contact: ContactSettings {
-                tolerance: 1e-4,
+                tolerance: 1e-3,
                 absolute_tolerance_n: 1e-7,
+                violation_tolerance_m: 1e-6,
                 max_iterations: 300,
                 relaxation: 1.0,
                 detection_rounds: 4,
