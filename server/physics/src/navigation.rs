@@ -273,6 +273,11 @@ impl<W: Wall> Navigation<W> {
         Ok(())
     }
 
+    /// Replaces the Gauss–Seidel settings (from the next step on).
+    pub fn set_contact_settings(&mut self, contact: ContactSettings) {
+        self.settings.contact = contact;
+    }
+
     /// The beam model of the inserted part.
     pub fn model(&self) -> &BeamModel {
         &self.model
