@@ -8,7 +8,8 @@ use std::hint::black_box;
 
 use cathlab_physics::contact::{Contact, ContactSettings, gauss_seidel};
 use cathlab_physics::navigation::{Command, Insertion, Navigation, NavigationSettings, Twist};
-use cathlab_physics::wall::{CappedTube, RingTube};
+use cathlab_physics::scenarios::wire_in_a_ring;
+use cathlab_physics::wall::CappedTube;
 use cathlab_physics::{BeamModel, SolverSettings, Substructure, presets};
 use criterion::{BatchSize, BenchmarkId, Criterion, criterion_group, criterion_main};
 use nalgebra::{Vector3, Vector6};
@@ -93,47 +94,13 @@ fn navigation_step(c: &mut Criterion) {
 
 fn navigation_step_n100(c: &mut Criterion) {
     // A 0.014" wire pushed around a ring of tube (core radius 12 mm, lumen 2 mm): it hugs the
-    // outer wall along its whole length. 2 mm shaft elements give N ≈ 100 at 200 mm.
-    let wall = RingTube {
-        center: Vector3::new(0.0, 0.012, 0.0),
-        axis: Vector3::z(),
-        major_radius_m: 0.012,
-        minor_radius_m: 2e-3,
-    };
-    let mut settings = NavigationSettings {
-        shaft_element_m: 2e-3,
-        ..NavigationSettings::default()
-    };
-    // GS_TOL=… overrides the Gauss–Seidel force tolerance, to trade accuracy for time.
+    // outer wall along its whole length. GS_TOL=… overrides the Gauss–Seidel force tolerance.
+    let mut settings = NavigationSettings::default();
     if let Some(t) = std::env::var("GS_TOL").ok().and_then(|t| t.parse().ok()) {
         settings.contact.tolerance = t;
     }
-    let mut nav = Navigation::new(
-        presets::micro_guidewire_014(),
-        wall,
-        Vector3::zeros(),
-        Vector3::x(),
-        0.01,
-        settings,
-    )
-    .unwrap();
-    nav.set_command(Command {
-        insertion: Insertion::Velocity(0.1),
-        twist: Twist::Rate(0.0),
-    })
-    .unwrap();
-    let mut report = nav.step().unwrap();
-    while report.elements < 100 {
-        report = nav.step().unwrap();
-    }
-    nav.set_command(Command {
-        insertion: Insertion::Velocity(0.02),
-        twist: Twist::Rate(0.0),
-    })
-    .unwrap();
-    for _ in 0..50 {
-        report = nav.step().unwrap();
-    }
+    let mut nav = wire_in_a_ring(settings).unwrap();
+    let report = nav.step().unwrap();
     let mut worst: f64 = 0.0;
     let mut probe = nav.clone();
     for _ in 0..100 {

@@ -8,10 +8,8 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use cathlab_physics::navigation::{Command, Insertion, Navigation, NavigationSettings, Twist};
-use cathlab_physics::presets;
-use cathlab_physics::wall::RingTube;
-use nalgebra::Vector3;
+use cathlab_physics::navigation::NavigationSettings;
+use cathlab_physics::scenarios::wire_in_a_ring;
 use plotters::prelude::*;
 
 mod common;
@@ -19,39 +17,8 @@ use common::{Series, log_chart, time};
 
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
-    let wall = RingTube {
-        center: Vector3::new(0.0, 0.012, 0.0),
-        axis: Vector3::z(),
-        major_radius_m: 0.012,
-        minor_radius_m: 2e-3,
-    };
-    let settings = NavigationSettings {
-        shaft_element_m: 2e-3,
-        ..NavigationSettings::default()
-    };
-    let mut nav = Navigation::new(
-        presets::micro_guidewire_014(),
-        wall,
-        Vector3::zeros(),
-        Vector3::x(),
-        0.01,
-        settings,
-    )
-    .unwrap();
-    nav.set_command(Command {
-        insertion: Insertion::Velocity(0.1),
-        twist: Twist::Rate(0.0),
-    })
-    .unwrap();
-    while nav.step().unwrap().elements < 100 {}
-    nav.set_command(Command {
-        insertion: Insertion::Velocity(0.02),
-        twist: Twist::Rate(0.0),
-    })
-    .unwrap();
-    for _ in 0..50 {
-        nav.step().unwrap();
-    }
+    let settings = NavigationSettings::default();
+    let nav = wire_in_a_ring(settings).unwrap();
     let with_tolerance = |tolerance: f64, violation: f64, sweeps: usize| {
         let mut n = nav.clone();
         let mut contact = settings.contact;

@@ -119,3 +119,43 @@ pub fn end_moment_rollup(
         converged,
     })
 }
+
+/// A 0.014" micro-guidewire pushed around a tight ring of tube (core radius 12 mm, lumen
+/// 2 mm) until about 100 elements are inserted (2 mm shaft elements), then 50 steps at
+/// 20 mm/s: it hugs the outer wall with some 60 active contacts. The benchmark and chart state
+/// for contact-heavy steps; `settings` may change the contact solver (its element sizes are
+/// overridden).
+pub fn wire_in_a_ring(
+    settings: crate::navigation::NavigationSettings,
+) -> Result<crate::navigation::Navigation<crate::wall::RingTube>> {
+    use crate::navigation::{Command, Insertion, Navigation, NavigationSettings, Twist};
+    let wall = crate::wall::RingTube {
+        center: Vector3::new(0.0, 0.012, 0.0),
+        axis: Vector3::z(),
+        major_radius_m: 0.012,
+        minor_radius_m: 2e-3,
+    };
+    let settings = NavigationSettings {
+        shaft_element_m: 2e-3,
+        ..settings
+    };
+    let mut nav = Navigation::new(
+        crate::device::presets::micro_guidewire_014(),
+        wall,
+        Vector3::zeros(),
+        Vector3::x(),
+        0.01,
+        settings,
+    )?;
+    let push = |speed| Command {
+        insertion: Insertion::Velocity(speed),
+        twist: Twist::Rate(0.0),
+    };
+    nav.set_command(push(0.1))?;
+    while nav.step()?.elements < 100 {}
+    nav.set_command(push(0.02))?;
+    for _ in 0..50 {
+        nav.step()?;
+    }
+    Ok(nav)
+}
