@@ -281,10 +281,39 @@ fn local_law(
         let slip = b + w * force;
         Some((slip.y * dz - slip.z * dy, slip.y * dy + slip.z * dz, force))
     };
-    // Search brackets outward from the guess (k = 0, +1, −1, +2, …), so the first valid root
-    // is the one nearest the sticking direction; refine it by the Illinois method.
     const SAMPLES: i32 = 72;
     let step = std::f64::consts::TAU / SAMPLES as f64;
+    // Fast path: from the sticking direction, iterate d ← −slip_t(d)/|slip_t(d)| (no
+    // trigonometry). Where the tangential compliance is nearly isotropic this converges in a
+    // few steps to the root nearest the guess, the one the bracket search below would find.
+    {
+        let (gy, gz) = (guess.cos(), guess.sin());
+        let (mut dy, mut dz) = (gy, gz);
+        for _ in 0..6 {
+            let denominator = w[(0, 0)] + mu * (w[(0, 1)] * dy + w[(0, 2)] * dz);
+            if denominator <= 0.0 {
+                break;
+            }
+            let lambda_n = -(b.x + gap) / denominator;
+            let force = Vector3::new(lambda_n, mu * lambda_n * dy, mu * lambda_n * dz);
+            let slip = b + w * force;
+            let norm = slip.y.hypot(slip.z);
+            if norm == 0.0 || lambda_n <= 0.0 {
+                break;
+            }
+            let (ny, nz) = (-slip.y / norm, -slip.z / norm);
+            let change = (ny - dy).hypot(nz - dz);
+            (dy, dz) = (ny, nz);
+            if change <= 1e-13 {
+                if dy * gy + dz * gz > (0.5 * step).cos() {
+                    return force;
+                }
+                break;
+            }
+        }
+    }
+    // Search brackets outward from the guess (k = 0, +1, −1, +2, …), so the first valid root
+    // is the one nearest the sticking direction; refine it by the Illinois method.
     let mut best: Option<(f64, Vector3<f64>)> = None;
     for k in 0..SAMPLES {
         let offset = if k % 2 == 0 { k / 2 } else { -(k + 1) / 2 };
