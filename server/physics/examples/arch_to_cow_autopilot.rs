@@ -70,6 +70,7 @@ fn main() {
     let mut worst: f64 = 0.0;
     let mut max_step = 0.0f64;
     let mut pull_until: Option<f64> = None;
+    let mut step_times: Vec<f64> = Vec::new();
     let mut retries = 0usize;
     let mut aim_offset = 0.0;
     let offsets = [
@@ -133,7 +134,9 @@ fn main() {
         .unwrap();
         let t = std::time::Instant::now();
         let report = nav.step().unwrap_or_else(|e| panic!("step {step}: {e}"));
-        max_step = max_step.max(t.elapsed().as_secs_f64());
+        let elapsed = t.elapsed().as_secs_f64();
+        step_times.push(elapsed);
+        max_step = max_step.max(elapsed);
         let pen = nav.max_penetration_m();
         worst = worst.max(pen);
         if step % 500 == 0 {
@@ -153,6 +156,17 @@ fn main() {
             break;
         }
     }
+    step_times.sort_by(f64::total_cmp);
+    let percentile =
+        |p: f64| step_times[((step_times.len() - 1) as f64 * p).round() as usize] * 1e3;
+    println!(
+        "step time over {} steps: p50 {:.3} ms, p90 {:.3} ms, p99 {:.3} ms, max {:.3} ms",
+        step_times.len(),
+        percentile(0.5),
+        percentile(0.9),
+        percentile(0.99),
+        max_step * 1e3
+    );
     let tip = Point3::from(nav.tip_position());
     let location = anatomy.graph.nearest(&tip).unwrap();
     println!(
