@@ -2,7 +2,10 @@
 //! push along the route, twist the angled tip towards the route ahead, pull back when the tip
 //! strays into a side branch. It does not reach its targets yet: the 5 F catheter enters the
 //! left subclavian and the retry twist runs away. Run it with
-//! `TARGET=LCCA cargo run --release -p cathlab-physics --example arch_to_cow_autopilot`.
+//! `TARGET=LCCA cargo run --release -p cathlab-physics --example arch_to_cow_autopilot`;
+//! `DEVICE=wire|micro` (default: the 5 F catheter), `LOOKAHEAD` (route samples, 1 mm each,
+//! default 15), `SPEED` (m/s, default 0.02) and `LEGS=1` (route and aim diagnostics) vary it.
+//! Tried so far without success: lookahead 15/30/45 mm, 10 and 20 mm/s, all three devices.
 
 use std::path::Path;
 
@@ -90,7 +93,11 @@ fn main() {
             .unwrap();
         let radius = route[index].1;
         let axis = nav.tip_axis();
-        let ahead = route[(index + 15).min(route.len() - 1)].0.coords;
+        let lookahead: usize = std::env::var("LOOKAHEAD")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(15);
+        let ahead = route[(index + lookahead).min(route.len() - 1)].0.coords;
         let d = (ahead - tip).normalize();
         let want = d - axis * d.dot(&axis);
         if let Some(bend) = nav.tip_bend_direction()
@@ -126,7 +133,15 @@ fn main() {
         if pull_until.is_some_and(|x| nav.inserted_m() <= x) {
             pull_until = None;
         }
-        let speed = if pull_until.is_some() { -0.02 } else { 0.02 };
+        let push_speed: f64 = std::env::var("SPEED")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0.02);
+        let speed = if pull_until.is_some() {
+            -push_speed
+        } else {
+            push_speed
+        };
         nav.set_command(Command {
             insertion: Insertion::Velocity(speed),
             twist: Twist::Target(twist_target),
