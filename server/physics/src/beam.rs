@@ -129,6 +129,19 @@ pub struct StepReport {
     pub last_rotation_increment_rad: f64,
 }
 
+/// A saved model state (see [`BeamModel::snapshot`]).
+#[derive(Debug, Clone)]
+pub struct BeamSnapshot {
+    elements: Vec<Element>,
+    positions: Vec<Vector3<f64>>,
+    rotations: Vec<UnitQuaternion<f64>>,
+    rest_positions: Vec<Vector3<f64>>,
+    rest_rotations: Vec<UnitQuaternion<f64>>,
+    external: Vec<Vector6<f64>>,
+    length_m: f64,
+    step_count: u64,
+}
+
 /// What a step with contacts did.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ContactStep {
@@ -551,9 +564,7 @@ impl BeamModel {
         position: Vector3<f64>,
         rotation: UnitQuaternion<f64>,
     ) -> Result<()> {
-        for (i, v) in position.iter().chain(rotation.coords.iter()).enumerate() {
-            require_finite(|| format!("base pose component {i}"), *v)?;
-        }
+        require_finite_pose(&position, &rotation)?;
         let delta = rotation * self.rotations[0].inverse();
         let origin = self.positions[0];
         for (p, q) in self.positions.iter_mut().zip(self.rotations.iter_mut()) {
@@ -582,9 +593,7 @@ impl BeamModel {
         position: Vector3<f64>,
         rotation: UnitQuaternion<f64>,
     ) -> Result<()> {
-        for (i, v) in position.iter().chain(rotation.coords.iter()).enumerate() {
-            require_finite(|| format!("base pose component {i}"), *v)?;
-        }
+        require_finite_pose(&position, &rotation)?;
         self.positions[0] = position;
         self.rotations[0] = rotation;
         Ok(())
@@ -617,6 +626,34 @@ impl BeamModel {
         self.positions.copy_from_slice(positions);
         self.rotations.copy_from_slice(rotations);
         Ok(())
+    }
+
+    /// The model's state without its work buffers: what [`BeamModel::restore`] needs to undo
+    /// the steps and discretization changes made since.
+    pub fn snapshot(&self) -> BeamSnapshot {
+        BeamSnapshot {
+            elements: self.elements.clone(),
+            positions: self.positions.clone(),
+            rotations: self.rotations.clone(),
+            rest_positions: self.rest_positions.clone(),
+            rest_rotations: self.rest_rotations.clone(),
+            external: self.external.clone(),
+            length_m: self.length_m,
+            step_count: self.step_count,
+        }
+    }
+
+    /// Returns to a snapshot of this model.
+    pub fn restore(&mut self, snapshot: BeamSnapshot) {
+        self.elements = snapshot.elements;
+        self.positions = snapshot.positions;
+        self.rotations = snapshot.rotations;
+        self.rest_positions = snapshot.rest_positions;
+        self.rest_rotations = snapshot.rest_rotations;
+        self.external = snapshot.external;
+        self.length_m = snapshot.length_m;
+        self.step_count = snapshot.step_count;
+        self.resize_work_buffers();
     }
 
     /// Rest length of element `index` (m).
@@ -1080,6 +1117,14 @@ fn carry_forces(new: &[Contact], old: &[Contact], forces: &[Vector3<f64>]) -> Ve
                 .unwrap_or_else(Vector3::zeros)
         })
         .collect()
+}
+
+/// Checks that a base pose is finite, naming the first bad component.
+fn require_finite_pose(position: &Vector3<f64>, rotation: &UnitQuaternion<f64>) -> Result<()> {
+    for (i, v) in position.iter().chain(rotation.coords.iter()).enumerate() {
+        require_finite(|| format!("base pose component {i}"), *v)?;
+    }
+    Ok(())
 }
 
 /// Rotation vector (axis × angle, rad) of a unit quaternion, accurate near the identity.

@@ -47,15 +47,21 @@ impl Contact {
     /// The contact frame `[n t1 t2]` (columns), with tangents chosen deterministically.
     pub fn frame(&self) -> Matrix3<f64> {
         let n = self.normal;
-        let helper = if n.x.abs() < 0.6 {
-            Vector3::x()
-        } else {
-            Vector3::y()
-        };
-        let t1 = (helper - n * n.dot(&helper)).normalize();
+        let t1 = perpendicular(&n);
         let t2 = n.cross(&t1);
         Matrix3::from_columns(&[n, t1, t2])
     }
+}
+
+/// A unit vector perpendicular to unit `n`, chosen deterministically (from whichever of x and
+/// y is farther from `n`).
+pub fn perpendicular(n: &Vector3<f64>) -> Vector3<f64> {
+    let helper = if n.x.abs() < 0.6 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    (helper - n * n.dot(&helper)).normalize()
 }
 
 /// Gauss–Seidel stopping rule.
@@ -391,6 +397,23 @@ fn normal_with_fixed_tangent(
     project_on_cone(&Vector3::new(normal, own.y, own.z), mu)
 }
 
+/// The tip-ward part of the propagation, B_i = D_i F_i + H(i,i+1) B_{i+1} from the tip, into
+/// `out`: O(N).
+fn tip_ward_pass(flexibility: &Flexibility, loads: &[Vector6<f64>], out: &mut [Vector6<f64>]) {
+    let d = &flexibility.diagonal;
+    let h = &flexibility.coupling;
+    let mut next = Vector6::zeros();
+    for i in (0..d.len()).rev() {
+        next = d[i] * loads[i]
+            + if i + 1 < d.len() {
+                h[i] * next
+            } else {
+                Vector6::zeros()
+            };
+        out[i] = next;
+    }
+}
+
 /// Displacements of every unknown node under nodal `loads`, u = K⁻¹ F, by the propagation
 /// u_i = B_i + D_i A_i of the module documentation: O(N).
 fn node_displacements(flexibility: &Flexibility, loads: &[Vector6<f64>]) -> Vec<Vector6<f64>> {
@@ -398,17 +421,7 @@ fn node_displacements(flexibility: &Flexibility, loads: &[Vector6<f64>]) -> Vec<
     let h = &flexibility.coupling;
     let n = d.len();
     let mut u = vec![Vector6::zeros(); n];
-    let mut next = Vector6::zeros();
-    for i in (0..n).rev() {
-        let b = d[i] * loads[i]
-            + if i + 1 < n {
-                h[i] * next
-            } else {
-                Vector6::zeros()
-            };
-        u[i] = b;
-        next = b;
-    }
+    tip_ward_pass(flexibility, loads, &mut u);
     let mut base_ward = Vector6::zeros();
     for i in 0..n {
         if i > 0 {
@@ -700,18 +713,7 @@ pub fn gauss_seidel(
             anderson = Anderson::new(settings.acceleration_depth, 3 * contacts.len());
         }
         let before = anderson.active().then(|| local.clone());
-        // B_i = D_i F_i + H_i B_{i+1}, from the tip.
-        let mut next = Vector6::zeros();
-        for i in (0..n).rev() {
-            let b = d[i] * loads[i]
-                + if i + 1 < n {
-                    h[i] * next
-                } else {
-                    Vector6::zeros()
-                };
-            tip_ward[i] = b;
-            next = b;
-        }
+        tip_ward_pass(flexibility, &loads, &mut tip_ward);
         // A_i: base-ward accumulation, advanced lazily up to `cursor`.
         let mut cursor = 0usize;
         let mut base_ward = Vector6::<f64>::zeros();

@@ -327,10 +327,7 @@ impl<W: Wall> Navigation<W> {
     /// side the rest shape bends to) of the node where the curved part starts, as a unit world
     /// vector perpendicular to the device there. `None` for a straight device.
     pub fn tip_bend_direction(&self) -> Option<Vector3<f64>> {
-        let e = (0..self.model.element_count()).find(|&e| {
-            let mid = 0.5 * (self.material[e] + self.material[e + 1]);
-            self.device.rest_curvature_at(mid) != 0.0
-        })?;
+        let e = self.first_curved_element()?;
         let q = self.model.rotations()[e];
         let tangent = q * Vector3::x();
         let side = q * Vector3::y();
@@ -339,13 +336,19 @@ impl<W: Wall> Navigation<W> {
 
     /// Unit tangent of the device at the start of its curved tip (or at the tip if straight).
     pub fn tip_axis(&self) -> Vector3<f64> {
-        let e = (0..self.model.element_count())
-            .find(|&e| {
-                let mid = 0.5 * (self.material[e] + self.material[e + 1]);
-                self.device.rest_curvature_at(mid) != 0.0
-            })
+        let e = self
+            .first_curved_element()
             .unwrap_or(self.model.element_count());
         self.model.rotations()[e] * Vector3::x()
+    }
+
+    /// The most proximal element with a rest curvature: where a curved tip (angled or J)
+    /// starts. `None` for a straight device.
+    fn first_curved_element(&self) -> Option<usize> {
+        (0..self.model.element_count()).find(|&e| {
+            let mid = 0.5 * (self.material[e] + self.material[e + 1]);
+            self.device.rest_curvature_at(mid) != 0.0
+        })
     }
 
     /// The wrench the operator's hand feels at the entry point (force N, moment N·m, world
@@ -386,7 +389,7 @@ impl<W: Wall> Navigation<W> {
     fn advance(&mut self, push: f64, turn: f64, depth: usize) -> Result<NavigationReport> {
         let saved = (depth < MAX_SUBSTEP_DEPTH).then(|| {
             (
-                self.model.clone(),
+                self.model.snapshot(),
                 self.material.clone(),
                 self.twist_rad,
                 self.previous_contacts.clone(),
@@ -397,7 +400,7 @@ impl<W: Wall> Navigation<W> {
         if penetration > self.settings.substep_penetration_m
             && let Some((model, material, twist, previous)) = saved
         {
-            self.model = model;
+            self.model.restore(model);
             self.material = material;
             self.twist_rad = twist;
             self.previous_contacts = previous;
@@ -460,12 +463,7 @@ impl<W: Wall> Navigation<W> {
         let positions = self.model.positions().to_vec();
         let rotations = self.model.rotations().to_vec();
         let last = self.material.len() - 1;
-        let curved_from = (0..self.model.element_count())
-            .find(|&e| {
-                let mid = 0.5 * (self.material[e] + self.material[e + 1]);
-                self.device.rest_curvature_at(mid) != 0.0
-            })
-            .map_or(last, |e| e.max(1));
+        let curved_from = self.first_curved_element().map_or(last, |e| e.max(1));
         let along = |s: f64| -> (Vector3<f64>, UnitQuaternion<f64>) {
             let m = &self.material;
             if s <= m[0] {

@@ -9,6 +9,8 @@ use cathlab_anatomy::Lumen;
 use cathlab_anatomy::lumen::Proximity;
 use nalgebra::{Point3, Vector3};
 
+use crate::contact::perpendicular;
+
 /// What a probe sees at a point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WallProbe {
@@ -76,13 +78,8 @@ impl Wall for CappedTube {
         let radial_unit = if rho > 1e-300 {
             radial / rho
         } else {
-            // On the axis: any radial direction; pick one deterministically.
-            let helper = if self.axis.x.abs() < 0.6 {
-                Vector3::x()
-            } else {
-                Vector3::y()
-            };
-            (helper - self.axis * self.axis.dot(&helper)).normalize()
+            // On the axis: any radial direction, picked deterministically.
+            perpendicular(&self.axis)
         };
         let to_side = self.radius_m - rho;
         let to_cap = self.length_m - along;
@@ -121,14 +118,9 @@ impl Wall for RingTube {
         let d = point - self.center;
         let height = d.dot(&self.axis);
         let in_plane = d - self.axis * height;
-        let radial = in_plane.try_normalize(1e-300).unwrap_or_else(|| {
-            let helper = if self.axis.x.abs() < 0.6 {
-                Vector3::x()
-            } else {
-                Vector3::y()
-            };
-            (helper - self.axis * self.axis.dot(&helper)).normalize()
-        });
+        let radial = in_plane
+            .try_normalize(1e-300)
+            .unwrap_or_else(|| perpendicular(&self.axis));
         let core = self.center + radial * self.major_radius_m;
         let offset = point - core;
         let distance = offset.norm();
