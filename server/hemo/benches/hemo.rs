@@ -3,13 +3,10 @@
 //! (`cargo bench -p cathlab-hemo --bench hemo`).
 
 use std::hint::black_box;
-use std::path::Path;
 
 use cathlab_hemo::network::random_network;
-use cathlab_hemo::{
-    Contrast, ContrastSettings, FlowNetwork, FlowSolver, Injection, InletCondition, MMHG,
-    Narrowing, OpenBfBoundary, read_openbf,
-};
+use cathlab_hemo::scenarios::circle_of_willis;
+use cathlab_hemo::{Contrast, ContrastSettings, FlowNetwork, FlowSolver, Injection, Narrowing};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 
 /// 1,000 vessels: a random tree of 901 nodes plus 100 loop-closing vessels.
@@ -90,14 +87,7 @@ fn contrast(c: &mut Criterion) {
         b.iter(|| assert_eq!(field.step(black_box(dt)).unwrap(), 1))
     });
     // The real network at the default resolution: one 60 Hz frame with an ICA injection.
-    let cow = read_openbf(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/flow/circle_of_willis.yaml"),
-        OpenBfBoundary {
-            inlet: InletCondition::Pressure(100.0 * MMHG),
-            outlet_pressure: 0.0,
-        },
-    )
-    .unwrap();
+    let cow = circle_of_willis().unwrap();
     let ica = cow.vessel_id("11-L-int-carotidI").unwrap();
     let solution = FlowSolver::new(cow.clone())
         .unwrap()

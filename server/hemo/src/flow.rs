@@ -227,17 +227,9 @@ impl FlowSolver {
     /// factorization is kept; the change enters as a rank-k update, k = the number of narrowed
     /// vessels, costing k re-solves here and a k×k solve per [`FlowSolver::solve`].
     pub fn set_narrowings(&mut self, narrowings: &[Narrowing]) -> Result<()> {
-        let count = self.network.vessels.len();
-        let mut per_vessel = vec![Vec::new(); count];
+        let mut per_vessel = vec![Vec::new(); self.network.vessels.len()];
         for n in narrowings {
-            let vessel = self
-                .network
-                .vessels
-                .get(n.vessel)
-                .ok_or(HemoError::VesselIndex {
-                    index: n.vessel,
-                    count,
-                })?;
+            let vessel = self.network.vessel_at(n.vessel)?;
             require_non_negative(|| "narrowing catheter radius (m)".into(), n.catheter_radius)?;
             require_finite(|| "narrowing start arc (m)".into(), n.from_arc)?;
             require_finite(|| "narrowing end arc (m)".into(), n.to_arc)?;
@@ -469,15 +461,7 @@ impl FlowSolver {
     /// Validates an injection and returns it with the resistances upstream and downstream of
     /// its point.
     fn injection_split(&self, inj: &Injection) -> Result<(Injection, f64, f64)> {
-        let count = self.network.vessels.len();
-        let vessel = self
-            .network
-            .vessels
-            .get(inj.vessel)
-            .ok_or(HemoError::VesselIndex {
-                index: inj.vessel,
-                count,
-            })?;
+        let vessel = self.network.vessel_at(inj.vessel)?;
         require_non_negative(|| "injection rate (m³/s)".into(), inj.rate)?;
         require_non_negative(
             || "injection iodine concentration (mg/mL)".into(),

@@ -417,6 +417,14 @@ impl FlowNetwork {
         Ok(&self.vessels[self.vessel_id(name)?])
     }
 
+    /// The vessel at `index`, or an error naming the index and the vessel count.
+    pub fn vessel_at(&self, index: usize) -> Result<&Vessel> {
+        self.vessels.get(index).ok_or(HemoError::VesselIndex {
+            index,
+            count: self.vessels.len(),
+        })
+    }
+
     /// For each node, the vessels attached to it and whether the node is that vessel's start.
     pub fn incidence(&self) -> Vec<Vec<(usize, bool)>> {
         let mut incidence = vec![Vec::new(); self.node_count];

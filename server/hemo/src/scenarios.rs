@@ -1,10 +1,26 @@
-//! Reference scenarios shared by tests, benchmarks and charts: a bolus advected down a
-//! straight tube, compared with the exact (shifted) profile.
+//! Reference scenarios shared by tests, benchmarks and charts: the bundled circle-of-Willis
+//! network, and a bolus advected down a straight tube, compared with the exact (shifted)
+//! profile.
 
 use crate::contrast::{Contrast, ContrastSettings, Limiter};
 use crate::error::Result;
 use crate::flow::FlowSolver;
 use crate::network::{Blood, FlowNetwork, Inlet, InletCondition, Outlet, Vessel};
+
+/// The bundled real circle-of-Willis network (`data/flow/circle_of_willis.yaml`, openBF) at
+/// 100 mmHg inlet pressure and 0 mmHg venous pressure.
+pub fn circle_of_willis() -> Result<FlowNetwork> {
+    crate::openbf::read_openbf(
+        std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../data/flow/circle_of_willis.yaml"
+        )),
+        crate::openbf::OpenBfBoundary {
+            inlet: InletCondition::Pressure(100.0 * crate::network::MMHG),
+            outlet_pressure: 0.0,
+        },
+    )
+}
 
 /// A straight tube of `length` and `radius` (m) fed with a prescribed flow that gives mean
 /// speed `speed` (m/s), draining to 0 Pa.

@@ -2,12 +2,10 @@
 //! convergence), first-order upwind for contrast, iodine mass balance on the real network,
 //! the maximum principle, junction mixing against steady mass balance, and backflow.
 
-use std::path::PathBuf;
-
 use cathlab_hemo::scenarios::{BolusShape, advect_bolus};
 use cathlab_hemo::{
     Blood, Contrast, ContrastSettings, FlowNetwork, FlowSolver, Injection, Inlet, InletCondition,
-    Limiter, MMHG, OpenBfBoundary, Outlet, Vessel, read_openbf,
+    Limiter, MMHG, Outlet, Vessel,
 };
 use proptest::prelude::*;
 
@@ -65,16 +63,7 @@ fn van_leer_converges_at_second_order_and_upwind_at_first() {
 }
 
 fn circle_of_willis() -> FlowNetwork {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/flow/circle_of_willis.yaml");
-    read_openbf(
-        &path,
-        OpenBfBoundary {
-            inlet: InletCondition::Pressure(100.0 * MMHG),
-            outlet_pressure: 0.0,
-        },
-    )
-    .unwrap()
+    cathlab_hemo::scenarios::circle_of_willis().expect("the circle-of-Willis network loads")
 }
 
 #[test]

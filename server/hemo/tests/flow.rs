@@ -2,11 +2,9 @@
 //! solve, the annular Poiseuille profile integrated numerically, and the real circle-of-Willis
 //! network.
 
-use std::path::PathBuf;
-
 use cathlab_hemo::{
     Blood, FlowNetwork, FlowSolver, HemoError, Injection, Inlet, InletCondition, ML_PER_MIN, MMHG,
-    Narrowing, OpenBfBoundary, Outlet, Vessel, network::annulus_factor, read_openbf,
+    Narrowing, OpenBfBoundary, Outlet, Vessel, network::annulus_factor,
 };
 use nalgebra::{DMatrix, DVector};
 use proptest::prelude::*;
@@ -27,16 +25,7 @@ fn relative(a: f64, b: f64) -> f64 {
 }
 
 fn circle_of_willis() -> FlowNetwork {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/flow/circle_of_willis.yaml");
-    read_openbf(
-        &path,
-        OpenBfBoundary {
-            inlet: InletCondition::Pressure(100.0 * MMHG),
-            outlet_pressure: 0.0,
-        },
-    )
-    .expect("the circle-of-Willis network loads")
+    cathlab_hemo::scenarios::circle_of_willis().expect("the circle-of-Willis network loads")
 }
 
 #[test]
