@@ -26,7 +26,7 @@
 
 use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3, Vector6};
 
-use crate::contact::{Contact, ContactResponse, ContactSettings, gauss_seidel};
+use crate::contact::{Contact, ContactResponse, ContactSettings, gauss_seidel, point_displacement};
 use crate::device::Device;
 use crate::element::{BendingCoefficients, local_geometric_stiffness, local_stiffness};
 use crate::error::{PhysicsError, Result, require_finite, require_positive};
@@ -949,15 +949,9 @@ impl BeamModel {
             // round with fresh contacts there.
             let mut next = detect(&self.positions, &self.rotations, &increments)?;
             let depth = |c: &Contact| {
-                let at = |node: usize| -> Vector3<f64> {
-                    if node == 0 {
-                        Vector3::zeros()
-                    } else {
-                        increments[node - 1].fixed_rows::<3>(0).into_owned()
-                    }
-                };
-                let delta = at(c.element) * (1.0 - c.t) + at(c.element + 1) * c.t;
-                -(c.gap + c.normal.dot(&delta))
+                -(c.gap
+                    + c.normal
+                        .dot(&point_displacement(&increments, c.element, c.t)))
             };
             penetration = next.iter().map(depth).fold(0.0, f64::max);
             if penetration <= settings.penetration_tolerance_m || round >= rounds {

@@ -64,6 +64,19 @@ pub fn perpendicular(n: &Vector3<f64>) -> Vector3<f64> {
     (helper - n * n.dot(&helper)).normalize()
 }
 
+/// Translation of the point at parameter `t` of element `element` under node `increments`
+/// (one per unknown node; model node 0, the driven base, does not move).
+pub fn point_displacement(increments: &[Vector6<f64>], element: usize, t: f64) -> Vector3<f64> {
+    let node = |n: usize| -> Vector3<f64> {
+        if n == 0 {
+            Vector3::zeros()
+        } else {
+            translation(&increments[n - 1])
+        }
+    };
+    node(element) * (1.0 - t) + node(element + 1) * t
+}
+
 /// Gauss–Seidel stopping rule.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ContactSettings {

@@ -10,7 +10,7 @@
 use nalgebra::{UnitQuaternion, Vector3, Vector6};
 
 use crate::beam::{BeamModel, ContactStep, ElementSpec, SolverSettings, StepMode, ViscousDrag};
-use crate::contact::{Contact, ContactSettings};
+use crate::contact::{Contact, ContactSettings, point_displacement};
 use crate::device::Device;
 use crate::error::{PhysicsError, Result, require_finite, require_positive};
 use crate::wall::Wall;
@@ -630,20 +630,13 @@ fn detect<W: Wall>(
     free: &[Vector6<f64>],
     margin: f64,
 ) -> Vec<Contact> {
-    let moved = |node: usize| -> Vector3<f64> {
-        if node == 0 {
-            Vector3::zeros()
-        } else {
-            free[node - 1].fixed_rows::<3>(0).into_owned()
-        }
-    };
     let mut contacts: Vec<Contact> = Vec::new();
     // Predicted gaps of the contacts of the current element (parallel to its tail of
     // `contacts`): one contact per element and wall direction, the deepest.
     let mut deepest: Vec<f64> = Vec::new();
     let mut element_start = 0;
     for s in samples {
-        let delta = moved(s.element) * (1.0 - s.t) + moved(s.element + 1) * s.t;
+        let delta = point_displacement(free, s.element, s.t);
         let at = positions[s.element] * (1.0 - s.t) + positions[s.element + 1] * s.t + delta;
         let Some(probe) = wall.probe(&at, s.radius + margin) else {
             continue;
