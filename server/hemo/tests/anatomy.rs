@@ -97,3 +97,34 @@ fn neuro_phantom_flows_and_a_carotid_injection_opacify_the_right_territory() {
         contrast.iodine_injected() - contrast.iodine_present() - contrast.iodine_washed_out();
     assert!(balance.abs() < 1e-9 * contrast.iodine_injected());
 }
+
+#[test]
+fn bad_graph_settings_give_clear_errors() {
+    let graph = neuro_phantom(&NeuroPhantomParams::default()).unwrap();
+    let err = network_from_graph(
+        &graph,
+        &GraphFlowSettings {
+            inlet_branch: "no_such_branch".into(),
+            ..GraphFlowSettings::default()
+        },
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("no_such_branch"), "{err}");
+    let mut settings = GraphFlowSettings::default();
+    settings.terminal.reference_radius = -1e-3;
+    let err = network_from_graph(&graph, &settings).unwrap_err();
+    assert!(
+        err.to_string().contains("terminal reference radius"),
+        "{err}"
+    );
+    // A branch with a free end on neither side cannot be the inlet.
+    let err = network_from_graph(
+        &graph,
+        &GraphFlowSettings {
+            inlet_branch: "basilar".into(),
+            ..GraphFlowSettings::default()
+        },
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("no free end"), "{err}");
+}
