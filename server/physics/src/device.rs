@@ -322,6 +322,28 @@ pub mod presets {
         }
     }
 
+    /// The 0.035" nitinol guidewire of [`guidewire_035`] with its tip shaped by the user, as
+    /// clinicians shape a tip for the anatomy ahead: bent by `angle_rad` over the distal
+    /// `bend_length_m` (a 90° bend over 30 mm turns from the descending aorta into the arch;
+    /// 90° over 10 mm selects the vertebral from the subclavian). The soft tip section is
+    /// 50 mm long, or the bend plus 5 mm if longer.
+    pub fn guidewire_035_shaped(angle_rad: f64, bend_length_m: f64) -> Device {
+        let mut wire = guidewire_035();
+        wire.name = format!(
+            "0.035in guidewire, {:.0} deg over {:.0} mm",
+            angle_rad.to_degrees(),
+            bend_length_m * 1e3
+        );
+        if let Some(tip) = wire.sections.last_mut() {
+            tip.length_m = tip.length_m.max(bend_length_m + 0.005);
+            tip.rest_shape = RestShape::Angled {
+                angle_rad,
+                bend_length_m,
+            };
+        }
+        wire
+    }
+
     /// 5 F (1.67 mm OD, 0.038" = 0.97 mm ID) diagnostic catheter, 100 cm, 45° angled tip.
     ///
     /// Braided polymer shaft (effective E ≈ 2.5 GPa), softer transition (0.8 GPa) and an

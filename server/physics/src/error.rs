@@ -31,6 +31,9 @@ pub enum PhysicsError {
         /// The offending value.
         value: f64,
     },
+    /// An anatomy query a scenario depends on failed (unknown target branch, no path).
+    #[error("anatomy: {0}")]
+    Anatomy(String),
     /// A tube whose inner radius is not smaller than its outer radius.
     #[error(
         "section \"{section}\": inner radius {inner_m} m must be smaller than outer radius {outer_m} m"

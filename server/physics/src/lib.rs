@@ -8,6 +8,7 @@
 //! the inserted length under push, pull and twist. Plain synchronous, deterministic library:
 //! SI units, f64.
 
+pub mod autopilot;
 pub mod beam;
 pub mod contact;
 pub mod device;

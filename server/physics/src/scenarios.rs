@@ -159,3 +159,146 @@ pub fn wire_in_a_ring(
     }
     Ok(nav)
 }
+
+/// A scripted navigation in the real arch-to-circle-of-Willis anatomy: which device, where it
+/// starts and how the autopilot drives.
+#[derive(Debug, Clone)]
+pub struct ArchToCowPlan {
+    /// Target branch name (`LCCA`, `RVA`, `RCCA`, `LVA`).
+    pub target: String,
+    /// The guidewire, its tip shaped for the route.
+    pub device: crate::device::Device,
+    /// Where along the route from the access point the wire starts (m): 0 at the femoral
+    /// access in the descending aorta, more for a guide catheter parked further up.
+    pub start_along_m: f64,
+    /// Autopilot settings.
+    pub autopilot: crate::autopilot::AutopilotSettings,
+    /// Give up after this many steps.
+    pub max_steps: usize,
+}
+
+impl ArchToCowPlan {
+    /// The plans that reach their targets:
+    /// - `LCCA`: from the access point in the descending aorta, a 0.035" wire with a 90° bend
+    ///   over 30 mm (wide enough to find the arch's 77° turn in a 20 mm aorta instead of
+    ///   running on into the left subclavian), aimed 20 mm ahead;
+    /// - `RVA`: from a guide catheter parked in the aortic arch at the brachiocephalic origin,
+    ///   a 0.035" wire with a 90° bend over 10 mm (small enough for the 10 mm brachiocephalic
+    ///   and the vertebral origin), aimed 5 mm ahead.
+    ///
+    /// Any other target gets the LCCA plan's device and settings from the access point.
+    pub fn for_target(graph: &cathlab_anatomy::VesselGraph, target: &str) -> Result<Self> {
+        use crate::autopilot::AutopilotSettings;
+        use crate::device::presets::guidewire_035_shaped;
+        let right_vertebral = target == "RVA";
+        let start_along_m = if right_vertebral {
+            // The route's leg into the brachiocephalic trunk starts at the arch.
+            let access = nalgebra::Point3::from(cathlab_anatomy::real::ARCH_TO_COW_ACCESS_M);
+            let path = graph
+                .path_to(&access, target)
+                .map_err(|e| crate::error::PhysicsError::Anatomy(e.to_string()))?;
+            let mut along = 0.0;
+            for leg in &path.legs {
+                if graph.branches[leg.branch].name == "arch_to_RCCA+RVA" {
+                    break;
+                }
+                along += (leg.to_arc - leg.from_arc).abs();
+            }
+            along
+        } else {
+            0.0
+        };
+        let (bend_length_m, lookahead_m) = if right_vertebral {
+            (0.010, 0.005)
+        } else {
+            (0.030, 0.020)
+        };
+        Ok(Self {
+            target: target.to_owned(),
+            device: guidewire_035_shaped(std::f64::consts::FRAC_PI_2, bend_length_m),
+            start_along_m,
+            autopilot: AutopilotSettings {
+                lookahead_m,
+                // The RVA branch starts with 24 mm of subclavian artery: go 76 mm beyond.
+                reach_m: if right_vertebral { 0.1 } else { 0.05 },
+                ..AutopilotSettings::default()
+            },
+            max_steps: 15_000,
+        })
+    }
+}
+
+/// The outcome of [`run_arch_to_cow`].
+#[derive(Debug, Clone)]
+pub struct ArchToCowRun {
+    /// Step at which the tip was `reach_m` into the target branch, if it got there.
+    pub reached_at_step: Option<usize>,
+    /// Steps taken.
+    pub steps: usize,
+    /// Worst penetration into the wall over all steps (m).
+    pub worst_penetration_m: f64,
+    /// Wall-clock time of every step (s), in order.
+    pub step_times_s: Vec<f64>,
+    /// Pull-backs after straying into a side branch.
+    pub retries: usize,
+    /// Branch nearest to the tip at the end.
+    pub tip_branch: String,
+    /// Most active contacts in one step.
+    pub max_active_contacts: usize,
+}
+
+/// Drives `plan` through the real arch-to-cow anatomy until the tip reaches the target or
+/// `plan.max_steps` run out.
+pub fn run_arch_to_cow(
+    anatomy: &cathlab_anatomy::real::Anatomy,
+    plan: &ArchToCowPlan,
+) -> Result<ArchToCowRun> {
+    use crate::autopilot::{Autopilot, AutopilotPhase};
+    use crate::navigation::{Navigation, NavigationSettings};
+    let access = nalgebra::Point3::from(cathlab_anatomy::real::ARCH_TO_COW_ACCESS_M);
+    let path = anatomy
+        .graph
+        .path_to(&access, &plan.target)
+        .map_err(|e| crate::error::PhysicsError::Anatomy(e.to_string()))?;
+    let mut pilot = Autopilot::new(&anatomy.graph, path, plan.start_along_m, plan.autopilot)?;
+    let (entry, direction) = pilot.entry();
+    let mut nav = Navigation::new(
+        plan.device.clone(),
+        &anatomy.lumen,
+        entry,
+        direction,
+        0.01,
+        NavigationSettings::default(),
+    )?;
+    let mut run = ArchToCowRun {
+        reached_at_step: None,
+        steps: 0,
+        worst_penetration_m: 0.0,
+        step_times_s: Vec::with_capacity(plan.max_steps),
+        retries: 0,
+        tip_branch: String::new(),
+        max_active_contacts: 0,
+    };
+    for step in 0..plan.max_steps {
+        let command = pilot.command(&nav);
+        if pilot.phase() == AutopilotPhase::Reached {
+            run.reached_at_step = Some(step);
+            break;
+        }
+        nav.set_command(command)?;
+        let started = std::time::Instant::now();
+        let report = nav.step()?;
+        run.step_times_s.push(started.elapsed().as_secs_f64());
+        run.steps += 1;
+        run.worst_penetration_m = run.worst_penetration_m.max(nav.max_penetration_m());
+        run.max_active_contacts = run.max_active_contacts.max(report.active_contacts);
+    }
+    run.retries = pilot.retries();
+    let tip = nalgebra::Point3::from(nav.tip_position());
+    run.tip_branch = anatomy
+        .graph
+        .nearest(&tip)
+        .map(|l| anatomy.graph.branches[l.branch].name.clone())
+        .unwrap_or_default();
+    Ok(run)
+}

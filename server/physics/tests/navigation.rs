@@ -343,3 +343,65 @@ fn tip_bend_direction_follows_the_twist_in_free_space() {
     assert!((after - turned).norm() < 1e-3, "{after:?} vs {turned:?}");
     assert!((nav.tip_axis() - Vector3::x()).norm() < 1e-3);
 }
+
+/// The real arch-to-circle-of-Willis anatomy, loaded once for the tests that share it.
+fn arch_to_cow() -> &'static cathlab_anatomy::real::Anatomy {
+    static ANATOMY: std::sync::OnceLock<cathlab_anatomy::real::Anatomy> =
+        std::sync::OnceLock::new();
+    ANATOMY.get_or_init(|| {
+        let dir =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/anatomy/arch-to-cow");
+        cathlab_anatomy::real::load_arch_to_cow(&dir).unwrap()
+    })
+}
+
+fn navigate_arch_to_cow(target: &str) {
+    use cathlab_physics::scenarios::{ArchToCowPlan, run_arch_to_cow};
+    let anatomy = arch_to_cow();
+    let plan = ArchToCowPlan::for_target(&anatomy.graph, target).unwrap();
+    let run = run_arch_to_cow(anatomy, &plan).unwrap();
+    println!(
+        "{target}: reached at step {:?}, {} pull-backs, worst penetration {:.4} mm, tip in {}",
+        run.reached_at_step,
+        run.retries,
+        run.worst_penetration_m * 1e3,
+        run.tip_branch
+    );
+    assert!(
+        run.reached_at_step.is_some(),
+        "{target} not reached in {} steps; the tip ended in {}",
+        run.steps,
+        run.tip_branch
+    );
+    assert_eq!(run.tip_branch, target);
+    assert!(
+        run.worst_penetration_m < PENETRATION,
+        "{target}: penetration {} m",
+        run.worst_penetration_m
+    );
+}
+
+#[test]
+fn a_shaped_guidewire_reaches_the_left_common_carotid_from_the_femoral_access() {
+    navigate_arch_to_cow("LCCA");
+}
+
+#[test]
+fn a_shaped_guidewire_reaches_the_right_vertebral_from_the_aortic_arch() {
+    navigate_arch_to_cow("RVA");
+}
+
+#[test]
+fn the_stock_angled_catheter_runs_on_into_the_left_subclavian_instead_of_the_arch() {
+    // Negative control for the tip shape: the 5 F catheter's 45° over 8 mm spans a third of
+    // the 20 mm aorta and cannot find the arch's 77° turn; the autopilot keeps backing off.
+    use cathlab_physics::scenarios::{ArchToCowPlan, run_arch_to_cow};
+    let anatomy = arch_to_cow();
+    let mut plan = ArchToCowPlan::for_target(&anatomy.graph, "LCCA").unwrap();
+    plan.device = presets::diagnostic_catheter_5f();
+    plan.max_steps = 4_000;
+    let run = run_arch_to_cow(anatomy, &plan).unwrap();
+    assert!(run.reached_at_step.is_none());
+    assert!(run.retries >= 1, "it never strayed");
+    assert!(run.worst_penetration_m < PENETRATION);
+}
