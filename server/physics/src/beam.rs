@@ -694,6 +694,82 @@ impl BeamModel {
         Ok(())
     }
 
+    /// Splits element `index` by a new node on the smooth curve through its two nodes: the
+    /// cubic Hermite interpolant of their positions and tangents, evaluated at the rest-length
+    /// fraction of `first` (the old node `index + 1` becomes `index + 2`). The frame is the
+    /// slerp of the two node frames. No existing node moves, so the shape does not jump; the
+    /// new node at the midpoint of a circular arc lies on it exactly. `first` and
+    /// `second` are the two new elements' rest geometries.
+    pub fn split_element(
+        &mut self,
+        index: usize,
+        first: ElementSpec,
+        second: ElementSpec,
+    ) -> Result<()> {
+        if index >= self.elements.len() {
+            return Err(PhysicsError::OutOfRange {
+                what: "element to split".into(),
+                range: "0 to the element count − 1",
+                value: index as f64,
+            });
+        }
+        let a = Element::from_spec(&first)?;
+        let b = Element::from_spec(&second)?;
+        let total = a.rest_length_m + b.rest_length_m;
+        let f = a.rest_length_m / total;
+        let (p0, p1) = (self.positions[index], self.positions[index + 1]);
+        let (q0, q1) = (self.rotations[index], self.rotations[index + 1]);
+        // Tangent length chord / cos²(θ/4), θ the angle between the end tangents: the one
+        // that puts the Hermite midpoint exactly on a circular arc.
+        let (d0, d1) = (q0 * Vector3::x(), q1 * Vector3::x());
+        let scale = (p1 - p0).norm() / (0.25 * d0.angle(&d1).min(3.0)).cos().powi(2);
+        let (t0, t1) = (d0 * scale, d1 * scale);
+        // Cubic Hermite basis at f.
+        let (f2, f3) = (f * f, f * f * f);
+        let position = p0 * (2.0 * f3 - 3.0 * f2 + 1.0)
+            + t0 * (f3 - 2.0 * f2 + f)
+            + p1 * (-2.0 * f3 + 3.0 * f2)
+            + t1 * (f3 - f2);
+        let rotation = q0.slerp(&q1, f);
+        self.length_m += total - self.elements[index].rest_length_m;
+        self.elements[index] = b;
+        self.elements.insert(index, a);
+        self.positions.insert(index + 1, position);
+        self.rotations.insert(index + 1, rotation);
+        self.rest_positions.insert(index + 1, position);
+        self.rest_rotations.insert(index + 1, rotation);
+        self.external.insert(index + 1, Vector6::zeros());
+        self.resize_work_buffers();
+        Ok(())
+    }
+
+    /// Removes node `index + 1`, joining elements `index` and `index + 1` into one with rest
+    /// geometry `merged`; the other nodes stay where they are.
+    pub fn merge_elements(&mut self, index: usize, merged: ElementSpec) -> Result<()> {
+        if index + 1 >= self.elements.len() {
+            return Err(PhysicsError::OutOfRange {
+                what: "first of the two elements to merge".into(),
+                range: "0 to the element count − 2",
+                value: index as f64,
+            });
+        }
+        let element = Element::from_spec(&merged)?;
+        self.length_m += element.rest_length_m
+            - self.elements[index].rest_length_m
+            - self.elements[index + 1].rest_length_m;
+        self.elements.remove(index);
+        self.elements[index] = element;
+        for v in [&mut self.positions, &mut self.rest_positions] {
+            v.remove(index + 1);
+        }
+        for v in [&mut self.rotations, &mut self.rest_rotations] {
+            v.remove(index + 1);
+        }
+        self.external.remove(index + 1);
+        self.resize_work_buffers();
+        Ok(())
+    }
+
     /// Removes node 1, joining elements 0 and 1 into one with rest geometry `merged` (as the
     /// device is pulled out through the entry point). Needs at least two elements.
     pub fn remove_node_after_base(&mut self, merged: ElementSpec) -> Result<()> {
@@ -703,20 +779,7 @@ impl BeamModel {
                 min: 2,
             });
         }
-        let element = Element::from_spec(&merged)?;
-        self.length_m +=
-            element.rest_length_m - self.elements[0].rest_length_m - self.elements[1].rest_length_m;
-        self.elements.remove(0);
-        self.elements[0] = element;
-        for v in [&mut self.positions, &mut self.rest_positions] {
-            v.remove(1);
-        }
-        for v in [&mut self.rotations, &mut self.rest_rotations] {
-            v.remove(1);
-        }
-        self.external.remove(1);
-        self.resize_work_buffers();
-        Ok(())
+        self.merge_elements(0, merged)
     }
 
     fn resize_work_buffers(&mut self) {

@@ -49,6 +49,32 @@ pub struct NavigationSettings {
     pub substep_penetration_m: f64,
     /// Gauss–Seidel settings.
     pub contact: ContactSettings,
+    /// Local refinement where the device bends or touches the wall (`None`: the nominal
+    /// spacing only).
+    pub refinement: Option<Refinement>,
+}
+
+/// Where the device gets nodes beyond its nominal spacing. Before each step, elements that
+/// bend by more than `max_bend_rad` between their two nodes, or that carry an active contact
+/// and are longer than `contact_element_m`, are halved (down to `tip_element_m`), the new node
+/// placed on the smooth curve through the old ones so that the shape does not jump. Two
+/// halves merge back when together they bend less than a third of `max_bend_rad`, carry no
+/// active contact and are shorter than 1.25 nominal spacings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Refinement {
+    /// Largest angle between the tangents at an element's two nodes (rad).
+    pub max_bend_rad: f64,
+    /// Longest element allowed to carry an active contact (m).
+    pub contact_element_m: f64,
+}
+
+impl Default for Refinement {
+    fn default() -> Self {
+        Self {
+            max_bend_rad: 0.1,
+            contact_element_m: 2.5e-3,
+        }
+    }
 }
 
 impl Default for NavigationSettings {
@@ -77,6 +103,7 @@ impl Default for NavigationSettings {
                 acceleration_depth: 5,
                 polish: true,
             },
+            refinement: Some(Refinement::default()),
         }
     }
 }
@@ -378,6 +405,7 @@ impl<W: Wall> Navigation<W> {
             Twist::Target(a) => a - self.twist_rad,
         }
         .clamp(-max_turn, max_turn);
+        self.refine()?;
         let report = self.advance(push, turn, 0)?;
         self.time_s += dt;
         Ok(report)
@@ -514,6 +542,65 @@ impl<W: Wall> Navigation<W> {
                     .set_base_element(element_spec(&self.device, base, first));
             }
         }
+    }
+
+    /// Halves elements that bend too much or touch the wall and merges halves that no longer
+    /// need to be apart (see [`Refinement`]). The element at the entry point is left to
+    /// [`Self::slide`]. Runs between steps, so the last contacts decide.
+    fn refine(&mut self) -> Result<()> {
+        let Some(refinement) = self.settings.refinement else {
+            return Ok(());
+        };
+        let length = self.device.length_m();
+        let shortest = self.settings.tip_element_m;
+        // Material coordinates of the active contacts, ordered along the device.
+        let active: Vec<f64> = self.last.as_ref().map_or_else(Vec::new, |step| {
+            step.contacts
+                .iter()
+                .zip(&step.response.local)
+                .filter(|(_, l)| l.x > 0.0)
+                .map(|(c, _)| material_of(&self.material, c))
+                .collect()
+        });
+        let touching = |a: f64, b: f64| active.iter().any(|&s| s >= a && s <= b);
+        let bend = |model: &BeamModel, e: usize| {
+            let r = model.rotations();
+            (r[e] * Vector3::x()).angle(&(r[e + 1] * Vector3::x()))
+        };
+        // Split, tip first so that the indices still to visit stay valid.
+        for e in (1..self.model.element_count()).rev() {
+            let (a, b) = (self.material[e], self.material[e + 1]);
+            let long = b - a;
+            if long >= 2.0 * shortest
+                && (bend(&self.model, e) > refinement.max_bend_rad
+                    || (long > refinement.contact_element_m && touching(a, b)))
+            {
+                let mid = 0.5 * (a + b);
+                self.model.split_element(
+                    e,
+                    element_spec(&self.device, a, mid),
+                    element_spec(&self.device, mid, b),
+                )?;
+                self.material.insert(e + 1, mid);
+            }
+        }
+        // Merge.
+        let mut e = 1;
+        while e + 1 < self.model.element_count() {
+            let (a, b) = (self.material[e], self.material[e + 2]);
+            let nominal = spacing(&self.settings, length, 0.5 * (a + b));
+            if b - a < 1.25 * nominal
+                && bend(&self.model, e) + bend(&self.model, e + 1) < refinement.max_bend_rad / 3.0
+                && !touching(a, b)
+            {
+                self.model
+                    .merge_elements(e, element_spec(&self.device, a, b))?;
+                self.material.remove(e + 1);
+            } else {
+                e += 1;
+            }
+        }
+        Ok(())
     }
 
     /// Collision points per element: (element, t, device radius, friction).

@@ -405,3 +405,55 @@ fn the_stock_angled_catheter_runs_on_into_the_left_subclavian_instead_of_the_arc
     assert!(run.retries >= 1, "it never strayed");
     assert!(run.worst_penetration_m < PENETRATION);
 }
+
+#[test]
+fn elements_are_halved_where_the_wire_bends_and_merged_when_it_straightens() {
+    use cathlab_physics::navigation::Refinement;
+    // A 0.014" wire pushed 30 mm past a dead end 40 mm into a 4 mm tube buckles; pulled back,
+    // it straightens again.
+    let wall = tube(0.04, 2e-3);
+    let mut nav = navigation(wall, 0.01);
+    let nominal_at = |inserted: f64| {
+        let mut fresh = navigation(tube(0.04, 2e-3), inserted);
+        fresh.step().unwrap();
+        fresh.model().element_count()
+    };
+    let refinement = Refinement::default();
+    let mut most_elements = 0;
+    let mut worst_bend: f64 = 0.0;
+    let mut worst: f64 = 0.0;
+    for step in 0..3500 {
+        let speed = if step < 3500 / 2 { 0.04 } else { -0.04 };
+        nav.set_command(push(speed)).unwrap();
+        let report = nav.step().unwrap();
+        most_elements = most_elements.max(report.elements);
+        worst = worst.max(nav.max_penetration_m());
+        // Right after a step the elements reflect the bends of the previous one; check the
+        // criterion on those long enough to be split.
+        let model = nav.model();
+        let material = nav.node_material_m();
+        for e in 1..model.element_count() {
+            if material[e + 1] - material[e] >= 3e-3 {
+                let r = model.rotations();
+                worst_bend =
+                    worst_bend.max((r[e] * Vector3::x()).angle(&(r[e + 1] * Vector3::x())));
+            }
+        }
+    }
+    let inserted = nav.inserted_m();
+    let nominal = nominal_at(inserted);
+    println!(
+        "most elements {most_elements}; back at {:.1} mm: {} elements (nominal {nominal}); \
+         worst bend of a splittable element after a step {worst_bend:.3} rad; penetration {:.4} mm",
+        inserted * 1e3,
+        nav.model().element_count(),
+        worst * 1e3
+    );
+    // Buckled, it needed more nodes than a straight wire of the same length.
+    assert!(most_elements as f64 > 1.3 * nominal_at(0.04) as f64);
+    // Straight again, the extra nodes merged away.
+    assert!(nav.model().element_count() <= nominal + 1);
+    // Splitting kept up with the bending: at most one step's worth above the threshold.
+    assert!(worst_bend < 2.0 * refinement.max_bend_rad, "{worst_bend}");
+    assert!(worst < PENETRATION);
+}

@@ -1,5 +1,7 @@
 //! Rest shapes: a J tip straightened and released springs back; base twist turns the tip.
 
+use cathlab_physics::beam::ElementSpec;
+use cathlab_physics::presets;
 use cathlab_physics::{
     BeamModel, CircularSection, Device, Material, RestShape, Section, SolverSettings, StepMode,
 };
@@ -177,4 +179,58 @@ fn twist_is_transmitted_through_a_held_tip() {
         (reaction[3] + torque).abs() < 1e-9 * torque.max(1.0),
         "base reaction {reaction:?}"
     );
+}
+
+/// A 0.035" wire at rest as a circular arc of radius 20 mm: eight 5 mm elements.
+fn arc_model() -> (BeamModel, ElementSpec, f64) {
+    let props = presets::guidewire_035().sections[0].beam_properties();
+    let radius = 0.02;
+    let spec = ElementSpec {
+        props,
+        length_m: 5e-3,
+        curvature_per_m: 1.0 / radius,
+    };
+    let model = BeamModel::new(
+        &[spec; 8],
+        Vector3::zeros(),
+        UnitQuaternion::identity(),
+        SolverSettings::default(),
+    )
+    .unwrap();
+    (model, spec, radius)
+}
+
+#[test]
+fn splitting_an_arc_places_the_new_node_on_the_arc_and_keeps_it_at_rest() {
+    let (mut model, spec, radius) = arc_model();
+    let before = model.positions().to_vec();
+    let half = ElementSpec {
+        length_m: 2.5e-3,
+        ..spec
+    };
+    model.split_element(3, half, half).unwrap();
+    let after = model.positions().to_vec();
+    assert_eq!(after.len(), before.len() + 1);
+    // No existing node moved.
+    assert_eq!(&after[..4], &before[..4]);
+    assert_eq!(&after[5..], &before[4..]);
+    // The arc bends about material z towards +y: its centre is at (0, R, 0).
+    let centre = Vector3::new(0.0, radius, 0.0);
+    let off_arc = ((after[4] - centre).norm() - radius).abs();
+    let sagitta = radius * (1.0 - (2.5e-3 / radius).cos());
+    println!("new node {off_arc:.3e} m off the arc; the chord midpoint would be {sagitta:.3e} m");
+    assert!(off_arc < 1e-3 * sagitta, "{off_arc}");
+    let tangent = model.rotations()[4] * Vector3::x();
+    let exact = Vector3::z().cross(&(after[4] - centre)).normalize();
+    assert!(tangent.angle(&exact) < 1e-9, "{}", tangent.angle(&exact));
+    // Two curved halves of a curved element at rest are still at rest: a step moves nothing.
+    let report = model.step().unwrap();
+    assert!(report.converged);
+    let moved = max_distance(model.positions(), &after);
+    assert!(moved < 1e-12, "{moved}");
+    // Merging back gives the original model.
+    model.merge_elements(3, spec).unwrap();
+    assert!(max_distance(model.positions(), &before) < 1e-12);
+    assert!(model.split_element(9, half, half).is_err());
+    assert!(model.merge_elements(7, spec).is_err());
 }
