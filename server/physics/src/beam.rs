@@ -676,21 +676,11 @@ impl BeamModel {
     pub fn insert_node_after_base(&mut self, base: ElementSpec, distal: ElementSpec) -> Result<()> {
         let first = Element::from_spec(&base)?;
         let second = Element::from_spec(&distal)?;
-        let total = first.rest_length_m + second.rest_length_m;
-        let fraction = first.rest_length_m / total;
+        let fraction = first.rest_length_m / (first.rest_length_m + second.rest_length_m);
         let (p0, p1) = (self.positions[0], self.positions[1]);
-        let (q0, q1) = (self.rotations[0], self.rotations[1]);
         let position = p0 + (p1 - p0) * fraction;
-        let rotation = q0.slerp(&q1, fraction);
-        self.length_m += total - self.elements[0].rest_length_m;
-        self.elements[0] = second;
-        self.elements.insert(0, first);
-        self.positions.insert(1, position);
-        self.rotations.insert(1, rotation);
-        self.rest_positions.insert(1, position);
-        self.rest_rotations.insert(1, rotation);
-        self.external.insert(1, Vector6::zeros());
-        self.resize_work_buffers();
+        let rotation = self.rotations[0].slerp(&self.rotations[1], fraction);
+        self.insert_node(0, first, second, position, rotation);
         Ok(())
     }
 
@@ -731,16 +721,30 @@ impl BeamModel {
             + p1 * (-2.0 * f3 + 3.0 * f2)
             + t1 * (f3 - f2);
         let rotation = q0.slerp(&q1, f);
-        self.length_m += total - self.elements[index].rest_length_m;
-        self.elements[index] = b;
-        self.elements.insert(index, a);
+        self.insert_node(index, a, b, position, rotation);
+        Ok(())
+    }
+
+    /// Replaces element `index` by `first` and `second` joined at a new node at `position`
+    /// with frame `rotation`.
+    fn insert_node(
+        &mut self,
+        index: usize,
+        first: Element,
+        second: Element,
+        position: Vector3<f64>,
+        rotation: UnitQuaternion<f64>,
+    ) {
+        self.length_m +=
+            first.rest_length_m + second.rest_length_m - self.elements[index].rest_length_m;
+        self.elements[index] = second;
+        self.elements.insert(index, first);
         self.positions.insert(index + 1, position);
         self.rotations.insert(index + 1, rotation);
         self.rest_positions.insert(index + 1, position);
         self.rest_rotations.insert(index + 1, rotation);
         self.external.insert(index + 1, Vector6::zeros());
         self.resize_work_buffers();
-        Ok(())
     }
 
     /// Removes node `index + 1`, joining elements `index` and `index + 1` into one with rest

@@ -666,21 +666,7 @@ fn relax(own: &Vector3<f64>, updated: Vector3<f64>, omega: f64, mu: f64) -> Vect
     if omega == 1.0 {
         return updated;
     }
-    let mut l = own + (updated - own) * omega;
-    if l.x <= 0.0 {
-        return Vector3::zeros();
-    }
-    let tangential = l.y.hypot(l.z);
-    if tangential > mu * l.x {
-        let scale = if tangential > 0.0 {
-            mu * l.x / tangential
-        } else {
-            0.0
-        };
-        l.y *= scale;
-        l.z *= scale;
-    }
-    l
+    project_on_cone(&(own + (updated - own) * omega), mu)
 }
 
 /// Solves the contact problem by Gauss–Seidel over the contacts in order along the device,

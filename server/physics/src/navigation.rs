@@ -210,6 +210,13 @@ impl<W: Wall> Navigation<W> {
             settings.max_twist_rate_rad_s,
         )?;
         require_finite(|| "contact_margin_m".into(), settings.contact_margin_m)?;
+        if let Some(refinement) = settings.refinement {
+            require_positive(|| "refinement.max_bend_rad".into(), refinement.max_bend_rad)?;
+            require_positive(
+                || "refinement.contact_element_m".into(),
+                refinement.contact_element_m,
+            )?;
+        }
         for (i, v) in entry_position
             .iter()
             .chain(entry_direction.iter())

@@ -238,6 +238,22 @@ fn bad_commands_and_settings_give_clear_errors() {
     )
     .unwrap_err();
     assert!(err.to_string().contains("inserted length"), "{err}");
+    let err = Navigation::new(
+        presets::micro_guidewire_014(),
+        tube(0.05, 2e-3),
+        Vector3::zeros(),
+        Vector3::x(),
+        0.01,
+        NavigationSettings {
+            refinement: Some(cathlab_physics::navigation::Refinement {
+                max_bend_rad: f64::NAN,
+                ..Default::default()
+            }),
+            ..NavigationSettings::default()
+        },
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("refinement.max_bend_rad"), "{err}");
 }
 
 /// The Y bifurcation of the anatomy crate (parent r = 2 mm along +z, children r = 1.6 mm at

@@ -44,12 +44,17 @@ impl DetectorGeometry {
         self.field_of_view_m / f64::from(self.width_px.max(self.height_px))
     }
 
-    /// Whether pixel (u, v) lies inside the collimated field.
-    pub fn is_exposed(&self, u: f64, v: f64) -> bool {
-        let (cu, cv) = (
+    /// Pixel coordinates of the detector centre (pixel centres at integers).
+    pub fn center_px(&self) -> (f64, f64) {
+        (
             0.5 * f64::from(self.width_px - 1),
             0.5 * f64::from(self.height_px - 1),
-        );
+        )
+    }
+
+    /// Whether pixel (u, v) lies inside the collimated field.
+    pub fn is_exposed(&self, u: f64, v: f64) -> bool {
+        let (cu, cv) = self.center_px();
         (u - cu).abs() <= 0.5 * self.collimation.0 * f64::from(self.width_px)
             && (v - cv).abs() <= 0.5 * self.collimation.1 * f64::from(self.height_px)
     }
@@ -208,8 +213,7 @@ impl CArm {
         let d = self.beam_direction();
         let pitch = self.detector.pixel_pitch_m();
         let sid = self.source_to_image_m;
-        let cu = 0.5 * f64::from(self.detector.width_px - 1);
-        let cv = 0.5 * f64::from(self.detector.height_px - 1);
+        let (cu, cv) = self.detector.center_px();
         // Intrinsics: u = sid/pitch · (x·eu)/(x·d) + cu, in source-centred coordinates.
         let k = Matrix3::new(sid / pitch, 0.0, cu, 0.0, sid / pitch, cv, 0.0, 0.0, 1.0);
         let r = Matrix3::from_rows(&[eu.transpose(), ev.transpose(), d.transpose()]);
@@ -230,8 +234,7 @@ impl CArm {
     pub fn ray(&self, u: f64, v: f64) -> Ray {
         let (eu, ev) = self.detector_axes();
         let pitch = self.detector.pixel_pitch_m();
-        let cu = 0.5 * f64::from(self.detector.width_px - 1);
-        let cv = 0.5 * f64::from(self.detector.height_px - 1);
+        let (cu, cv) = self.detector.center_px();
         let on_detector =
             self.detector_center() + eu * ((u - cu) * pitch) + ev * ((v - cv) * pitch);
         let source = self.source();

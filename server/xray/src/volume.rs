@@ -193,8 +193,24 @@ impl Volume {
     /// The parameter interval (m along a unit `direction` from `origin`) inside the box of
     /// voxel centres; `None` if the ray misses it.
     pub fn clip(&self, origin: &Point3<f64>, direction: &Vector3<f64>) -> Option<(f64, f64)> {
-        let o = self.index_of(origin);
-        let d = (self.direction.transpose() * direction).component_div(&self.spacing_m);
+        let (o, d) = self.index_ray(origin, direction);
+        self.clip_index(&o, &d)
+    }
+
+    /// A ray in continuous voxel indices: origin, and index change per metre along it.
+    fn index_ray(
+        &self,
+        origin: &Point3<f64>,
+        direction: &Vector3<f64>,
+    ) -> (Vector3<f64>, Vector3<f64>) {
+        (
+            self.index_of(origin),
+            (self.direction.transpose() * direction).component_div(&self.spacing_m),
+        )
+    }
+
+    /// [`Self::clip`] for a ray already in voxel indices.
+    fn clip_index(&self, o: &Vector3<f64>, d: &Vector3<f64>) -> Option<(f64, f64)> {
         let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
         for axis in 0..3 {
             let hi = (self.dims[axis] - 1) as f64;
@@ -220,13 +236,12 @@ impl Volume {
         step_m: f64,
         mu: impl Fn(f64) -> f64,
     ) -> f64 {
-        let Some((t0, t1)) = self.clip(origin, direction) else {
+        let (o, d) = self.index_ray(origin, direction);
+        let Some((t0, t1)) = self.clip_index(&o, &d) else {
             return 0.0;
         };
         let n = ((t1 - t0) / step_m).ceil().max(1.0) as usize;
         let h = (t1 - t0) / n as f64;
-        let o = self.index_of(origin);
-        let d = (self.direction.transpose() * direction).component_div(&self.spacing_m);
         let mut sum = 0.0;
         for s in 0..=n {
             let weight = if s == 0 || s == n { 0.5 } else { 1.0 };
@@ -403,9 +418,11 @@ pub fn read_metaimage(path: &Path) -> Result<Volume> {
         return Err(bad(path, "DimSize: expected 3 positive integers"));
     }
     let dims = [dims[0] as usize, dims[1] as usize, dims[2] as usize];
-    let spacing = match get("ElementSpacing") {
-        Some(_) => numbers("ElementSpacing", 3)?,
-        None => numbers("ElementSize", 3).unwrap_or(vec![1.0; 3]),
+    // The first of several synonymous header keys that is present.
+    let first_of = |keys: &[&'static str]| keys.iter().copied().find(|k| get(k).is_some());
+    let spacing = match first_of(&["ElementSpacing", "ElementSize"]) {
+        Some(key) => numbers(key, 3)?,
+        None => vec![1.0; 3],
     };
     if let Some(axis) = spacing.iter().position(|&s| s <= 0.0) {
         return Err(bad(
@@ -416,32 +433,13 @@ pub fn read_metaimage(path: &Path) -> Result<Volume> {
             ),
         ));
     }
-    let origin = match get("Offset").or(get("Origin")).or(get("Position")) {
-        Some(_) => numbers(
-            if get("Offset").is_some() {
-                "Offset"
-            } else if get("Origin").is_some() {
-                "Origin"
-            } else {
-                "Position"
-            },
-            3,
-        )?,
+    let origin = match first_of(&["Offset", "Origin", "Position"]) {
+        Some(key) => numbers(key, 3)?,
         None => vec![0.0; 3],
     };
-    let direction = match get("TransformMatrix")
-        .or(get("Rotation"))
-        .or(get("Orientation"))
-    {
-        Some(_) => {
-            let key = ["TransformMatrix", "Rotation", "Orientation"]
-                .into_iter()
-                .find(|k| get(k).is_some())
-                .unwrap_or("TransformMatrix");
-            let m = numbers(key, 9)?;
-            // MetaImage stores the direction cosines column by column.
-            Matrix3::from_column_slice(&m)
-        }
+    let direction = match first_of(&["TransformMatrix", "Rotation", "Orientation"]) {
+        // MetaImage stores the direction cosines column by column.
+        Some(key) => Matrix3::from_column_slice(&numbers(key, 9)?),
         None => Matrix3::identity(),
     };
     let element = match get("ElementType") {

@@ -136,6 +136,15 @@ fn bad_geometry_is_named() {
         ..CArm::default()
     };
     assert!(collimated.validate().is_err());
+    // Half-open collimation: the centre is exposed, the edges are not.
+    let half = DetectorGeometry {
+        collimation: (0.5, 0.5),
+        ..DetectorGeometry::default()
+    };
+    assert!(half.is_exposed(CENTER, CENTER));
+    assert!(half.is_exposed(CENTER + 127.0, CENTER));
+    assert!(!half.is_exposed(CENTER + 129.0, CENTER));
+    assert!(!half.is_exposed(CENTER, 0.0));
     assert!(CArm::default().validate().is_ok());
 }
 

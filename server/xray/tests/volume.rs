@@ -162,6 +162,13 @@ fn bad_metaimages_give_named_errors() {
             "Offset",
         ),
         ("noheader.mha", "just some text\n".into(), Vec::new(), "'='"),
+        (
+            "size.mha",
+            metaimage_header("", "MET_SHORT")
+                .replace("ElementSpacing = 0.5 0.75 2", "ElementSize = 0.5 x 2"),
+            raw.clone(),
+            "ElementSize",
+        ),
     ];
     for (name, header, data, expected) in cases {
         let path = scratch(name);
