@@ -473,3 +473,26 @@ fn elements_are_halved_where_the_wire_bends_and_merged_when_it_straightens() {
     assert!(worst_bend < 2.0 * refinement.max_bend_rad, "{worst_bend}");
     assert!(worst < PENETRATION);
 }
+
+#[test]
+fn bad_arch_to_cow_plans_give_clear_errors() {
+    use cathlab_physics::scenarios::{ArchToCowPlan, run_arch_to_cow};
+    let anatomy = arch_to_cow();
+    let err = run_arch_to_cow(
+        anatomy,
+        &ArchToCowPlan {
+            target: "basilar".into(),
+            ..ArchToCowPlan::for_target(&anatomy.graph, "LCCA").unwrap()
+        },
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("basilar"), "{err}");
+    let mut plan = ArchToCowPlan::for_target(&anatomy.graph, "LCCA").unwrap();
+    plan.start_along_m = 10.0;
+    let err = run_arch_to_cow(anatomy, &plan).unwrap_err();
+    assert!(err.to_string().contains("autopilot start"), "{err}");
+    let mut plan = ArchToCowPlan::for_target(&anatomy.graph, "LCCA").unwrap();
+    plan.autopilot.lookahead_m = f64::NAN;
+    let err = run_arch_to_cow(anatomy, &plan).unwrap_err();
+    assert!(err.to_string().contains("lookahead_m"), "{err}");
+}
