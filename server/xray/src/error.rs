@@ -49,6 +49,20 @@ pub enum XrayError {
         /// What, e.g. `ElementType MET_LONG_ARRAY`.
         what: String,
     },
+    /// An operation that needs something not there yet, e.g. a roadmap without a DSA run.
+    #[error("{0}")]
+    Unavailable(String),
+    /// The GPU path failed: no adapter, a device error, a buffer that would not map.
+    #[error("gpu: {0}")]
+    Gpu(String),
+    /// A scene file is malformed.
+    #[error("{file}: {reason}")]
+    BadScene {
+        /// The file.
+        file: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
 }
 
 /// Result alias of the X-ray library.

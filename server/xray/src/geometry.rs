@@ -232,16 +232,46 @@ impl CArm {
 
     /// The ray from the source through pixel (u, v) (pixel centres at integers).
     pub fn ray(&self, u: f64, v: f64) -> Ray {
+        self.ray_grid().ray(u, v)
+    }
+
+    /// The pose's rays, set up once for a whole image.
+    pub fn ray_grid(&self) -> RayGrid {
         let (eu, ev) = self.detector_axes();
         let pitch = self.detector.pixel_pitch_m();
         let (cu, cv) = self.detector.center_px();
-        let on_detector =
-            self.detector_center() + eu * ((u - cu) * pitch) + ev * ((v - cv) * pitch);
-        let source = self.source();
-        let to = on_detector - source;
+        RayGrid {
+            source: self.source(),
+            // The detector point of pixel (0, 0).
+            corner: self.detector_center() - eu * (cu * pitch) - ev * (cv * pitch),
+            step_u: eu * pitch,
+            step_v: ev * pitch,
+        }
+    }
+}
+
+/// Every pixel's ray of one pose: the source and the detector plane as a corner and two
+/// per-pixel steps (m, patient coordinates).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RayGrid {
+    /// The focal spot.
+    pub source: Point3<f64>,
+    /// Detector position of pixel (0, 0)'s centre.
+    pub corner: Point3<f64>,
+    /// Detector displacement from one column to the next.
+    pub step_u: Vector3<f64>,
+    /// Detector displacement from one row to the next.
+    pub step_v: Vector3<f64>,
+}
+
+impl RayGrid {
+    /// The ray through pixel (u, v) (pixel centres at integers).
+    #[inline]
+    pub fn ray(&self, u: f64, v: f64) -> Ray {
+        let to = self.corner + self.step_u * u + self.step_v * v - self.source;
         let length_m = to.norm();
         Ray {
-            origin: source,
+            origin: self.source,
             direction: to / length_m,
             length_m,
         }

@@ -236,19 +236,87 @@ impl Volume {
         step_m: f64,
         mu: impl Fn(f64) -> f64,
     ) -> f64 {
-        let (o, d) = self.index_ray(origin, direction);
-        let Some((t0, t1)) = self.clip_index(&o, &d) else {
+        let Some(march) = self.march(origin, direction, step_m) else {
             return 0.0;
         };
-        let n = ((t1 - t0) / step_m).ceil().max(1.0) as usize;
-        let h = (t1 - t0) / n as f64;
         let mut sum = 0.0;
-        for s in 0..=n {
-            let weight = if s == 0 || s == n { 0.5 } else { 1.0 };
-            let x = o + d * (t0 + s as f64 * h);
-            sum += weight * mu(self.sample_index(&x));
+        for s in 0..march.samples {
+            sum += march.weight(s) * mu(self.sample_index(&march.index_at(s)));
         }
-        sum * h
+        sum
+    }
+
+    /// The trapezoid-rule samples of a ray (unit `direction`) through the box of voxel
+    /// centres, at most `step_m` apart; `None` if it misses. The GPU renderer marches the
+    /// same samples.
+    pub fn march(
+        &self,
+        origin: &Point3<f64>,
+        direction: &Vector3<f64>,
+        step_m: f64,
+    ) -> Option<RayMarch> {
+        let (o, d) = self.index_ray(origin, direction);
+        let (t0, t1) = self.clip_index(&o, &d)?;
+        let n = ((t1 - t0) / step_m).ceil().max(1.0);
+        let h = (t1 - t0) / n;
+        Some(RayMarch {
+            start_index: o + d * t0,
+            step_index: d * h,
+            step_m: h,
+            samples: n as usize + 1,
+        })
+    }
+
+    /// The affine map from patient position (m) to continuous voxel index:
+    /// `index = matrix · p + offset`.
+    pub fn index_transform(&self) -> (Matrix3<f64>, Vector3<f64>) {
+        let inverse_spacing = Matrix3::from_diagonal(&self.spacing_m.map(|s| 1.0 / s));
+        let matrix = inverse_spacing * self.direction.transpose();
+        (matrix, -(matrix * self.origin_m))
+    }
+
+    /// Smallest voxel spacing (m).
+    pub fn min_spacing_m(&self) -> f64 {
+        self.spacing_m.min()
+    }
+
+    /// Adds `offset` to every voxel (saturating): for files that store HU + 1024 and the
+    /// like.
+    pub fn shift_hu(&mut self, offset: i16) {
+        for v in &mut self.hu {
+            *v = v.saturating_add(offset);
+        }
+    }
+}
+
+/// Evenly spaced samples along a ray in voxel-index space, ends included (trapezoid rule).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RayMarch {
+    /// Continuous index of the first sample.
+    pub start_index: Vector3<f64>,
+    /// Index change from one sample to the next.
+    pub step_index: Vector3<f64>,
+    /// Distance between samples (m).
+    pub step_m: f64,
+    /// Number of samples (at least 2).
+    pub samples: usize,
+}
+
+impl RayMarch {
+    /// Continuous index of sample `s`.
+    #[inline]
+    pub fn index_at(&self, s: usize) -> Vector3<f64> {
+        self.start_index + self.step_index * s as f64
+    }
+
+    /// Trapezoid weight of sample `s` (m).
+    #[inline]
+    pub fn weight(&self, s: usize) -> f64 {
+        if s == 0 || s + 1 == self.samples {
+            0.5 * self.step_m
+        } else {
+            self.step_m
+        }
     }
 }
 
