@@ -1,0 +1,409 @@
+//! The off-screen wgpu compute renderer: the CT volume as a 16-bit integer 3D texture
+//! uploaded once per volume, a ray-march shader for the background and a tile-binned chord
+//! shader for the layers, both mirroring the CPU reference sample for sample in f32.
+
+use std::sync::Arc;
+
+use nalgebra::{Point3, Vector3};
+use wgpu::util::DeviceExt;
+
+use crate::error::{Result, XrayError};
+use crate::geometry::{CArm, RayGrid};
+use crate::layers::{Layers, TileBins};
+use crate::render::{
+    BACKGROUND_CHANNELS, LAYER_CHANNELS, MarchSettings, PathImage, Renderer, TILE_PX,
+};
+use crate::volume::Volume;
+
+/// Environment variable that turns "no GPU adapter" from a skipped test into a failure.
+pub const REQUIRE_GPU_ENV: &str = "CATHLAB_REQUIRE_GPU";
+
+struct UploadedVolume {
+    volume: Arc<Volume>,
+    view: wgpu::TextureView,
+    bytes: usize,
+}
+
+/// The wgpu renderer. One device and queue; the last volume stays uploaded.
+pub struct GpuRenderer {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    adapter: String,
+    march: wgpu::ComputePipeline,
+    layers: wgpu::ComputePipeline,
+    uploaded: Option<UploadedVolume>,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct MarchParams {
+    source: [f32; 4],
+    corner: [f32; 4],
+    step_u: [f32; 4],
+    step_v: [f32; 4],
+    m: [[f32; 4]; 3],
+    source_index: [f32; 4],
+    dims: [u32; 4],
+    size: [u32; 4],
+    settings: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct LayerParams {
+    source: [f32; 4],
+    corner: [f32; 4],
+    step_u: [f32; 4],
+    step_v: [f32; 4],
+    size: [u32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct GpuPiece {
+    start: [f32; 4],
+    end: [f32; 4],
+    radii: [f32; 4],
+    start_cap: [f32; 4],
+    end_cap: [f32; 4],
+    pixel_box: [i32; 4],
+}
+
+fn v4(v: &Vector3<f64>, w: f32) -> [f32; 4] {
+    [v.x as f32, v.y as f32, v.z as f32, w]
+}
+
+/// Ray-grid vectors relative to the isocenter, so that f32 keeps sub-micrometre detail.
+fn grid_params(grid: &RayGrid, iso: &Vector3<f64>) -> [[f32; 4]; 4] {
+    [
+        v4(&(grid.source.coords - iso), 0.0),
+        v4(&(grid.corner.coords - iso), 0.0),
+        v4(&grid.step_u, 0.0),
+        v4(&grid.step_v, 0.0),
+    ]
+}
+
+impl GpuRenderer {
+    /// Opens the first adapter wgpu finds (on CI: lavapipe, pinned by `VK_DRIVER_FILES`);
+    /// [`XrayError::Gpu`] when there is none.
+    pub fn new() -> Result<Self> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            ..Default::default()
+        }))
+        .map_err(|e| XrayError::Gpu(format!("no adapter: {e}")))?;
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("cathlab-xray"),
+            required_limits: wgpu::Limits {
+                max_storage_buffer_binding_size: limits.max_storage_buffer_binding_size,
+                max_buffer_size: limits.max_buffer_size,
+                max_texture_dimension_3d: limits.max_texture_dimension_3d,
+                ..wgpu::Limits::downlevel_defaults()
+            },
+            ..Default::default()
+        }))
+        .map_err(|e| XrayError::Gpu(format!("device request on {}: {e}", info.name)))?;
+        let pipeline = |source: &str, label: &str| {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: None,
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let march = pipeline(include_str!("shaders/march.wgsl"), "march");
+        let layers = pipeline(include_str!("shaders/layers.wgsl"), "layers");
+        Ok(Self {
+            device,
+            queue,
+            adapter: format!("{} ({:?})", info.name, info.backend),
+            march,
+            layers,
+            uploaded: None,
+        })
+    }
+
+    /// The renderer if an adapter exists; `None` (with the reason on stderr) when none does
+    /// and [`REQUIRE_GPU_ENV`] is unset. With it set, a missing adapter is an error.
+    pub fn if_available() -> Result<Option<Self>> {
+        match Self::new() {
+            Ok(r) => Ok(Some(r)),
+            Err(e) if std::env::var_os(REQUIRE_GPU_ENV).is_none() => {
+                eprintln!("cathlab-xray: no GPU renderer ({e}); set {REQUIRE_GPU_ENV} to require one");
+                Ok(None)
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    fn upload(&mut self, volume: &Arc<Volume>) -> Result<&wgpu::TextureView> {
+        let cached = self
+            .uploaded
+            .as_ref()
+            .is_some_and(|u| Arc::ptr_eq(&u.volume, volume));
+        if !cached {
+            self.uploaded = None;
+            let [nx, ny, nz] = volume.dims.map(|n| n as u32);
+            let max = self.device.limits().max_texture_dimension_3d;
+            if nx.max(ny).max(nz) > max {
+                return Err(XrayError::Gpu(format!(
+                    "volume {nx}×{ny}×{nz} exceeds the adapter's 3D texture limit {max}"
+                )));
+            }
+            let size = wgpu::Extent3d {
+                width: nx,
+                height: ny,
+                depth_or_array_layers: nz,
+            };
+            let texture = self.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("ct volume (HU, 16-bit)"),
+                size,
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D3,
+                format: wgpu::TextureFormat::R16Sint,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                view_formats: &[],
+            });
+            self.queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
+                bytemuck::cast_slice(&volume.hu),
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(2 * nx),
+                    rows_per_image: Some(ny),
+                },
+                size,
+            );
+            self.uploaded = Some(UploadedVolume {
+                volume: Arc::clone(volume),
+                view: texture.create_view(&Default::default()),
+                bytes: volume.hu.len() * 2,
+            });
+        }
+        Ok(&self.uploaded.as_ref().expect("just uploaded").view)
+    }
+
+    /// Runs `pipeline` over a width × height grid with the given bindings and reads back
+    /// `planes` f32 planes.
+    fn dispatch(
+        &self,
+        pipeline: &wgpu::ComputePipeline,
+        resources: &[wgpu::BindingResource<'_>],
+        width: u32,
+        height: u32,
+        planes: usize,
+    ) -> Result<Vec<Vec<f32>>> {
+        let count = (width * height) as usize;
+        let bytes = (count * planes * 4) as u64;
+        let output = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("paths"),
+            size: bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("paths readback"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut entries: Vec<wgpu::BindGroupEntry<'_>> = resources
+            .iter()
+            .enumerate()
+            .map(|(i, r)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: r.clone(),
+            })
+            .collect();
+        entries.push(wgpu::BindGroupEntry {
+            binding: resources.len() as u32,
+            resource: output.as_entire_binding(),
+        });
+        let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, &bind_group, &[]);
+            pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
+        }
+        encoder.copy_buffer_to_buffer(&output, 0, &readback, 0, bytes);
+        self.queue.submit([encoder.finish()]);
+        let slice = readback.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| XrayError::Gpu(format!("poll: {e}")))?;
+        rx.recv()
+            .map_err(|e| XrayError::Gpu(format!("map callback dropped: {e}")))?
+            .map_err(|e| XrayError::Gpu(format!("map: {e}")))?;
+        let data = slice
+            .get_mapped_range()
+            .map_err(|e| XrayError::Gpu(format!("mapped range: {e}")))?;
+        let all: &[f32] = bytemuck::cast_slice(&data);
+        let out = all.chunks_exact(count).map(<[f32]>::to_vec).collect();
+        drop(data);
+        readback.unmap();
+        Ok(out)
+    }
+}
+
+impl Renderer for GpuRenderer {
+    fn name(&self) -> String {
+        format!("wgpu ({})", self.adapter)
+    }
+
+    fn project_volume(
+        &mut self,
+        volume: &Arc<Volume>,
+        carm: &CArm,
+        settings: &MarchSettings,
+    ) -> Result<PathImage> {
+        carm.validate()?;
+        settings.validate()?;
+        let (w, h) = (carm.detector.width_px, carm.detector.height_px);
+        let iso = carm.isocenter_m;
+        let grid = carm.ray_grid();
+        let (m, offset) = volume.index_transform();
+        let source_index = m * grid.source.coords + offset;
+        let [source, corner, step_u, step_v] = grid_params(&grid, &iso);
+        let params = MarchParams {
+            source,
+            corner,
+            step_u,
+            step_v,
+            m: [
+                v4(&m.column(0).into(), 0.0),
+                v4(&m.column(1).into(), 0.0),
+                v4(&m.column(2).into(), 0.0),
+            ],
+            source_index: v4(&source_index, 0.0),
+            dims: [volume.dims[0] as u32, volume.dims[1] as u32, volume.dims[2] as u32, 0],
+            size: [w, h, 0, 0],
+            settings: [
+                (settings.step_voxels * volume.min_spacing_m()) as f32,
+                settings.hu_model.bone_hu as f32,
+                0.0,
+                0.0,
+            ],
+        };
+        let uniform = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("march params"),
+            contents: bytemuck::bytes_of(&params),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let view = self.upload(volume)?.clone();
+        let planes = self.dispatch(
+            &self.march,
+            &[
+                uniform.as_entire_binding(),
+                wgpu::BindingResource::TextureView(&view),
+            ],
+            w,
+            h,
+            BACKGROUND_CHANNELS,
+        )?;
+        Ok(PathImage {
+            width: w,
+            height: h,
+            channels: planes,
+        })
+    }
+
+    fn project_layers(&mut self, layers: &Layers, carm: &CArm) -> Result<PathImage> {
+        carm.validate()?;
+        let (w, h) = (carm.detector.width_px, carm.detector.height_px);
+        if layers.pieces().is_empty() {
+            return Ok(PathImage::zeros(w, h, LAYER_CHANNELS));
+        }
+        let iso = carm.isocenter_m;
+        let grid = carm.ray_grid();
+        let bins = TileBins::build(layers, carm, TILE_PX);
+        let rel = |p: &Point3<f64>| p.coords - iso;
+        let pieces: Vec<GpuPiece> = layers
+            .pieces()
+            .iter()
+            .zip(&bins.boxes)
+            .map(|(p, b)| GpuPiece {
+                start: v4(&rel(&p.start), p.density as f32),
+                end: v4(&rel(&p.end), p.material.channel() as f32),
+                radii: [
+                    p.outer_radius_m[0] as f32,
+                    p.outer_radius_m[1] as f32,
+                    p.inner_radius_m[0] as f32,
+                    p.inner_radius_m[1] as f32,
+                ],
+                start_cap: v4(&p.start_cap, 0.0),
+                end_cap: v4(&p.end_cap, 0.0),
+                pixel_box: *b,
+            })
+            .collect();
+        let [source, corner, step_u, step_v] = grid_params(&grid, &iso);
+        let params = LayerParams {
+            source,
+            corner,
+            step_u,
+            step_v,
+            size: [w, h, bins.tile_px, bins.tiles[0]],
+        };
+        let buffer = |label: &str, contents: &[u8], usage| {
+            self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage,
+            })
+        };
+        let uniform = buffer("layer params", bytemuck::bytes_of(&params), wgpu::BufferUsages::UNIFORM);
+        let storage = wgpu::BufferUsages::STORAGE;
+        let pieces = buffer("pieces", bytemuck::cast_slice(&pieces), storage);
+        let offsets = buffer("tile offsets", bytemuck::cast_slice(&bins.offsets), storage);
+        // Storage buffers may not be empty.
+        let indices: &[u32] = if bins.indices.is_empty() { &[0] } else { &bins.indices };
+        let indices = buffer("tile indices", bytemuck::cast_slice(indices), storage);
+        let planes = self.dispatch(
+            &self.layers,
+            &[
+                uniform.as_entire_binding(),
+                pieces.as_entire_binding(),
+                offsets.as_entire_binding(),
+                indices.as_entire_binding(),
+            ],
+            w,
+            h,
+            LAYER_CHANNELS,
+        )?;
+        Ok(PathImage {
+            width: w,
+            height: h,
+            channels: planes,
+        })
+    }
+
+    fn device_memory_bytes(&self) -> usize {
+        self.uploaded.as_ref().map_or(0, |u| u.bytes)
+    }
+}

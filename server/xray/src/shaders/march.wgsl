@@ -1,0 +1,102 @@
+// Background ray-march: per pixel, water and bone paths (m) through a 16-bit HU volume by the
+// trapezoid rule — the same samples, interpolation and HU model as the CPU reference.
+
+struct Params {
+    // Patient frame relative to the isocenter (m): focal spot, detector point of pixel
+    // (0, 0), per-pixel steps.
+    source: vec4<f32>,
+    corner: vec4<f32>,
+    step_u: vec4<f32>,
+    step_v: vec4<f32>,
+    // Patient → index directions: columns of m; offset: the focal spot's continuous index.
+    m0: vec4<f32>,
+    m1: vec4<f32>,
+    m2: vec4<f32>,
+    offset: vec4<f32>,
+    // Volume size in voxels (xyz), image width, height.
+    dims: vec4<u32>,
+    size: vec4<u32>,
+    // step (m), bone HU, unused, unused
+    settings: vec4<f32>,
+};
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var volume: texture_3d<i32>;
+@group(0) @binding(2) var<storage, read_write> out: array<f32>;
+
+fn voxel(i: i32, j: i32, k: i32) -> f32 {
+    return f32(textureLoad(volume, vec3<i32>(i, j, k), 0).x);
+}
+
+fn sample_hu(x: vec3<f32>) -> f32 {
+    let n = vec3<f32>(params.dims.xyz);
+    if (any(x < vec3<f32>(0.0)) || any(x > n - vec3<f32>(1.0))) {
+        return -1000.0;
+    }
+    let ni = vec3<i32>(params.dims.xyz);
+    let b = min(vec3<i32>(floor(x)), max(ni - vec3<i32>(2), vec3<i32>(0)));
+    let f = x - vec3<f32>(b);
+    let b1 = min(b + vec3<i32>(1), ni - vec3<i32>(1));
+    let c00 = mix(voxel(b.x, b.y, b.z), voxel(b1.x, b.y, b.z), f.x);
+    let c10 = mix(voxel(b.x, b1.y, b.z), voxel(b1.x, b1.y, b.z), f.x);
+    let c01 = mix(voxel(b.x, b.y, b1.z), voxel(b1.x, b.y, b1.z), f.x);
+    let c11 = mix(voxel(b.x, b1.y, b1.z), voxel(b1.x, b1.y, b1.z), f.x);
+    return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+    let width = params.size.x;
+    let height = params.size.y;
+    if (id.x >= width || id.y >= height) {
+        return;
+    }
+    let pixel = id.y * width + id.x;
+    let target_point = params.corner.xyz + params.step_u.xyz * f32(id.x) + params.step_v.xyz * f32(id.y);
+    let d_patient = normalize(target_point - params.source.xyz);
+    let m = mat3x3<f32>(params.m0.xyz, params.m1.xyz, params.m2.xyz);
+    let o = params.offset.xyz;
+    let d = m * d_patient;
+    // Clip to the box of voxel centres.
+    var t0 = 0.0;
+    var t1 = 3.0e38;
+    var hit = true;
+    for (var axis = 0; axis < 3; axis++) {
+        let hi = f32(params.dims[axis]) - 1.0;
+        if (abs(d[axis]) < 1e-30) {
+            if (o[axis] < 0.0 || o[axis] > hi) {
+                hit = false;
+            }
+        } else {
+            let a = (0.0 - o[axis]) / d[axis];
+            let b = (hi - o[axis]) / d[axis];
+            t0 = max(t0, min(a, b));
+            t1 = min(t1, max(a, b));
+        }
+    }
+    var water = 0.0;
+    var bone = 0.0;
+    if (hit && t0 < t1) {
+        let n = max(ceil((t1 - t0) / params.settings.x), 1.0);
+        let h = (t1 - t0) / n;
+        let samples = u32(n) + 1u;
+        let start = o + d * t0;
+        let step = d * h;
+        let bone_hu = params.settings.y;
+        for (var s = 0u; s < samples; s++) {
+            let hu = sample_hu(start + step * f32(s));
+            var w = h;
+            if (s == 0u || s + 1u == samples) {
+                w = 0.5 * h;
+            }
+            if (hu <= 0.0) {
+                water += w * max(1.0 + hu * 1e-3, 0.0);
+            } else {
+                water += w;
+                bone += w * hu / bone_hu;
+            }
+        }
+    }
+    out[pixel] = water;
+    out[width * height + pixel] = bone;
+}
