@@ -26,3 +26,8 @@ if [ ! -f /usr/share/vulkan/icd.d/lvp_icd.x86_64.json ]; then
 fi
 # Pin wgpu to lavapipe (NOTES.md): one adapter, the same everywhere.
 export VK_DRIVER_FILES=/usr/share/vulkan/icd.d/lvp_icd.x86_64.json
+# Mesa's window-system code wants a runtime directory even off-screen.
+if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
+  export XDG_RUNTIME_DIR="${TMPDIR:-/tmp}/cathlab-runtime-$(id -u)"
+  mkdir -p "$XDG_RUNTIME_DIR" && chmod 700 "$XDG_RUNTIME_DIR"
+fi

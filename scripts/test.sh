@@ -4,6 +4,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
+# CI has lavapipe (installed by setup.sh): the wgpu tests must run, not skip.
+export CATHLAB_REQUIRE_GPU="${CATHLAB_REQUIRE_GPU:-1}"
 echo "== cargo fmt --check"
 cargo fmt --all --check
 echo "== cargo clippy"

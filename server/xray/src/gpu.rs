@@ -73,13 +73,17 @@ fn v4(v: &Vector3<f64>, w: f32) -> [f32; 4] {
     [v.x as f32, v.y as f32, v.z as f32, w]
 }
 
-/// Ray-grid vectors relative to the isocenter, so that f32 keeps sub-micrometre detail.
-fn grid_params(grid: &RayGrid, iso: &Vector3<f64>) -> [[f32; 4]; 4] {
+/// The ray grid relative to the isocenter, with the detector grid scaled back onto the
+/// isocenter plane (source distance `sod` of `sid`): the rays are the same lines, but their
+/// points near the patient are small numbers, so that f32 keeps 10 nm detail there.
+fn grid_params(grid: &RayGrid, iso: &Vector3<f64>, sod_over_sid: f64) -> [[f32; 4]; 4] {
+    let source = grid.source.coords - iso;
+    let corner = source + (grid.corner.coords - grid.source.coords) * sod_over_sid;
     [
-        v4(&(grid.source.coords - iso), 0.0),
-        v4(&(grid.corner.coords - iso), 0.0),
-        v4(&grid.step_u, 0.0),
-        v4(&grid.step_v, 0.0),
+        v4(&source, 0.0),
+        v4(&corner, 0.0),
+        v4(&(grid.step_u * sod_over_sid), 0.0),
+        v4(&(grid.step_v * sod_over_sid), 0.0),
     ]
 }
 
@@ -290,7 +294,7 @@ impl Renderer for GpuRenderer {
         let grid = carm.ray_grid();
         let (m, offset) = volume.index_transform();
         let source_index = m * grid.source.coords + offset;
-        let [source, corner, step_u, step_v] = grid_params(&grid, &iso);
+        let [source, corner, step_u, step_v] = grid_params(&grid, &iso, carm.source_to_isocenter_m / carm.source_to_image_m);
         let params = MarchParams {
             source,
             corner,
@@ -362,7 +366,7 @@ impl Renderer for GpuRenderer {
                 pixel_box: *b,
             })
             .collect();
-        let [source, corner, step_u, step_v] = grid_params(&grid, &iso);
+        let [source, corner, step_u, step_v] = grid_params(&grid, &iso, carm.source_to_isocenter_m / carm.source_to_image_m);
         let params = LayerParams {
             source,
             corner,

@@ -58,7 +58,11 @@ impl TubePiece {
     /// Exact length (m) of the ray `origin + t·direction`, t ≥ 0, inside the piece's wall
     /// (the whole cross-section when solid); `direction` is a unit vector.
     pub fn chord(&self, origin: &Point3<f64>, direction: &Vector3<f64>) -> f64 {
-        let (mut lo, mut hi) = (0.0, f64::INFINITY);
+        // Measure the ray from its point abreast of the piece: the quadratic's coefficients
+        // then scale with the radius, not with the source distance (no cancellation).
+        let abreast = direction.dot(&(self.start - origin));
+        let origin = &(origin + direction * abreast);
+        let (mut lo, mut hi) = (-abreast, f64::INFINITY);
         clip_half_space(&mut lo, &mut hi, &self.start_cap, &self.start, origin, direction);
         clip_half_space(&mut lo, &mut hi, &self.end_cap, &self.end, origin, direction);
         if lo >= hi {

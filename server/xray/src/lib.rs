@@ -11,7 +11,9 @@ pub mod fluoroscope;
 pub mod geometry;
 pub mod gpu;
 pub mod layers;
+pub mod phantom;
 pub mod render;
+pub mod scene;
 pub mod spectrum;
 pub mod volume;
 

@@ -264,6 +264,7 @@ impl Volume {
             step_index: d * h,
             step_m: h,
             samples: n as usize + 1,
+            last_index: Vector3::from(self.dims.map(|n| (n - 1) as f64)),
         })
     }
 
@@ -300,13 +301,18 @@ pub struct RayMarch {
     pub step_m: f64,
     /// Number of samples (at least 2).
     pub samples: usize,
+    /// The volume's largest index per axis: samples are clamped into the box of voxel
+    /// centres, so that rounding at the clipped ends never reads air.
+    pub last_index: Vector3<f64>,
 }
 
 impl RayMarch {
     /// Continuous index of sample `s`.
     #[inline]
     pub fn index_at(&self, s: usize) -> Vector3<f64> {
-        self.start_index + self.step_index * s as f64
+        (self.start_index + self.step_index * s as f64)
+            .sup(&Vector3::zeros())
+            .inf(&self.last_index)
     }
 
     /// Trapezoid weight of sample `s` (m).

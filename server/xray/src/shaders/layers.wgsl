@@ -112,9 +112,10 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let pixel = id.y * width + id.x;
     let tile = (id.y / params.size.z) * params.size.w + id.x / params.size.z;
-    let target_point = params.corner.xyz + params.step_u.xyz * f32(id.x) + params.step_v.xyz * f32(id.y);
-    let o = params.source.xyz;
-    let d = normalize(target_point - o);
+    // The pixel's ray through its point on the isocenter plane (small numbers near the
+    // patient; the corner and steps are scaled onto that plane).
+    let o = params.corner.xyz + params.step_u.xyz * f32(id.x) + params.step_v.xyz * f32(id.y);
+    let d = normalize(o - params.source.xyz);
     var sums = vec3<f32>(0.0);
     let ui = i32(id.x);
     let vi = i32(id.y);
@@ -124,15 +125,19 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         if (ui < b.x || ui > b.z || vi < b.y || vi > b.w) {
             continue;
         }
-        var range = vec2<f32>(0.0, 3.0e38);
-        range = clip(range, p.start_cap.xyz, p.start.xyz, o, d);
-        range = clip(range, p.end_cap.xyz, p.end.xyz, o, d);
+        // Measure the ray from its point abreast of the piece, so that the quadratic's
+        // coefficients scale with the radius, not the source distance (f32 cancellation).
+        let abreast = dot(p.start.xyz - o, d);
+        let near = o + d * abreast;
+        var range = vec2<f32>(-3.0e38, 3.0e38);
+        range = clip(range, p.start_cap.xyz, p.start.xyz, near, d);
+        range = clip(range, p.end_cap.xyz, p.end.xyz, near, d);
         if (range.x >= range.y) {
             continue;
         }
-        var chord = cone_chord(p, p.radii.x, p.radii.y, o, d, range);
+        var chord = cone_chord(p, p.radii.x, p.radii.y, near, d, range);
         if (chord > 0.0 && (p.radii.z != 0.0 || p.radii.w != 0.0)) {
-            chord = max(chord - cone_chord(p, p.radii.z, p.radii.w, o, d, range), 0.0);
+            chord = max(chord - cone_chord(p, p.radii.z, p.radii.w, near, d, range), 0.0);
         }
         let contribution = p.start.w * chord;
         let channel = u32(p.end.w);

@@ -84,7 +84,8 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         let step = d * h;
         let bone_hu = params.settings.y;
         for (var s = 0u; s < samples; s++) {
-            let hu = sample_hu(start + step * f32(s));
+            // Clamped into the box: rounding at the clipped ends must not read air.
+            let hu = sample_hu(clamp(start + step * f32(s), vec3<f32>(0.0), vec3<f32>(params.dims.xyz) - vec3<f32>(1.0)));
             var w = h;
             if (s == 0u || s + 1u == samples) {
                 w = 0.5 * h;
