@@ -28,6 +28,10 @@ pub struct DetectorSettings {
     pub level: f64,
     /// Seed of the noise; frame k draws from (seed, k) whatever the thread count.
     pub seed: u64,
+    /// Automatic window/level (as a fluoroscope's automatic brightness control): the window
+    /// spans the 1st to 99th percentile of the central half of the image; `window` and
+    /// `level` are ignored.
+    pub auto_window: bool,
 }
 
 impl Default for DetectorSettings {
@@ -39,6 +43,7 @@ impl Default for DetectorSettings {
             window: 6.0,
             level: 3.5,
             seed: 1,
+            auto_window: false,
         }
     }
 }
@@ -218,6 +223,25 @@ pub fn grey(value: f32, window: f64, level: f64) -> f64 {
         return 0.0;
     }
     (0.5 - (f64::from(value) - level) / window).clamp(0.0, 1.0)
+}
+
+/// Window width and centre spanning the 1st to 99th percentile of the finite values in the
+/// central half of the image (the measuring field of a fluoroscope's automatic brightness
+/// control); `None` when none is exposed.
+pub fn auto_window(values: &[f32], width: u32, height: u32) -> Option<(f64, f64)> {
+    let (w, h) = (width as usize, height as usize);
+    let mut sample: Vec<f32> = (h / 4..h - h / 4)
+        .flat_map(|v| values[v * w + w / 4..v * w + w - w / 4].iter().copied())
+        .filter(|v| v.is_finite())
+        .collect();
+    if sample.is_empty() {
+        return None;
+    }
+    let n = sample.len();
+    let lo = *sample.select_nth_unstable_by(n / 100, f32::total_cmp).1;
+    let hi = *sample.select_nth_unstable_by(n - 1 - n / 100, f32::total_cmp).1;
+    let width = f64::from(hi - lo).max(1e-3);
+    Some((width, f64::from(lo) + 0.5 * width))
 }
 
 /// Window/level to 8-bit grey.

@@ -47,7 +47,7 @@ pub enum ImagingMode {
     /// ones show live − mask (contrast dark on grey, bone and soft tissue gone).
     Subtraction,
     /// Roadmap: live fluoroscopy minus the DSA mask, minus the peak-opacity vessel map of the
-    /// last DSA run: white vessels, dark devices, on grey.
+    /// last DSA run (capped at a set depth): white vessels, dark devices, on grey.
     Roadmap,
 }
 
@@ -109,6 +109,9 @@ pub struct FluoroscopeSettings {
     pub pulse_rate: PulseRate,
     /// Window width for subtracted images (line-integral units).
     pub subtraction_window: f64,
+    /// Roadmap vessel-map depth (line-integral units): the DSA peak opacity is capped here,
+    /// so that vessels show as an even light plateau and devices stay dark on top of it.
+    pub roadmap_vessel_depth: f64,
 }
 
 impl Default for FluoroscopeSettings {
@@ -119,6 +122,7 @@ impl Default for FluoroscopeSettings {
             detector: DetectorSettings::default(),
             pulse_rate: PulseRate::Hz15,
             subtraction_window: 1.5,
+            roadmap_vessel_depth: 0.35,
         }
     }
 }
@@ -162,12 +166,17 @@ impl Fluoroscope {
     pub fn new(renderer: Box<dyn Renderer>, settings: FluoroscopeSettings) -> Result<Self> {
         settings.march.validate()?;
         settings.detector.validate()?;
-        if !(settings.subtraction_window.is_finite() && settings.subtraction_window > 0.0) {
-            return Err(XrayError::OutOfRange {
-                what: "subtraction window width".into(),
-                range: "finite and > 0",
-                value: settings.subtraction_window,
-            });
+        for (what, value) in [
+            ("subtraction window width", settings.subtraction_window),
+            ("roadmap vessel depth", settings.roadmap_vessel_depth),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(XrayError::OutOfRange {
+                    what: what.into(),
+                    range: "finite and > 0",
+                    value,
+                });
+            }
         }
         Ok(Self {
             renderer,
@@ -289,7 +298,12 @@ impl Fluoroscope {
         let d = &self.settings.detector;
         let mut window = (d.window, d.level);
         match self.mode {
-            ImagingMode::Fluoroscopy => {}
+            ImagingMode::Fluoroscopy => {
+                if d.auto_window {
+                    window = detector::auto_window(&values, geometry.width_px, geometry.height_px)
+                        .unwrap_or(window);
+                }
+            }
             ImagingMode::Subtraction => {
                 window = (self.settings.subtraction_window, 0.0);
                 match &mut self.masks {
@@ -317,8 +331,9 @@ impl Fluoroscope {
                 let m = self.masks.as_ref().filter(|m| m.carm == *scene.carm).ok_or_else(|| {
                     XrayError::Unavailable("roadmap: the C-arm moved since the DSA run".into())
                 })?;
+                let depth = self.settings.roadmap_vessel_depth as f32;
                 for ((v, mask), peak) in values.iter_mut().zip(&m.mask).zip(&m.peak_opacity) {
-                    *v = *v - mask - peak;
+                    *v = *v - mask - peak.min(depth);
                 }
             }
         }

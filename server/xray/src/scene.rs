@@ -58,9 +58,13 @@ pub enum CtSpec {
     File {
         /// The volume.
         path: PathBuf,
-        /// Added to every value (e.g. −1024 for files stored as HU + 1024).
+        /// HU = `hu_slope` · value + `hu_intercept` (e.g. 1 and −1024 for files stored as
+        /// HU + 1024).
+        #[serde(default = "one")]
+        hu_slope: f64,
+        /// See `hu_slope`.
         #[serde(default)]
-        hu_offset: i16,
+        hu_intercept: f64,
     },
 }
 
@@ -110,6 +114,9 @@ pub struct CArmSpec {
     pub isocenter: IsocenterSpec,
 }
 
+fn one() -> f64 {
+    1.0
+}
 fn default_sid() -> f64 {
     1.2
 }
@@ -162,7 +169,7 @@ pub struct DetectorSpec {
     pub noise: Option<bool>,
     /// Blur σ (pixels).
     pub blur_sigma_px: Option<f64>,
-    /// Window width.
+    /// Window width (automatic window/level when neither width nor level is given).
     pub window: Option<f64>,
     /// Window level.
     pub level: Option<f64>,
@@ -271,9 +278,13 @@ impl SceneSpec {
                     .collect();
                 head_and_neck(&BodyLandmarks::from_vessels(&points)?, spacing_mm * 1e-3)?
             }
-            CtSpec::File { path, hu_offset } => {
+            CtSpec::File {
+                path,
+                hu_slope,
+                hu_intercept,
+            } => {
                 let mut v = Volume::load(&base.join(path))?;
-                v.shift_hu(*hu_offset);
+                v.rescale(*hu_slope, *hu_intercept)?;
                 v
             }
         };
@@ -389,6 +400,7 @@ impl SceneSpec {
             window: s.window.unwrap_or(d.window),
             level: s.level.unwrap_or(d.level),
             seed: s.seed.unwrap_or(d.seed),
+            auto_window: s.window.is_none() && s.level.is_none(),
         };
         detector.validate()?;
         Ok(LoadedScene {

@@ -281,12 +281,15 @@ impl Volume {
         self.spacing_m.min()
     }
 
-    /// Adds `offset` to every voxel (saturating): for files that store HU + 1024 and the
-    /// like.
-    pub fn shift_hu(&mut self, offset: i16) {
+    /// Maps every voxel through `slope · value + intercept` (rounded, clamped to i16): for
+    /// files whose values are not Hounsfield units (HU + 1024, rescaled intensities).
+    pub fn rescale(&mut self, slope: f64, intercept: f64) -> Result<()> {
+        require_finite(|| "HU rescale slope".into(), slope)?;
+        require_finite(|| "HU rescale intercept".into(), intercept)?;
         for v in &mut self.hu {
-            *v = v.saturating_add(offset);
+            *v = to_hu(slope * f64::from(*v) + intercept);
         }
+        Ok(())
     }
 }
 

@@ -28,6 +28,11 @@ fn balls() -> Arc<Volume> {
     )
 }
 
+/// The aorta file's intensities are not HU (tissue ≈ 250, contrast-filled lumen ≈ 2000):
+/// calibrated so that tissue is 40 HU and the lumen 400 HU, as in the scene files.
+const AORTA_HU_SLOPE: f64 = 0.2057;
+const AORTA_HU_INTERCEPT: f64 = -11.4;
+
 fn carm(size: u32, primary: f64, secondary: f64) -> CArm {
     let mut c = CArm {
         primary_deg: primary,
@@ -143,7 +148,7 @@ fn gpu_and_cpu_agree_to_1e3_in_line_integral() {
     let aorta = {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/ct/aorta.mha");
         let mut v = Volume::load(&path).unwrap();
-        v.shift_hu(-1024);
+        v.rescale(AORTA_HU_SLOPE, AORTA_HU_INTERCEPT).unwrap();
         Arc::new(v)
     };
     let aorta_centre = aorta.position_of(&Vector3::from(aorta.dims.map(|n| (n - 1) as f64 / 2.0)));

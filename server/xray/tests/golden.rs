@@ -1,0 +1,119 @@
+//! Golden images: the real aorta CT at three C-arm poses and the arch-to-circle-of-Willis
+//! phantom with contrast and devices, noise off, against PNGs kept in `tests/golden/`
+//! (mean difference ≤ 0.5 grey level, 99.9 % of pixels within 2). Both renderers are held
+//! to the same images. `CATHLAB_BLESS=1` rewrites the PNGs after a deliberate change.
+
+use std::path::{Path, PathBuf};
+
+use cathlab_xray::scene::SceneSpec;
+use cathlab_xray::{CpuRenderer, GpuRenderer, Renderer};
+
+const SCENES: [&str; 5] = [
+    "aorta_ap",
+    "aorta_lateral",
+    "aorta_cranial",
+    "arch_to_cow_lcca",
+    "arch_to_cow_roadmap",
+];
+
+fn scene_path(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("scenes/{name}.yaml"))
+}
+
+fn golden_path(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("tests/golden/{name}.png"))
+}
+
+/// Mean absolute difference and the fraction of pixels more than 2 levels apart.
+fn compare(a: &[u8], b: &[u8]) -> (f64, f64) {
+    let mean = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| f64::from(x.abs_diff(*y)))
+        .sum::<f64>()
+        / a.len() as f64;
+    let far = a.iter().zip(b).filter(|(x, y)| x.abs_diff(**y) > 2).count() as f64 / a.len() as f64;
+    (mean, far)
+}
+
+#[test]
+fn renders_match_the_golden_images() {
+    let bless = std::env::var_os("CATHLAB_BLESS").is_some();
+    let mut gpu = GpuRenderer::if_available().unwrap();
+    for name in SCENES {
+        let path = scene_path(name);
+        let mut spec = SceneSpec::read(&path).unwrap();
+        spec.carm.size_px = [256, 256];
+        spec.detector.noise = Some(false);
+        let scene = spec.load(&path).unwrap();
+        let mut renderers: Vec<Box<dyn Renderer>> = vec![Box::new(CpuRenderer)];
+        if let Some(g) = gpu.take() {
+            renderers.push(Box::new(g));
+        }
+        for renderer in renderers {
+            let label = renderer.name();
+            let frame = scene.render(renderer).unwrap();
+            let grey = frame.to_8bit();
+            let golden = golden_path(name);
+            if bless && label.starts_with("cpu") {
+                std::fs::create_dir_all(golden.parent().unwrap()).unwrap();
+                image::GrayImage::from_raw(256, 256, grey.clone())
+                    .unwrap()
+                    .save(&golden)
+                    .unwrap();
+            }
+            let reference = image::open(&golden)
+                .unwrap_or_else(|e| panic!("{}: {e} (bless with CATHLAB_BLESS=1)", golden.display()))
+                .to_luma8()
+                .into_raw();
+            let (mean, far) = compare(&grey, &reference);
+            println!("{name} on {label}: mean |Δ| {mean:.3} grey levels, {:.3} % beyond 2", far * 100.0);
+            assert!(mean <= 0.5 && far <= 1e-3, "{name} on {label}: {mean}, {far}");
+        }
+        // The GPU renderer is opened once; get it back for the next scene.
+        if gpu.is_none() {
+            gpu = GpuRenderer::if_available().unwrap();
+        }
+    }
+}
+
+#[test]
+fn bad_scenes_give_named_errors() {
+    let dir = std::env::temp_dir().join(format!("cathlab-xray-scene-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let write = |name: &str, text: &str| {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    };
+    let p = write("typo.yaml", "ct: !phantom\n  spacing_mm: 2\ncarm:\n  isocenter: volume_centre\n  primry_deg: 3\n");
+    let err = SceneSpec::read(&p).unwrap_err().to_string();
+    assert!(err.contains("primry_deg"), "{err}");
+    let p = write("no_anatomy.yaml", "ct: !phantom\n  spacing_mm: 2\ncarm:\n  isocenter: volume_centre\n");
+    let err = SceneSpec::read(&p).unwrap().load(&p).err().unwrap().to_string();
+    assert!(err.contains("phantom needs an anatomy"), "{err}");
+    let p = write(
+        "missing_ct.yaml",
+        "ct: !file\n  path: nowhere.mha\ncarm:\n  isocenter: volume_centre\n",
+    );
+    let err = SceneSpec::read(&p).unwrap().load(&p).err().unwrap().to_string();
+    assert!(err.contains("nowhere.mha"), "{err}");
+    let truncated = write("cut.mha", "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\nElementType = MET_SHORT\nElementDataFile = LOCAL\n\x01\x02");
+    let p = write(
+        "cut.yaml",
+        "ct: !file\n  path: cut.mha\ncarm:\n  isocenter: volume_centre\n",
+    );
+    let err = SceneSpec::read(&p).unwrap().load(&p).err().unwrap().to_string();
+    assert!(err.contains("truncated"), "{err}");
+    let _ = truncated;
+    write(
+        "tiny.mha",
+        "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n\x01\x02\x03\x04\x05\x06\x07\x08",
+    );
+    let p = write(
+        "zero.yaml",
+        "ct: !file\n  path: tiny.mha\ncarm:\n  isocenter: !point [0, 0, 0]\n  size_px: [0, 512]\n",
+    );
+    let err = SceneSpec::read(&p).unwrap().load(&p).err().unwrap().to_string();
+    assert!(err.contains("width"), "{err}");
+}
