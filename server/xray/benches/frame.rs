@@ -1,0 +1,108 @@
+//! Frame-rate benchmarks: a fluoroscopy frame at 512² and 1024² from a cached background
+//! (contrast and device layers, transmission, Poisson noise, blur, log, 8-bit encoding) on
+//! the CPU; background re-projection of a 256³ volume at 512² after a pose change, CPU and
+//! wgpu; and the memory a 256³ volume takes on each (printed).
+
+use std::path::Path;
+use std::sync::Arc;
+
+use cathlab_xray::phantom::{BodyLandmarks, body_hu};
+use cathlab_xray::scene::SceneSpec;
+use cathlab_xray::{
+    CpuRenderer, Fluoroscope, GpuRenderer, MarchSettings, Renderer, Scene, Volume,
+};
+use criterion::{Criterion, criterion_group, criterion_main};
+use nalgebra::{Point3, Vector3};
+
+/// The arch-to-cow fluoroscopy scene (contrast in the LCCA, catheter and wire) at `size`².
+fn frame(c: &mut Criterion) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/arch_to_cow_lcca.yaml");
+    let mut group = c.benchmark_group("fluoroscopy_frame_cpu");
+    group.sample_size(20);
+    for size in [512u32, 1024] {
+        let mut spec = SceneSpec::read(&path).unwrap();
+        spec.carm.size_px = [size, size];
+        let scene = spec.load(&path).unwrap();
+        let mut chain = Fluoroscope::new(Box::new(CpuRenderer), scene.settings.clone()).unwrap();
+        let shot = Scene {
+            volume: &scene.volume,
+            carm: &scene.carm,
+            layers: &scene.with_contrast,
+        };
+        // Warm the background cache: the benchmark is the per-frame work.
+        chain.expose(0.0, shot).unwrap();
+        let mut t = 0.0;
+        group.bench_function(format!("{size}x{size}"), |b| {
+            b.iter(|| {
+                t += 1.0 / 30.0;
+                let frame = chain.expose(t, shot).unwrap();
+                std::hint::black_box(frame.to_8bit())
+            })
+        });
+        assert_eq!(chain.stats().background_renders, 1, "the background stayed cached");
+    }
+    group.finish();
+}
+
+/// The synthesized body on a 256³ grid (1.4 mm voxels around a neck).
+fn volume_256() -> Arc<Volume> {
+    let landmarks = BodyLandmarks {
+        circle_of_willis: Point3::new(0.0, 0.0, 0.1),
+        arch_top_s: -0.1,
+        bottom_s: -0.15,
+        midline_l: 0.0,
+        spine_front_p: 0.02,
+    };
+    Arc::new(
+        Volume::from_fn([256; 3], Vector3::repeat(1.4e-3), Vector3::new(0.0, 0.0, 0.02), 1, |p| {
+            body_hu(&landmarks, p)
+        })
+        .unwrap(),
+    )
+}
+
+fn background(c: &mut Criterion) {
+    let volume = volume_256();
+    let mut carm = cathlab_xray::CArm {
+        isocenter_m: Vector3::new(0.0, 0.0, 0.02),
+        ..Default::default()
+    };
+    carm.detector.field_of_view_m = 0.4;
+    let settings = MarchSettings::default();
+    let mut gpu = GpuRenderer::if_available().unwrap();
+    eprintln!(
+        "memory of a 256³ volume: CPU {:.1} MiB (16-bit HU)",
+        volume.memory_bytes() as f64 / 1048576.0
+    );
+    let mut group = c.benchmark_group("background_256cubed_512x512");
+    group.sample_size(10);
+    let mut angle = 0.0;
+    let mut renderers: Vec<Box<dyn Renderer>> = vec![Box::new(CpuRenderer)];
+    if let Some(g) = gpu.take() {
+        renderers.push(Box::new(g));
+    }
+    for mut renderer in renderers {
+        // Upload once (a pose change does not re-upload the volume).
+        renderer.project_volume(&volume, &carm, &settings).unwrap();
+        if renderer.device_memory_bytes() > 0 {
+            eprintln!(
+                "memory of a 256³ volume: GPU {:.1} MiB (R16Sint 3D texture) on {}",
+                renderer.device_memory_bytes() as f64 / 1048576.0,
+                renderer.name()
+            );
+        }
+        let label = if renderer.device_memory_bytes() > 0 { "wgpu" } else { "cpu" };
+        group.bench_function(label, |b| {
+            b.iter(|| {
+                // A new pose every time: nothing can be cached.
+                angle += 1.0;
+                carm.primary_deg = angle % 90.0;
+                std::hint::black_box(renderer.project_volume(&volume, &carm, &settings).unwrap())
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, frame, background);
+criterion_main!(benches);
