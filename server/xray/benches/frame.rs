@@ -8,9 +8,7 @@ use std::sync::Arc;
 
 use cathlab_xray::phantom::{BodyLandmarks, body_hu};
 use cathlab_xray::scene::SceneSpec;
-use cathlab_xray::{
-    CpuRenderer, Fluoroscope, GpuRenderer, MarchSettings, Renderer, Scene, Volume,
-};
+use cathlab_xray::{CpuRenderer, Fluoroscope, GpuRenderer, MarchSettings, Renderer, Scene, Volume};
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Point3, Vector3};
 
@@ -39,7 +37,11 @@ fn frame(c: &mut Criterion) {
                 std::hint::black_box(frame.to_8bit())
             })
         });
-        assert_eq!(chain.stats().background_renders, 1, "the background stayed cached");
+        assert_eq!(
+            chain.stats().background_renders,
+            1,
+            "the background stayed cached"
+        );
     }
     group.finish();
 }
@@ -54,9 +56,13 @@ fn volume_256() -> Arc<Volume> {
         spine_front_p: 0.02,
     };
     Arc::new(
-        Volume::from_fn([256; 3], Vector3::repeat(1.4e-3), Vector3::new(0.0, 0.0, 0.02), 1, |p| {
-            body_hu(&landmarks, p)
-        })
+        Volume::from_fn(
+            [256; 3],
+            Vector3::repeat(1.4e-3),
+            Vector3::new(0.0, 0.0, 0.02),
+            1,
+            |p| body_hu(&landmarks, p),
+        )
         .unwrap(),
     )
 }
@@ -86,12 +92,16 @@ fn background(c: &mut Criterion) {
         renderer.project_volume(&volume, &carm, &settings).unwrap();
         if renderer.device_memory_bytes() > 0 {
             eprintln!(
-                "memory of a 256³ volume: GPU {:.1} MiB (R16Sint 3D texture) on {}",
+                "memory of a 256³ volume: GPU {:.1} MiB (R16Float 3D texture) on {}",
                 renderer.device_memory_bytes() as f64 / 1048576.0,
                 renderer.name()
             );
         }
-        let label = if renderer.device_memory_bytes() > 0 { "wgpu" } else { "cpu" };
+        let label = if renderer.device_memory_bytes() > 0 {
+            "wgpu"
+        } else {
+            "cpu"
+        };
         group.bench_function(label, |b| {
             b.iter(|| {
                 // A new pose every time: nothing can be cached.

@@ -52,8 +52,16 @@ impl DetectorSettings {
     /// Checks every field; the error names the first bad one.
     pub fn validate(&self) -> Result<()> {
         let checks = [
-            ("photons per pixel", self.photons_per_pixel, self.photons_per_pixel > 0.0),
-            ("blur σ (pixels)", self.blur_sigma_px, (0.0..=20.0).contains(&self.blur_sigma_px)),
+            (
+                "photons per pixel",
+                self.photons_per_pixel,
+                self.photons_per_pixel > 0.0,
+            ),
+            (
+                "blur σ (pixels)",
+                self.blur_sigma_px,
+                (0.0..=20.0).contains(&self.blur_sigma_px),
+            ),
             ("window width", self.window, self.window > 0.0),
             ("window level", self.level, true),
         ];
@@ -147,20 +155,17 @@ pub fn expose(
         0.5 * geometry.collimation.0 * w as f64,
         0.5 * geometry.collimation.1 * h as f64,
     );
-    counts
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each(|(v, row)| {
-            let open_v = (v as f64 - cv).abs() <= half_v;
-            for (u, c) in row.iter_mut().enumerate() {
-                *c = if open_v && (u as f64 - cu).abs() <= half_u {
-                    // Half a quantum floors empty pixels (a log of zero is no image).
-                    -(f64::from(*c).max(0.5) / n0).ln() as f32
-                } else {
-                    f32::NAN
-                };
-            }
-        });
+    counts.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+        let open_v = (v as f64 - cv).abs() <= half_v;
+        for (u, c) in row.iter_mut().enumerate() {
+            *c = if open_v && (u as f64 - cu).abs() <= half_u {
+                // Half a quantum floors empty pixels (a log of zero is no image).
+                -(f64::from(*c).max(0.5) / n0).ln() as f32
+            } else {
+                f32::NAN
+            };
+        }
+    });
     counts
 }
 
@@ -239,7 +244,9 @@ pub fn auto_window(values: &[f32], width: u32, height: u32) -> Option<(f64, f64)
     }
     let n = sample.len();
     let lo = *sample.select_nth_unstable_by(n / 100, f32::total_cmp).1;
-    let hi = *sample.select_nth_unstable_by(n - 1 - n / 100, f32::total_cmp).1;
+    let hi = *sample
+        .select_nth_unstable_by(n - 1 - n / 100, f32::total_cmp)
+        .1;
     let width = f64::from(hi - lo).max(1e-3);
     Some((width, f64::from(lo) + 0.5 * width))
 }

@@ -328,9 +328,13 @@ impl Fluoroscope {
             }
             ImagingMode::Roadmap => {
                 window = (self.settings.subtraction_window, 0.0);
-                let m = self.masks.as_ref().filter(|m| m.carm == *scene.carm).ok_or_else(|| {
-                    XrayError::Unavailable("roadmap: the C-arm moved since the DSA run".into())
-                })?;
+                let m = self
+                    .masks
+                    .as_ref()
+                    .filter(|m| m.carm == *scene.carm)
+                    .ok_or_else(|| {
+                        XrayError::Unavailable("roadmap: the C-arm moved since the DSA run".into())
+                    })?;
                 let depth = self.settings.roadmap_vessel_depth as f32;
                 for ((v, mask), peak) in values.iter_mut().zip(&m.mask).zip(&m.peak_opacity) {
                     *v = *v - mask - peak.min(depth);

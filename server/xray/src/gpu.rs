@@ -1,6 +1,7 @@
-//! The off-screen wgpu compute renderer: the CT volume as a 16-bit integer 3D texture
-//! uploaded once per volume, a ray-march shader for the background and a tile-binned chord
-//! shader for the layers, both mirroring the CPU reference sample for sample in f32.
+//! The off-screen wgpu compute renderer: the CT volume as a 16-bit (f16) 3D texture uploaded
+//! once per volume and sampled with the texture unit's trilinear filter, a ray-march shader
+//! for the background and a tile-binned chord shader for the layers, both mirroring the CPU
+//! reference sample for sample in f32.
 
 use std::sync::Arc;
 
@@ -24,6 +25,13 @@ struct UploadedVolume {
     bytes: usize,
 }
 
+/// HU as f16 bits: exact for |HU| ≤ 2048, within 1 HU up to 4096.
+fn to_f16_bits(hu: &[i16]) -> Vec<u16> {
+    hu.iter()
+        .map(|&v| half::f16::from_f32(f32::from(v)).to_bits())
+        .collect()
+}
+
 /// The wgpu renderer. One device and queue; the last volume stays uploaded.
 pub struct GpuRenderer {
     device: wgpu::Device,
@@ -31,6 +39,7 @@ pub struct GpuRenderer {
     adapter: String,
     march: wgpu::ComputePipeline,
     layers: wgpu::ComputePipeline,
+    sampler: wgpu::Sampler,
     uploaded: Option<UploadedVolume>,
 }
 
@@ -128,12 +137,19 @@ impl GpuRenderer {
         };
         let march = pipeline(include_str!("shaders/march.wgsl"), "march");
         let layers = pipeline(include_str!("shaders/layers.wgsl"), "layers");
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("trilinear"),
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            ..Default::default()
+        });
         Ok(Self {
             device,
             queue,
             adapter: format!("{} ({:?})", info.name, info.backend),
             march,
             layers,
+            sampler,
             uploaded: None,
         })
     }
@@ -144,7 +160,9 @@ impl GpuRenderer {
         match Self::new() {
             Ok(r) => Ok(Some(r)),
             Err(e) if std::env::var_os(REQUIRE_GPU_ENV).is_none() => {
-                eprintln!("cathlab-xray: no GPU renderer ({e}); set {REQUIRE_GPU_ENV} to require one");
+                eprintln!(
+                    "cathlab-xray: no GPU renderer ({e}); set {REQUIRE_GPU_ENV} to require one"
+                );
                 Ok(None)
             }
             Err(e) => Err(e),
@@ -171,12 +189,12 @@ impl GpuRenderer {
                 depth_or_array_layers: nz,
             };
             let texture = self.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("ct volume (HU, 16-bit)"),
+                label: Some("ct volume (HU as f16)"),
                 size,
                 mip_level_count: 1,
                 sample_count: 1,
                 dimension: wgpu::TextureDimension::D3,
-                format: wgpu::TextureFormat::R16Sint,
+                format: wgpu::TextureFormat::R16Float,
                 usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
                 view_formats: &[],
             });
@@ -187,7 +205,7 @@ impl GpuRenderer {
                     origin: wgpu::Origin3d::ZERO,
                     aspect: wgpu::TextureAspect::All,
                 },
-                bytemuck::cast_slice(&volume.hu),
+                bytemuck::cast_slice(&to_f16_bits(&volume.hu)),
                 wgpu::TexelCopyBufferLayout {
                     offset: 0,
                     bytes_per_row: Some(2 * nx),
@@ -294,7 +312,11 @@ impl Renderer for GpuRenderer {
         let grid = carm.ray_grid();
         let (m, offset) = volume.index_transform();
         let source_index = m * grid.source.coords + offset;
-        let [source, corner, step_u, step_v] = grid_params(&grid, &iso, carm.source_to_isocenter_m / carm.source_to_image_m);
+        let [source, corner, step_u, step_v] = grid_params(
+            &grid,
+            &iso,
+            carm.source_to_isocenter_m / carm.source_to_image_m,
+        );
         let params = MarchParams {
             source,
             corner,
@@ -306,7 +328,12 @@ impl Renderer for GpuRenderer {
                 v4(&m.column(2).into(), 0.0),
             ],
             source_index: v4(&source_index, 0.0),
-            dims: [volume.dims[0] as u32, volume.dims[1] as u32, volume.dims[2] as u32, 0],
+            dims: [
+                volume.dims[0] as u32,
+                volume.dims[1] as u32,
+                volume.dims[2] as u32,
+                0,
+            ],
             size: [w, h, 0, 0],
             settings: [
                 (settings.step_voxels * volume.min_spacing_m()) as f32,
@@ -315,17 +342,20 @@ impl Renderer for GpuRenderer {
                 0.0,
             ],
         };
-        let uniform = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("march params"),
-            contents: bytemuck::bytes_of(&params),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
+        let uniform = self
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("march params"),
+                contents: bytemuck::bytes_of(&params),
+                usage: wgpu::BufferUsages::UNIFORM,
+            });
         let view = self.upload(volume)?.clone();
         let planes = self.dispatch(
             &self.march,
             &[
                 uniform.as_entire_binding(),
                 wgpu::BindingResource::TextureView(&view),
+                wgpu::BindingResource::Sampler(&self.sampler),
             ],
             w,
             h,
@@ -366,7 +396,11 @@ impl Renderer for GpuRenderer {
                 pixel_box: *b,
             })
             .collect();
-        let [source, corner, step_u, step_v] = grid_params(&grid, &iso, carm.source_to_isocenter_m / carm.source_to_image_m);
+        let [source, corner, step_u, step_v] = grid_params(
+            &grid,
+            &iso,
+            carm.source_to_isocenter_m / carm.source_to_image_m,
+        );
         let params = LayerParams {
             source,
             corner,
@@ -375,18 +409,27 @@ impl Renderer for GpuRenderer {
             size: [w, h, bins.tile_px, bins.tiles[0]],
         };
         let buffer = |label: &str, contents: &[u8], usage| {
-            self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents,
-                usage,
-            })
+            self.device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents,
+                    usage,
+                })
         };
-        let uniform = buffer("layer params", bytemuck::bytes_of(&params), wgpu::BufferUsages::UNIFORM);
+        let uniform = buffer(
+            "layer params",
+            bytemuck::bytes_of(&params),
+            wgpu::BufferUsages::UNIFORM,
+        );
         let storage = wgpu::BufferUsages::STORAGE;
         let pieces = buffer("pieces", bytemuck::cast_slice(&pieces), storage);
         let offsets = buffer("tile offsets", bytemuck::cast_slice(&bins.offsets), storage);
         // Storage buffers may not be empty.
-        let indices: &[u32] = if bins.indices.is_empty() { &[0] } else { &bins.indices };
+        let indices: &[u32] = if bins.indices.is_empty() {
+            &[0]
+        } else {
+            &bins.indices
+        };
         let indices = buffer("tile indices", bytemuck::cast_slice(indices), storage);
         let planes = self.dispatch(
             &self.layers,

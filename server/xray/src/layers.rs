@@ -63,8 +63,22 @@ impl TubePiece {
         let abreast = direction.dot(&(self.start - origin));
         let origin = &(origin + direction * abreast);
         let (mut lo, mut hi) = (-abreast, f64::INFINITY);
-        clip_half_space(&mut lo, &mut hi, &self.start_cap, &self.start, origin, direction);
-        clip_half_space(&mut lo, &mut hi, &self.end_cap, &self.end, origin, direction);
+        clip_half_space(
+            &mut lo,
+            &mut hi,
+            &self.start_cap,
+            &self.start,
+            origin,
+            direction,
+        );
+        clip_half_space(
+            &mut lo,
+            &mut hi,
+            &self.end_cap,
+            &self.end,
+            origin,
+            direction,
+        );
         if lo >= hi {
             return 0.0;
         }
@@ -77,8 +91,7 @@ impl TubePiece {
 
     /// Whether a point lies inside the wall (for brute-force checks of [`Self::chord`]).
     pub fn contains(&self, p: &Point3<f64>) -> bool {
-        if self.start_cap.dot(&(p - self.start)) > 0.0 || self.end_cap.dot(&(p - self.end)) > 0.0
-        {
+        if self.start_cap.dot(&(p - self.start)) > 0.0 || self.end_cap.dot(&(p - self.end)) > 0.0 {
             return false;
         }
         let axis = self.end - self.start;
@@ -401,10 +414,7 @@ impl Layers {
                 .find(|b| d >= b.from_tip_m && d < b.from_tip_m + b.length_m)
                 .map_or((look.material, look.fill), |b| (b.material, b.fill))
         };
-        let radii = (
-            [look.outer_radius_m; 2],
-            [look.inner_radius_m; 2],
-        );
+        let radii = ([look.outer_radius_m; 2], [look.inner_radius_m; 2]);
         let mut chain = Vec::new();
         for i in 0..points.len().saturating_sub(1) {
             let (a, b) = (points[i], points[i + 1]);
@@ -414,7 +424,12 @@ impl Layers {
             }
             // Split at band edges inside this segment (da > d > db).
             let mut stops = vec![da];
-            stops.extend(cuts.iter().rev().copied().filter(|&d| d < da - 1e-9 && d > db + 1e-9));
+            stops.extend(
+                cuts.iter()
+                    .rev()
+                    .copied()
+                    .filter(|&d| d < da - 1e-9 && d > db + 1e-9),
+            );
             stops.push(db);
             for w in stops.windows(2) {
                 let at = |d: f64| a + (b - a) * ((da - d) / (da - db));
@@ -440,10 +455,18 @@ impl Layers {
             let u = axis(s);
             let joint = |other: &ChainSegment| {
                 let sum = u + axis(other);
-                if sum.norm() < 1e-6 { u } else { sum.normalize() }
+                if sum.norm() < 1e-6 {
+                    u
+                } else {
+                    sum.normalize()
+                }
             };
             let start_cap = if i > 0 { -joint(&chain[i - 1]) } else { -u };
-            let end_cap = if i + 1 < chain.len() { joint(&chain[i + 1]) } else { u };
+            let end_cap = if i + 1 < chain.len() {
+                joint(&chain[i + 1])
+            } else {
+                u
+            };
             self.pieces.push(TubePiece {
                 start: s.start,
                 end: s.end,
@@ -480,7 +503,11 @@ fn require_radius(what: &str, value: f64, zero_ok: bool) -> Result<()> {
     } else {
         Err(XrayError::OutOfRange {
             what: what.into(),
-            range: if zero_ok { "finite and ≥ 0" } else { "finite and > 0" },
+            range: if zero_ok {
+                "finite and ≥ 0"
+            } else {
+                "finite and > 0"
+            },
             value,
         })
     }
@@ -502,7 +529,7 @@ fn validate_piece(piece: &TubePiece) -> Result<()> {
     check_point(|| "piece start".into(), &piece.start)?;
     check_point(|| "piece end".into(), &piece.end)?;
     let length = (piece.end - piece.start).norm();
-    if !(length > 1e-12) {
+    if length.is_nan() || length <= 1e-12 {
         return Err(XrayError::OutOfRange {
             what: "piece length (m)".into(),
             range: "> 0",
@@ -517,7 +544,7 @@ fn validate_piece(piece: &TubePiece) -> Result<()> {
     }
     for (what, n) in [("start cap", piece.start_cap), ("end cap", piece.end_cap)] {
         let norm = n.norm();
-        if !((norm - 1.0).abs() < 1e-6) {
+        if norm.is_nan() || (norm - 1.0).abs() >= 1e-6 {
             return Err(XrayError::OutOfRange {
                 what: format!("piece {what} normal length"),
                 range: "1 (a unit vector)",
@@ -590,7 +617,11 @@ impl TileBins {
                     clamp_u(u1.ceil() + 1.0).min(w as i32 - 1),
                     clamp_v(v1.ceil() + 1.0).min(h as i32 - 1),
                 ];
-                if b[0] > b[2] || b[1] > b[3] { [1, 1, 0, 0] } else { b }
+                if b[0] > b[2] || b[1] > b[3] {
+                    [1, 1, 0, 0]
+                } else {
+                    b
+                }
             })
             .collect();
         let mut lists: Vec<Vec<u32>> = vec![Vec::new(); (tiles[0] * tiles[1]) as usize];

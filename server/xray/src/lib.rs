@@ -17,8 +17,8 @@ pub mod scene;
 pub mod spectrum;
 pub mod volume;
 
-pub use error::{Result, XrayError};
 pub use detector::DetectorSettings;
+pub use error::{Result, XrayError};
 pub use fluoroscope::{Fluoroscope, FluoroscopeSettings, Frame, ImagingMode, PulseRate, Scene};
 pub use geometry::{CArm, DetectorGeometry};
 pub use gpu::GpuRenderer;

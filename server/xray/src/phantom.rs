@@ -28,7 +28,11 @@ impl BodyLandmarks {
     /// spine just behind the most posterior neck vessel (the vertebral arteries), the arch
     /// at the top of the lowest fifth of the tree.
     pub fn from_vessels(points: &[Point3<f64>]) -> Result<Self> {
-        if points.len() < 2 || points.iter().any(|p| !p.coords.iter().all(|c| c.is_finite())) {
+        if points.len() < 2
+            || points
+                .iter()
+                .any(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
             return Err(XrayError::OutOfRange {
                 what: "vessel points for the body phantom".into(),
                 range: "at least 2, all finite",
@@ -119,7 +123,9 @@ pub fn body_hu(m: &BodyLandmarks, p: &Point3<f64>) -> f64 {
         };
     }
     let arch = ((x / 0.014).powi(2) + ((p.y - spine_p - 0.022) / 0.012).powi(2)).sqrt();
-    if arch <= 1.0 && (arch > 0.55 || (x.abs() < 0.003 && p.y > spine_p + 0.028)) && p.z < cow.z - 0.03
+    if arch <= 1.0
+        && (arch > 0.55 || (x.abs() < 0.003 && p.y > spine_p + 0.028))
+        && p.z < cow.z - 0.03
     {
         return hu::CORTEX;
     }

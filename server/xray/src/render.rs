@@ -163,8 +163,7 @@ impl Renderer for CpuRenderer {
                     };
                     let (mut sw, mut sb) = (0.0, 0.0);
                     for s in 0..march.samples {
-                        let (fw, fb) =
-                            model.fractions(volume.sample_index(&march.index_at(s)));
+                        let (fw, fb) = model.fractions(volume.sample_index(&march.index_at(s)));
                         let weight = march.weight(s);
                         sw += weight * fw;
                         sb += weight * fb;

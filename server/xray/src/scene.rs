@@ -269,7 +269,10 @@ impl SceneSpec {
         let volume = match &self.ct {
             CtSpec::Phantom { spacing_mm } => {
                 let graph = graph.as_ref().ok_or_else(|| {
-                    scene_error(file, "ct: phantom needs an anatomy to build the body around")
+                    scene_error(
+                        file,
+                        "ct: phantom needs an anatomy to build the body around",
+                    )
                 })?;
                 let points: Vec<Point3<f64>> = graph
                     .branches

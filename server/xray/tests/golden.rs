@@ -63,12 +63,20 @@ fn renders_match_the_golden_images() {
                     .unwrap();
             }
             let reference = image::open(&golden)
-                .unwrap_or_else(|e| panic!("{}: {e} (bless with CATHLAB_BLESS=1)", golden.display()))
+                .unwrap_or_else(|e| {
+                    panic!("{}: {e} (bless with CATHLAB_BLESS=1)", golden.display())
+                })
                 .to_luma8()
                 .into_raw();
             let (mean, far) = compare(&grey, &reference);
-            println!("{name} on {label}: mean |Δ| {mean:.3} grey levels, {:.3} % beyond 2", far * 100.0);
-            assert!(mean <= 0.5 && far <= 1e-3, "{name} on {label}: {mean}, {far}");
+            println!(
+                "{name} on {label}: mean |Δ| {mean:.3} grey levels, {:.3} % beyond 2",
+                far * 100.0
+            );
+            assert!(
+                mean <= 0.5 && far <= 1e-3,
+                "{name} on {label}: {mean}, {far}"
+            );
         }
         // The GPU renderer is opened once; get it back for the next scene.
         if gpu.is_none() {
@@ -86,24 +94,48 @@ fn bad_scenes_give_named_errors() {
         std::fs::write(&p, text).unwrap();
         p
     };
-    let p = write("typo.yaml", "ct: !phantom\n  spacing_mm: 2\ncarm:\n  isocenter: volume_centre\n  primry_deg: 3\n");
+    let p = write(
+        "typo.yaml",
+        "ct: !phantom\n  spacing_mm: 2\ncarm:\n  isocenter: volume_centre\n  primry_deg: 3\n",
+    );
     let err = SceneSpec::read(&p).unwrap_err().to_string();
     assert!(err.contains("primry_deg"), "{err}");
-    let p = write("no_anatomy.yaml", "ct: !phantom\n  spacing_mm: 2\ncarm:\n  isocenter: volume_centre\n");
-    let err = SceneSpec::read(&p).unwrap().load(&p).err().unwrap().to_string();
+    let p = write(
+        "no_anatomy.yaml",
+        "ct: !phantom\n  spacing_mm: 2\ncarm:\n  isocenter: volume_centre\n",
+    );
+    let err = SceneSpec::read(&p)
+        .unwrap()
+        .load(&p)
+        .err()
+        .unwrap()
+        .to_string();
     assert!(err.contains("phantom needs an anatomy"), "{err}");
     let p = write(
         "missing_ct.yaml",
         "ct: !file\n  path: nowhere.mha\ncarm:\n  isocenter: volume_centre\n",
     );
-    let err = SceneSpec::read(&p).unwrap().load(&p).err().unwrap().to_string();
+    let err = SceneSpec::read(&p)
+        .unwrap()
+        .load(&p)
+        .err()
+        .unwrap()
+        .to_string();
     assert!(err.contains("nowhere.mha"), "{err}");
-    let truncated = write("cut.mha", "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\nElementType = MET_SHORT\nElementDataFile = LOCAL\n\x01\x02");
+    let truncated = write(
+        "cut.mha",
+        "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\nElementType = MET_SHORT\nElementDataFile = LOCAL\n\x01\x02",
+    );
     let p = write(
         "cut.yaml",
         "ct: !file\n  path: cut.mha\ncarm:\n  isocenter: volume_centre\n",
     );
-    let err = SceneSpec::read(&p).unwrap().load(&p).err().unwrap().to_string();
+    let err = SceneSpec::read(&p)
+        .unwrap()
+        .load(&p)
+        .err()
+        .unwrap()
+        .to_string();
     assert!(err.contains("truncated"), "{err}");
     let _ = truncated;
     write(
@@ -114,6 +146,11 @@ fn bad_scenes_give_named_errors() {
         "zero.yaml",
         "ct: !file\n  path: tiny.mha\ncarm:\n  isocenter: !point [0, 0, 0]\n  size_px: [0, 512]\n",
     );
-    let err = SceneSpec::read(&p).unwrap().load(&p).err().unwrap().to_string();
+    let err = SceneSpec::read(&p)
+        .unwrap()
+        .load(&p)
+        .err()
+        .unwrap()
+        .to_string();
     assert!(err.contains("width"), "{err}");
 }

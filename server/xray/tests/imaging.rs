@@ -8,8 +8,8 @@ use cathlab_xray::detector::{self, DetectorSettings, expose, gaussian_blur};
 use cathlab_xray::layers::{ContrastTube, DeviceAppearance, Layers};
 use cathlab_xray::spectrum::{EnergyBin, MaterialAttenuation, MaterialPaths, Spectrum};
 use cathlab_xray::{
-    CArm, CpuRenderer, DetectorGeometry, Fluoroscope, FluoroscopeSettings, ImagingMode,
-    PathImage, PulseRate, Scene, Volume, XrayError,
+    CArm, CpuRenderer, DetectorGeometry, Fluoroscope, FluoroscopeSettings, ImagingMode, PathImage,
+    PulseRate, Scene, Volume, XrayError,
 };
 use nalgebra::{Point3, Vector3};
 
@@ -40,7 +40,8 @@ fn polyenergetic_transmission_is_the_weighted_sum_of_beer_lambert_per_bin() {
             + mu.platinum * 0.0001))
             .exp()
     };
-    let expected = 0.5 * by_hand(MaterialAttenuation::KEV_60) + 0.5 * by_hand(MaterialAttenuation::KEV_80);
+    let expected =
+        0.5 * by_hand(MaterialAttenuation::KEV_60) + 0.5 * by_hand(MaterialAttenuation::KEV_80);
     assert!((spectrum.transmission(&paths) / expected - 1.0).abs() < 1e-12);
     // Beam hardening: the effective μ of water falls with depth in a two-bin beam.
     let mu_eff = |depth: f64| {
@@ -85,15 +86,30 @@ fn quantum_noise_is_poisson_seeded_and_reproducible() {
     let expected = n0 * t;
     println!("counts: mean {mean:.2} (expected {expected:.2}), variance {var:.2}");
     // Mean within 4 standard errors, variance within 3 % of the mean (Poisson).
-    assert!((mean - expected).abs() < 4.0 * (expected / n).sqrt(), "{mean}");
+    assert!(
+        (mean - expected).abs() < 4.0 * (expected / n).sqrt(),
+        "{mean}"
+    );
     assert!((var / expected - 1.0).abs() < 0.03, "{var}");
     // Counts are integers.
-    assert!(counts.iter().all(|c| (c - c.round()).abs() < 1e-3 * c.max(1.0)));
+    assert!(
+        counts
+            .iter()
+            .all(|c| (c - c.round()).abs() < 1e-3 * c.max(1.0))
+    );
     // Same seed and frame: identical; another frame: different.
     assert_eq!(a, expose(&transmitted, &g, &settings, 3));
     assert_ne!(a, expose(&transmitted, &g, &settings, 4));
     // Without noise the log transform returns the line integral exactly.
-    let clean = expose(&transmitted, &g, &DetectorSettings { noise: false, ..settings }, 0);
+    let clean = expose(
+        &transmitted,
+        &g,
+        &DetectorSettings {
+            noise: false,
+            ..settings
+        },
+        0,
+    );
     assert!(clean.iter().all(|&l| (f64::from(l) - 1.0).abs() < 1e-6));
 }
 
@@ -151,8 +167,10 @@ fn bench() -> Bench {
         })
         .unwrap(),
     );
-    let mut carm = CArm::default();
-    carm.detector = geometry(64);
+    let carm = CArm {
+        detector: geometry(64),
+        ..CArm::default()
+    };
     let mut contrast = Layers::new();
     contrast
         .add_contrast(
@@ -201,7 +219,11 @@ fn pulses_come_at_the_set_rate_and_the_last_image_is_held() {
         carm: &b.carm,
         layers: &empty,
     };
-    for (rate, expected) in [(PulseRate::Hz7_5, 8), (PulseRate::Hz15, 15), (PulseRate::Hz30, 30)] {
+    for (rate, expected) in [
+        (PulseRate::Hz7_5, 8),
+        (PulseRate::Hz15, 15),
+        (PulseRate::Hz30, 30),
+    ] {
         let mut f = chain(false);
         f.set_pulse_rate(rate);
         let mut new = 0;
@@ -234,7 +256,10 @@ fn the_background_is_rendered_again_only_when_the_pose_or_volume_changes() {
     let mut f = chain(true);
     let empty = Layers::new();
     let mut carm = b.carm;
-    for (k, change) in ["same", "same", "pose", "same", "volume"].iter().enumerate() {
+    for (k, change) in ["same", "same", "pose", "same", "volume"]
+        .iter()
+        .enumerate()
+    {
         let volume = if *change == "volume" {
             Arc::new((*b.volume).clone())
         } else {
@@ -277,7 +302,10 @@ fn dsa_keeps_only_the_contrast_and_roadmap_shows_vessels_white_and_devices_dark(
     f.set_mode(ImagingMode::Subtraction, &b.carm).unwrap();
     let empty = Layers::new();
     let mask = f.expose(0.0, shot(&empty)).unwrap();
-    assert!(mask.values.iter().all(|&v| v == 0.0), "the mask subtracts to zero");
+    assert!(
+        mask.values.iter().all(|&v| v == 0.0),
+        "the mask subtracts to zero"
+    );
     let dsa = f.expose(0.5, shot(&b.contrast)).unwrap();
     // Off the vessel the water cube is gone; on it, the iodine's own attenuation remains:
     // −ln of the transmission ratio through 6 mm of iodine-300 behind 80 mm of water.
@@ -298,7 +326,10 @@ fn dsa_keeps_only_the_contrast_and_roadmap_shows_vessels_white_and_devices_dark(
     let expected = (spectrum.transmission(&water) / spectrum.transmission(&with_iodine)).ln();
     println!("DSA: {on:.5} on the vessel (Beer–Lambert by hand {expected:.5}), {off:.1e} off it");
     assert!(off.abs() < 1e-6);
-    assert!((f64::from(on) / expected - 1.0).abs() < 1e-3, "{on} vs {expected}");
+    assert!(
+        (f64::from(on) / expected - 1.0).abs() < 1e-3,
+        "{on} vs {expected}"
+    );
     // Roadmap at the same pose: live fluoroscopy with the wire, minus mask and vessel map.
     f.set_mode(ImagingMode::Roadmap, &b.carm).unwrap();
     let road = f.expose(1.0, shot(&b.wire)).unwrap();
@@ -306,8 +337,13 @@ fn dsa_keeps_only_the_contrast_and_roadmap_shows_vessels_white_and_devices_dark(
     let device = road.values[40 * 64 + 32];
     let background = at(&road, &b.carm, Point3::new(0.02, 0.0, -0.02));
     println!("roadmap: vessel {vessel:.3}, device {device:.3}, background {background:.1e}");
-    let depth = FluoroscopeSettings::default().roadmap_vessel_depth.min(expected);
-    assert!((f64::from(vessel) + depth).abs() < 1e-5, "vessels white (negative): {vessel}");
+    let depth = FluoroscopeSettings::default()
+        .roadmap_vessel_depth
+        .min(expected);
+    assert!(
+        (f64::from(vessel) + depth).abs() < 1e-5,
+        "vessels white (negative): {vessel}"
+    );
     assert!(device > 0.3, "devices dark (positive)");
     assert!(background.abs() < 1e-6);
     assert_eq!(road.window.1, 0.0, "subtracted images are centred on grey");
@@ -322,11 +358,15 @@ fn dsa_keeps_only_the_contrast_and_roadmap_shows_vessels_white_and_devices_dark(
 fn bad_detector_and_chain_settings_are_refused_by_name() {
     let mut settings = FluoroscopeSettings::default();
     settings.detector.photons_per_pixel = 0.0;
-    let err = Fluoroscope::new(Box::new(CpuRenderer), settings).err().unwrap();
+    let err = Fluoroscope::new(Box::new(CpuRenderer), settings)
+        .err()
+        .unwrap();
     assert!(err.to_string().contains("photons per pixel"), "{err}");
     let mut settings = FluoroscopeSettings::default();
     settings.march.step_voxels = f64::NAN;
-    let err = Fluoroscope::new(Box::new(CpuRenderer), settings).err().unwrap();
+    let err = Fluoroscope::new(Box::new(CpuRenderer), settings)
+        .err()
+        .unwrap();
     assert!(err.to_string().contains("ray-march step"), "{err}");
     let b = bench();
     let mut f = chain(false);

@@ -44,7 +44,12 @@ fn brute_chord(
 #[test]
 fn cylinder_chords_are_the_closed_form() {
     let r = 0.45e-3;
-    let piece = solid(Point3::new(0.0, 0.0, -0.05), Point3::new(0.0, 0.0, 0.05), r, r);
+    let piece = solid(
+        Point3::new(0.0, 0.0, -0.05),
+        Point3::new(0.0, 0.0, 0.05),
+        r,
+        r,
+    );
     let mut worst: f64 = 0.0;
     for k in 0..=20 {
         let b = r * k as f64 / 20.0 * 0.999;
@@ -63,14 +68,22 @@ fn cylinder_chords_are_the_closed_form() {
     // Along the axis: the full length; beside it: nothing.
     let along = piece.chord(&Point3::new(0.0, 0.0, -1.0), &Vector3::z());
     assert!((along - 0.1).abs() < 1e-12, "{along}");
-    assert_eq!(piece.chord(&Point3::new(2.0 * r, 0.0, -1.0), &Vector3::z()), 0.0);
+    assert_eq!(
+        piece.chord(&Point3::new(2.0 * r, 0.0, -1.0), &Vector3::z()),
+        0.0
+    );
 }
 
 #[test]
 fn hollow_catheter_chords_are_outer_minus_inner() {
     let look = DeviceAppearance::catheter_5f();
     let (ro, ri) = (look.outer_radius_m, look.inner_radius_m);
-    let mut piece = solid(Point3::new(-0.05, 0.0, 0.0), Point3::new(0.05, 0.0, 0.0), ro, ro);
+    let mut piece = solid(
+        Point3::new(-0.05, 0.0, 0.0),
+        Point3::new(0.05, 0.0, 0.0),
+        ro,
+        ro,
+    );
     piece.inner_radius_m = [ri, ri];
     for k in 0..=20 {
         let b = ro * k as f64 / 20.0 * 0.999;
@@ -193,8 +206,9 @@ fn a_straight_contrast_chain_is_one_cylinder_weighted_by_concentration() {
 
 #[test]
 fn tip_coils_and_markers_split_the_device_by_distance_from_the_tip() {
-    let points: Vec<Point3<f64>> =
-        (0..=10).map(|i| Point3::new(0.0, 0.0, 0.01 * i as f64)).collect();
+    let points: Vec<Point3<f64>> = (0..=10)
+        .map(|i| Point3::new(0.0, 0.0, 0.01 * i as f64))
+        .collect();
     let mut look = DeviceAppearance::guidewire_035();
     look.bands.push(DeviceBand {
         from_tip_m: 0.05,
@@ -211,11 +225,17 @@ fn tip_coils_and_markers_split_the_device_by_distance_from_the_tip() {
     };
     // Inside the 30 mm coil (0.07–0.1 m): platinum at fill 0.6; at the marker: fill 1.
     let coil = platinum(0.085);
-    assert!((coil[2] - 0.6 * 2.0 * r).abs() < 1e-12 && coil[1] == 0.0, "{coil:?}");
+    assert!(
+        (coil[2] - 0.6 * 2.0 * r).abs() < 1e-12 && coil[1] == 0.0,
+        "{coil:?}"
+    );
     let marker = platinum(0.049);
     assert!((marker[2] - 2.0 * r).abs() < 1e-12, "{marker:?}");
     let shaft = platinum(0.025);
-    assert!((shaft[1] - 2.0 * r).abs() < 1e-12 && shaft[2] == 0.0, "{shaft:?}");
+    assert!(
+        (shaft[1] - 2.0 * r).abs() < 1e-12 && shaft[2] == 0.0,
+        "{shaft:?}"
+    );
 }
 
 #[test]
@@ -234,7 +254,9 @@ fn tile_binning_loses_no_piece_coverage() {
             Point3::new(0.06 * (s * 20.0).sin(), 0.02 * s, -0.08 + s)
         })
         .collect();
-    layers.add_device(&points, &DeviceAppearance::catheter_5f()).unwrap();
+    layers
+        .add_device(&points, &DeviceAppearance::catheter_5f())
+        .unwrap();
     let bins = TileBins::build(&layers, &carm, 16);
     let grid = carm.ray_grid();
     let mut binned = Vec::new();
@@ -256,7 +278,10 @@ fn tile_binning_loses_no_piece_coverage() {
             binned.push(through_bins);
         }
     }
-    assert!(all.iter().filter(|&&x| x > 0.0).count() > 30, "the catheter is in view");
+    assert!(
+        all.iter().filter(|&&x| x > 0.0).count() > 30,
+        "the catheter is in view"
+    );
     assert_eq!(all, binned);
     // The renderer's images are the density-weighted sums over every piece.
     let image = CpuRenderer.project_layers(&layers, &carm).unwrap();
@@ -265,9 +290,9 @@ fn tile_binning_loses_no_piece_coverage() {
             let ray = grid.ray(f64::from(u), f64::from(v));
             let exact = layers.paths_along(&ray.origin, &ray.direction);
             let i = (v * 96 + u) as usize;
-            for c in 0..3 {
-                let got = f64::from(image.channels[c][i]);
-                assert!((got - exact[c]).abs() <= 1e-6 * exact[c] + 1e-12, "{u},{v},{c}");
+            for (c, (plane, exact)) in image.channels.iter().zip(exact).enumerate() {
+                let got = f64::from(plane[i]);
+                assert!((got - exact).abs() <= 1e-6 * exact + 1e-12, "{u},{v},{c}");
             }
         }
     }
@@ -294,5 +319,8 @@ fn bad_layers_give_named_errors() {
         concentration_mg_per_ml: 100.0,
     };
     let err = layers.add_contrast(&[tube], 1.0).unwrap_err();
-    assert!(err.to_string().contains("contrast tube 0 start radius"), "{err}");
+    assert!(
+        err.to_string().contains("contrast tube 0 start radius"),
+        "{err}"
+    );
 }

@@ -82,7 +82,8 @@ fn cpu_background_matches_exact_ball_chords_within_half_a_percent() {
             }
             let i = (v * 64 + u) as usize;
             let exact = mu[0] * water + mu[1] * bone;
-            let got = mu[0] * f64::from(image.channels[0][i]) + mu[1] * f64::from(image.channels[1][i]);
+            let got =
+                mu[0] * f64::from(image.channels[0][i]) + mu[1] * f64::from(image.channels[1][i]);
             worst = worst.max((got / exact - 1.0).abs());
             checked += 1;
         }
@@ -100,8 +101,12 @@ fn layers() -> Layers {
             Point3::new(0.03 * (s * 30.0).sin(), 0.01 * (s * 10.0).cos(), -0.06 + s)
         })
         .collect();
-    layers.add_device(&wire, &DeviceAppearance::guidewire_035()).unwrap();
-    layers.add_device(&wire[..30], &DeviceAppearance::catheter_5f()).unwrap();
+    layers
+        .add_device(&wire, &DeviceAppearance::guidewire_035())
+        .unwrap();
+    layers
+        .add_device(&wire[..30], &DeviceAppearance::catheter_5f())
+        .unwrap();
     let tubes: Vec<ContrastTube> = (0..40)
         .map(|i| {
             let s = i as f64 * 0.003;
@@ -163,7 +168,9 @@ fn gpu_and_cpu_agree_to_1e3_in_line_integral() {
             pose.detector.field_of_view_m = 0.4;
         }
         let settings = MarchSettings::default();
-        let cpu = CpuRenderer.project_volume(&volume, &pose, &settings).unwrap();
+        let cpu = CpuRenderer
+            .project_volume(&volume, &pose, &settings)
+            .unwrap();
         let got = gpu.project_volume(&volume, &pose, &settings).unwrap();
         let (worst, largest) = line_integral_difference(&cpu, &got, &mu[..2]);
         println!(
@@ -186,7 +193,9 @@ fn gpu_and_cpu_agree_to_1e3_in_line_integral() {
         let mut grazing = 0;
         for i in 0..cpu.len() {
             let l = |img: &PathImage| -> f64 {
-                (0..3).map(|c| mu[2 + c] * f64::from(img.channels[c][i])).sum()
+                (0..3)
+                    .map(|c| mu[2 + c] * f64::from(img.channels[c][i]))
+                    .sum()
             };
             let (x, y) = (l(&cpu), l(&got));
             if (x - y).abs() <= 1e-3 {

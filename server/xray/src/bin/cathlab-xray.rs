@@ -9,7 +9,10 @@ use cathlab_xray::{CpuRenderer, GpuRenderer, Renderer};
 use clap::{Parser, Subcommand, ValueEnum};
 
 #[derive(Parser)]
-#[command(name = "cathlab-xray", about = "Synthetic fluoroscopy from the command line")]
+#[command(
+    name = "cathlab-xray",
+    about = "Synthetic fluoroscopy from the command line"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
