@@ -94,63 +94,48 @@ fn bad_scenes_give_named_errors() {
         std::fs::write(&p, text).unwrap();
         p
     };
+    // The error of loading a scene that parses.
+    let load_error = |name: &str, text: &str| {
+        let p = write(name, text);
+        SceneSpec::read(&p)
+            .unwrap()
+            .load(&p)
+            .err()
+            .unwrap()
+            .to_string()
+    };
     let p = write(
         "typo.yaml",
         "ct: !phantom\n  spacing_mm: 2\ncarm:\n  isocenter: volume_centre\n  primry_deg: 3\n",
     );
     let err = SceneSpec::read(&p).unwrap_err().to_string();
     assert!(err.contains("primry_deg"), "{err}");
-    let p = write(
+    let err = load_error(
         "no_anatomy.yaml",
         "ct: !phantom\n  spacing_mm: 2\ncarm:\n  isocenter: volume_centre\n",
     );
-    let err = SceneSpec::read(&p)
-        .unwrap()
-        .load(&p)
-        .err()
-        .unwrap()
-        .to_string();
     assert!(err.contains("phantom needs an anatomy"), "{err}");
-    let p = write(
+    let err = load_error(
         "missing_ct.yaml",
         "ct: !file\n  path: nowhere.mha\ncarm:\n  isocenter: volume_centre\n",
     );
-    let err = SceneSpec::read(&p)
-        .unwrap()
-        .load(&p)
-        .err()
-        .unwrap()
-        .to_string();
     assert!(err.contains("nowhere.mha"), "{err}");
-    let truncated = write(
+    write(
         "cut.mha",
         "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\nElementType = MET_SHORT\nElementDataFile = LOCAL\n\x01\x02",
     );
-    let p = write(
+    let err = load_error(
         "cut.yaml",
         "ct: !file\n  path: cut.mha\ncarm:\n  isocenter: volume_centre\n",
     );
-    let err = SceneSpec::read(&p)
-        .unwrap()
-        .load(&p)
-        .err()
-        .unwrap()
-        .to_string();
     assert!(err.contains("truncated"), "{err}");
-    let _ = truncated;
     write(
         "tiny.mha",
         "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n\x01\x02\x03\x04\x05\x06\x07\x08",
     );
-    let p = write(
+    let err = load_error(
         "zero.yaml",
         "ct: !file\n  path: tiny.mha\ncarm:\n  isocenter: !point [0, 0, 0]\n  size_px: [0, 512]\n",
     );
-    let err = SceneSpec::read(&p)
-        .unwrap()
-        .load(&p)
-        .err()
-        .unwrap()
-        .to_string();
     assert!(err.contains("width"), "{err}");
 }
