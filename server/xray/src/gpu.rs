@@ -14,7 +14,7 @@ use crate::layers::{Layers, TileBins};
 use crate::render::{
     BACKGROUND_CHANNELS, LAYER_CHANNELS, MarchSettings, PathImage, Renderer, TILE_PX,
 };
-use crate::volume::Volume;
+use crate::volume::{AirBricks, Volume};
 
 /// Environment variable that turns "no GPU adapter" from a skipped test into a failure.
 pub const REQUIRE_GPU_ENV: &str = "CATHLAB_REQUIRE_GPU";
@@ -22,6 +22,7 @@ pub const REQUIRE_GPU_ENV: &str = "CATHLAB_REQUIRE_GPU";
 struct UploadedVolume {
     volume: Arc<Volume>,
     view: wgpu::TextureView,
+    air_view: wgpu::TextureView,
     bytes: usize,
 }
 
@@ -169,7 +170,49 @@ impl GpuRenderer {
         }
     }
 
-    fn upload(&mut self, volume: &Arc<Volume>) -> Result<&wgpu::TextureView> {
+    /// A 3D texture of `format` holding `data` (tightly packed, `texel_bytes` per texel).
+    fn texture_3d(
+        &self,
+        label: &str,
+        dims: [u32; 3],
+        format: wgpu::TextureFormat,
+        texel_bytes: u32,
+        data: &[u8],
+    ) -> wgpu::TextureView {
+        let size = wgpu::Extent3d {
+            width: dims[0],
+            height: dims[1],
+            depth_or_array_layers: dims[2],
+        };
+        let texture = self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D3,
+            format,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        self.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            data,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(texel_bytes * dims[0]),
+                rows_per_image: Some(dims[1]),
+            },
+            size,
+        );
+        texture.create_view(&Default::default())
+    }
+
+    fn upload(&mut self, volume: &Arc<Volume>) -> Result<(wgpu::TextureView, wgpu::TextureView)> {
         let cached = self
             .uploaded
             .as_ref()
@@ -183,43 +226,30 @@ impl GpuRenderer {
                     "volume {nx}×{ny}×{nz} exceeds the adapter's 3D texture limit {max}"
                 )));
             }
-            let size = wgpu::Extent3d {
-                width: nx,
-                height: ny,
-                depth_or_array_layers: nz,
-            };
-            let texture = self.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("ct volume (HU as f16)"),
-                size,
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D3,
-                format: wgpu::TextureFormat::R16Float,
-                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                view_formats: &[],
-            });
-            self.queue.write_texture(
-                wgpu::TexelCopyTextureInfo {
-                    texture: &texture,
-                    mip_level: 0,
-                    origin: wgpu::Origin3d::ZERO,
-                    aspect: wgpu::TextureAspect::All,
-                },
+            let view = self.texture_3d(
+                "ct volume (HU as f16)",
+                [nx, ny, nz],
+                wgpu::TextureFormat::R16Float,
+                2,
                 bytemuck::cast_slice(&to_f16_bits(&volume.hu)),
-                wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(2 * nx),
-                    rows_per_image: Some(ny),
-                },
-                size,
+            );
+            let bricks = AirBricks::of(volume);
+            let air_view = self.texture_3d(
+                "air bricks",
+                bricks.dims.map(|n| n as u32),
+                wgpu::TextureFormat::R8Uint,
+                1,
+                &bricks.air,
             );
             self.uploaded = Some(UploadedVolume {
                 volume: Arc::clone(volume),
-                view: texture.create_view(&Default::default()),
-                bytes: volume.hu.len() * 2,
+                view,
+                air_view,
+                bytes: volume.hu.len() * 2 + bricks.air.len(),
             });
         }
-        Ok(&self.uploaded.as_ref().expect("just uploaded").view)
+        let uploaded = self.uploaded.as_ref().expect("just uploaded");
+        Ok((uploaded.view.clone(), uploaded.air_view.clone()))
     }
 
     /// Runs `pipeline` over a width × height grid with the given bindings and reads back
@@ -349,13 +379,14 @@ impl Renderer for GpuRenderer {
                 contents: bytemuck::bytes_of(&params),
                 usage: wgpu::BufferUsages::UNIFORM,
             });
-        let view = self.upload(volume)?.clone();
+        let (view, air_view) = self.upload(volume)?;
         let planes = self.dispatch(
             &self.march,
             &[
                 uniform.as_entire_binding(),
                 wgpu::BindingResource::TextureView(&view),
                 wgpu::BindingResource::Sampler(&self.sampler),
+                wgpu::BindingResource::TextureView(&air_view),
             ],
             w,
             h,

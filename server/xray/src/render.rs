@@ -10,7 +10,7 @@ use crate::error::{Result, XrayError};
 use crate::geometry::CArm;
 use crate::layers::{Layers, TileBins};
 use crate::spectrum::HuModel;
-use crate::volume::Volume;
+use crate::volume::{AirBricks, Volume};
 
 /// Per-pixel path lengths (m), one plane per channel, rows top to bottom.
 #[derive(Debug, Clone, PartialEq)]
@@ -73,10 +73,11 @@ pub struct MarchSettings {
 }
 
 impl Default for MarchSettings {
-    /// Half-voxel steps: line integrals through sharp-edged phantoms within 0.5 %.
+    /// Whole-voxel steps: trilinear data is piecewise linear between voxel centres, so finer
+    /// steps gain little (a voxelized ball phantom: 0.47 % at 1 voxel, 0.46 % at ½).
     fn default() -> Self {
         Self {
-            step_voxels: 0.5,
+            step_voxels: 1.0,
             hu_model: HuModel::default(),
         }
     }
@@ -147,6 +148,7 @@ impl Renderer for CpuRenderer {
         let grid = carm.ray_grid();
         let step = settings.step_voxels * volume.min_spacing_m();
         let model = settings.hu_model;
+        let bricks = AirBricks::of(volume);
         let mut image = PathImage::zeros(w, h, BACKGROUND_CHANNELS);
         let [water, bone] = &mut image.channels[..] else {
             unreachable!("two background channels")
@@ -162,11 +164,19 @@ impl Renderer for CpuRenderer {
                         continue;
                     };
                     let (mut sw, mut sb) = (0.0, 0.0);
-                    for s in 0..march.samples {
-                        let (fw, fb) = model.fractions(volume.sample_index(&march.index_at(s)));
+                    let mut s = 0;
+                    while s < march.samples {
+                        let x = march.index_at(s);
+                        if bricks.is_air(&x) {
+                            // Air bricks add nothing: jump past their samples.
+                            s += bricks.samples_left_in_brick(&march, s) + 1;
+                            continue;
+                        }
+                        let (fw, fb) = model.fractions(volume.sample_index(&x));
                         let weight = march.weight(s);
                         sw += weight * fw;
                         sb += weight * fb;
+                        s += 1;
                     }
                     water_row[u] = sw as f32;
                     bone_row[u] = sb as f32;

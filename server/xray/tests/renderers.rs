@@ -229,7 +229,12 @@ fn gpu_and_cpu_agree_to_1e3_in_line_integral() {
         assert!(largest > 1.0, "the layers are in view");
         assert!(grazing <= cpu.len() / 10_000, "{grazing} grazing pixels");
     }
-    assert_eq!(gpu.device_memory_bytes(), aorta.memory_bytes());
+    // The last volume stays uploaded: its 16-bit voxels and one byte per air brick.
+    let bricks = cathlab_xray::volume::AirBricks::of(&aorta);
+    assert_eq!(
+        gpu.device_memory_bytes(),
+        aorta.memory_bytes() + bricks.air.len()
+    );
 }
 
 #[test]
@@ -243,4 +248,59 @@ fn gpu_reports_bad_geometry_like_the_cpu() {
         .project_volume(&balls(), &pose, &MarchSettings::default())
         .unwrap_err();
     assert!(err.to_string().contains("primary angle"), "{err}");
+}
+
+#[test]
+fn skipping_air_bricks_leaves_line_integrals_unchanged() {
+    // The synthesized body: mostly air around a neck and a head.
+    let landmarks = cathlab_xray::phantom::BodyLandmarks {
+        circle_of_willis: Point3::new(0.0, 0.0, 0.05),
+        arch_top_s: -0.05,
+        bottom_s: -0.08,
+        midline_l: 0.0,
+        spine_front_p: 0.02,
+    };
+    let volume = Arc::new(
+        Volume::from_fn([96; 3], Vector3::repeat(3e-3), Vector3::zeros(), 1, |p| {
+            cathlab_xray::phantom::body_hu(&landmarks, p)
+        })
+        .unwrap(),
+    );
+    let bricks = cathlab_xray::volume::AirBricks::of(&volume);
+    let air = bricks.air.iter().filter(|&&a| a == 1).count();
+    assert!(
+        air * 5 > bricks.air.len(),
+        "a fifth or more of the bricks are air"
+    );
+    let settings = MarchSettings::default();
+    let model = settings.hu_model;
+    for pose in [
+        carm(48, 0.0, 0.0),
+        carm(48, 40.0, 25.0),
+        carm(48, -90.0, 0.0),
+    ] {
+        let image = CpuRenderer
+            .project_volume(&volume, &pose, &settings)
+            .unwrap();
+        let grid = pose.ray_grid();
+        let step = settings.step_voxels * volume.min_spacing_m();
+        for i in 0..image.len() {
+            let ray = grid.ray((i % 48) as f64, (i / 48) as f64);
+            // Every sample, no skipping.
+            let water = volume.line_integral(&ray.origin, &ray.direction, step, |hu| {
+                model.fractions(hu).0
+            });
+            let bone = volume.line_integral(&ray.origin, &ray.direction, step, |hu| {
+                model.fractions(hu).1
+            });
+            assert!(
+                (f64::from(image.channels[0][i]) - water).abs() <= 1e-6 * water.max(1e-3),
+                "{i}"
+            );
+            assert!(
+                (f64::from(image.channels[1][i]) - bone).abs() <= 1e-6 * bone.max(1e-3),
+                "{i}"
+            );
+        }
+    }
 }

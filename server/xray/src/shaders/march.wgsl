@@ -24,7 +24,9 @@ struct Params {
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var volume: texture_3d<f32>;
 @group(0) @binding(2) var volume_sampler: sampler;
-@group(0) @binding(3) var<storage, read_write> out: array<f32>;
+// 1 where an 8³ brick (dilated by the trilinear footprint) is pure air: skipped.
+@group(0) @binding(3) var air_bricks: texture_3d<u32>;
+@group(0) @binding(4) var<storage, read_write> out: array<f32>;
 
 // Trilinear HU at a continuous voxel index inside the box of voxel centres.
 fn sample_hu(x: vec3<f32>) -> f32 {
@@ -71,9 +73,31 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         let start = o + d * t0;
         let step = d * h;
         let bone_hu = params.settings.y;
-        for (var s = 0u; s < samples; s++) {
+        let bricks = vec3<i32>(textureDimensions(air_bricks));
+        let last = vec3<f32>(params.dims.xyz) - vec3<f32>(1.0);
+        var s = 0u;
+        loop {
+            if (s >= samples) {
+                break;
+            }
             // Clamped into the box: rounding at the clipped ends must not read air.
-            let hu = sample_hu(clamp(start + step * f32(s), vec3<f32>(0.0), vec3<f32>(params.dims.xyz) - vec3<f32>(1.0)));
+            let x = clamp(start + step * f32(s), vec3<f32>(0.0), last);
+            let brick = min(vec3<i32>(x / 8.0), bricks - vec3<i32>(1));
+            if (textureLoad(air_bricks, brick, 0).x == 1u) {
+                // Every sample left in this brick's closed box adds nothing: jump past them.
+                let lo = vec3<f32>(brick) * 8.0;
+                var t_exit = 3.0e38;
+                for (var a = 0; a < 3; a++) {
+                    if (step[a] > 1e-30) {
+                        t_exit = min(t_exit, (lo[a] + 8.0 - x[a]) / step[a]);
+                    } else if (step[a] < -1e-30) {
+                        t_exit = min(t_exit, (lo[a] - x[a]) / step[a]);
+                    }
+                }
+                s += u32(max(t_exit, 0.0)) + 1u;
+                continue;
+            }
+            let hu = sample_hu(x);
             var w = h;
             if (s == 0u || s + 1u == samples) {
                 w = 0.5 * h;
@@ -84,6 +108,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
                 water += w;
                 bone += w * hu / bone_hu;
             }
+            s++;
         }
     }
     out[pixel] = water;
