@@ -247,8 +247,9 @@ impl Fluoroscope {
 
     /// Advances to `time_s`. With the pedal down an exposure is made when a pulse is due
     /// (at the fluoroscopy pulse rate), and the new frame is returned; otherwise the last
-    /// image is held (returned with `held`), or `None` before any exposure.
-    pub fn update(&mut self, time_s: f64, pedal: bool, scene: Scene<'_>) -> Result<Option<Frame>> {
+    /// image is returned again (marked `held` while the pedal is up), or `None` before any
+    /// exposure. The frame is borrowed: ticks between pulses copy nothing.
+    pub fn update(&mut self, time_s: f64, pedal: bool, scene: Scene<'_>) -> Result<Option<&Frame>> {
         if !time_s.is_finite() {
             return Err(XrayError::NotFinite {
                 what: "fluoroscope time (s)".into(),
@@ -260,10 +261,10 @@ impl Fluoroscope {
             if !pedal {
                 self.next_pulse_s = None;
             }
-            return Ok(self.last.clone().map(|mut f| {
-                f.held = !pedal;
-                f
-            }));
+            if let Some(last) = &mut self.last {
+                last.held = !pedal;
+            }
+            return Ok(self.last.as_ref());
         }
         let period = 1.0 / self.settings.pulse_rate.hz();
         // Keep the pulse train's phase, but never queue missed pulses.
@@ -272,8 +273,7 @@ impl Fluoroscope {
             _ => time_s + period,
         });
         let frame = self.expose(time_s, scene)?;
-        self.last = Some(frame.clone());
-        Ok(Some(frame))
+        Ok(Some(self.last.insert(frame)))
     }
 
     /// Makes one exposure now, whatever the pulse clock says (cine and tests).
