@@ -21,7 +21,8 @@ fn frame(c: &mut Criterion) {
         let mut spec = SceneSpec::read(&path).unwrap();
         spec.carm.size_px = [size, size];
         let scene = spec.load(&path).unwrap();
-        let mut chain = Fluoroscope::new(Box::new(CpuRenderer), scene.settings.clone()).unwrap();
+        let mut chain =
+            Fluoroscope::new(Box::new(CpuRenderer::default()), scene.settings.clone()).unwrap();
         let shot = Scene {
             volume: &scene.volume,
             carm: &scene.carm,
@@ -83,7 +84,7 @@ fn background(c: &mut Criterion) {
     let mut group = c.benchmark_group("background_256cubed_512x512");
     group.sample_size(10);
     let mut angle = 0.0;
-    let mut renderers: Vec<Box<dyn Renderer>> = vec![Box::new(CpuRenderer)];
+    let mut renderers: Vec<Box<dyn Renderer>> = vec![Box::new(CpuRenderer::default())];
     if let Some(g) = gpu.take() {
         renderers.push(Box::new(g));
     }
@@ -92,7 +93,7 @@ fn background(c: &mut Criterion) {
         renderer.project_volume(&volume, &carm, &settings).unwrap();
         if renderer.device_memory_bytes() > 0 {
             eprintln!(
-                "memory of a 256³ volume: GPU {:.1} MiB (R16Float 3D texture) on {}",
+                "memory of a 256³ volume: GPU {:.1} MiB (R16Float 3D texture and 1 byte per 8³ air brick) on {}",
                 renderer.device_memory_bytes() as f64 / 1048576.0,
                 renderer.name()
             );

@@ -127,9 +127,26 @@ pub trait Renderer: Send {
     }
 }
 
-/// The reference renderer: double precision, rayon over rows.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct CpuRenderer;
+/// The reference renderer: double precision, rayon over rows. It keeps the air bricks of
+/// the last volume, so a pose change does not classify the volume again.
+#[derive(Debug, Clone, Default)]
+pub struct CpuRenderer {
+    air: Option<(Arc<Volume>, Arc<AirBricks>)>,
+}
+
+impl CpuRenderer {
+    /// The air bricks of `volume`, classified once per volume.
+    fn air_bricks(&mut self, volume: &Arc<Volume>) -> Arc<AirBricks> {
+        match &self.air {
+            Some((cached, bricks)) if Arc::ptr_eq(cached, volume) => Arc::clone(bricks),
+            _ => {
+                let bricks = Arc::new(AirBricks::of(volume));
+                self.air = Some((Arc::clone(volume), Arc::clone(&bricks)));
+                bricks
+            }
+        }
+    }
+}
 
 impl Renderer for CpuRenderer {
     fn name(&self) -> String {
@@ -148,7 +165,7 @@ impl Renderer for CpuRenderer {
         let grid = carm.ray_grid();
         let step = settings.step_voxels * volume.min_spacing_m();
         let model = settings.hu_model;
-        let bricks = AirBricks::of(volume);
+        let bricks = self.air_bricks(volume);
         let mut image = PathImage::zeros(w, h, BACKGROUND_CHANNELS);
         let [water, bone] = &mut image.channels[..] else {
             unreachable!("two background channels")

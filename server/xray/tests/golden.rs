@@ -46,7 +46,7 @@ fn renders_match_the_golden_images() {
         spec.carm.size_px = [256, 256];
         spec.detector.noise = Some(false);
         let scene = spec.load(&path).unwrap();
-        let mut renderers: Vec<Box<dyn Renderer>> = vec![Box::new(CpuRenderer)];
+        let mut renderers: Vec<Box<dyn Renderer>> = vec![Box::new(CpuRenderer::default())];
         if let Some(g) = gpu.take() {
             renderers.push(Box::new(g));
         }

@@ -207,7 +207,7 @@ fn chain(noise: bool) -> Fluoroscope {
     let mut settings = FluoroscopeSettings::default();
     settings.detector.noise = noise;
     settings.detector.blur_sigma_px = 0.0;
-    Fluoroscope::new(Box::new(CpuRenderer), settings).unwrap()
+    Fluoroscope::new(Box::new(CpuRenderer::default()), settings).unwrap()
 }
 
 #[test]
@@ -358,13 +358,13 @@ fn dsa_keeps_only_the_contrast_and_roadmap_shows_vessels_white_and_devices_dark(
 fn bad_detector_and_chain_settings_are_refused_by_name() {
     let mut settings = FluoroscopeSettings::default();
     settings.detector.photons_per_pixel = 0.0;
-    let err = Fluoroscope::new(Box::new(CpuRenderer), settings)
+    let err = Fluoroscope::new(Box::new(CpuRenderer::default()), settings)
         .err()
         .unwrap();
     assert!(err.to_string().contains("photons per pixel"), "{err}");
     let mut settings = FluoroscopeSettings::default();
     settings.march.step_voxels = f64::NAN;
-    let err = Fluoroscope::new(Box::new(CpuRenderer), settings)
+    let err = Fluoroscope::new(Box::new(CpuRenderer::default()), settings)
         .err()
         .unwrap();
     assert!(err.to_string().contains("ray-march step"), "{err}");

@@ -284,7 +284,9 @@ fn tile_binning_loses_no_piece_coverage() {
     );
     assert_eq!(all, binned);
     // The renderer's images are the density-weighted sums over every piece.
-    let image = CpuRenderer.project_layers(&layers, &carm).unwrap();
+    let image = CpuRenderer::default()
+        .project_layers(&layers, &carm)
+        .unwrap();
     for v in 0..80u32 {
         for u in 0..96u32 {
             let ray = grid.ray(f64::from(u), f64::from(v));

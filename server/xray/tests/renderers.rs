@@ -57,7 +57,7 @@ fn ball_chord(origin: &Point3<f64>, d: &Vector3<f64>, centre: &Vector3<f64>, r: 
 fn cpu_background_matches_exact_ball_chords_within_half_a_percent() {
     let volume = balls();
     let c = carm(64, 30.0, 20.0);
-    let image = CpuRenderer
+    let image = CpuRenderer::default()
         .project_volume(&volume, &c, &MarchSettings::default())
         .unwrap();
     let grid = c.ray_grid();
@@ -168,7 +168,7 @@ fn gpu_and_cpu_agree_to_1e3_in_line_integral() {
             pose.detector.field_of_view_m = 0.4;
         }
         let settings = MarchSettings::default();
-        let cpu = CpuRenderer
+        let cpu = CpuRenderer::default()
             .project_volume(&volume, &pose, &settings)
             .unwrap();
         let got = gpu.project_volume(&volume, &pose, &settings).unwrap();
@@ -186,7 +186,9 @@ fn gpu_and_cpu_agree_to_1e3_in_line_integral() {
     // lies within 1e-3 of the exact values for the ray moved by up to 30 nm.
     let layers = layers();
     for pose in [carm(256, 0.0, 0.0), carm(256, 35.0, -25.0)] {
-        let cpu = CpuRenderer.project_layers(&layers, &pose).unwrap();
+        let cpu = CpuRenderer::default()
+            .project_layers(&layers, &pose)
+            .unwrap();
         let got = gpu.project_layers(&layers, &pose).unwrap();
         let (worst, largest) = line_integral_difference(&cpu, &got, &mu[2..]);
         let grid = pose.ray_grid();
@@ -279,7 +281,7 @@ fn skipping_air_bricks_leaves_line_integrals_unchanged() {
         carm(48, 40.0, 25.0),
         carm(48, -90.0, 0.0),
     ] {
-        let image = CpuRenderer
+        let image = CpuRenderer::default()
             .project_volume(&volume, &pose, &settings)
             .unwrap();
         let grid = pose.ray_grid();

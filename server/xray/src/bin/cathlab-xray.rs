@@ -72,7 +72,7 @@ fn run(
     let loaded = SceneSpec::read(scene)?.load(scene)?;
     let loaded_s = started.elapsed().as_secs_f64();
     let renderer: Box<dyn Renderer> = match backend {
-        Backend::Cpu => Box::new(CpuRenderer),
+        Backend::Cpu => Box::new(CpuRenderer::default()),
         Backend::Gpu => Box::new(GpuRenderer::new()?),
     };
     let name = renderer.name();
