@@ -9,7 +9,7 @@ use nalgebra::{Point3, Vector3};
 use wgpu::util::DeviceExt;
 
 use crate::error::{Result, XrayError};
-use crate::geometry::{CArm, RayGrid};
+use crate::geometry::CArm;
 use crate::layers::{Layers, TileBins};
 use crate::render::{
     BACKGROUND_CHANNELS, LAYER_CHANNELS, MarchSettings, PathImage, Renderer, TILE_PX,
@@ -83,11 +83,13 @@ fn v4(v: &Vector3<f64>, w: f32) -> [f32; 4] {
     [v.x as f32, v.y as f32, v.z as f32, w]
 }
 
-/// The ray grid relative to the isocenter, with the detector grid scaled back onto the
-/// isocenter plane (source distance `sod` of `sid`): the rays are the same lines, but their
-/// points near the patient are small numbers, so that f32 keeps 10 nm detail there.
-fn grid_params(grid: &RayGrid, iso: &Vector3<f64>, sod_over_sid: f64) -> [[f32; 4]; 4] {
-    let source = grid.source.coords - iso;
+/// The pose's ray grid relative to the isocenter, with the detector grid scaled back onto
+/// the isocenter plane: the rays are the same lines, but their points near the patient are
+/// small numbers, so that f32 keeps 10 nm detail there.
+fn grid_params(carm: &CArm) -> [[f32; 4]; 4] {
+    let grid = carm.ray_grid();
+    let sod_over_sid = carm.source_to_isocenter_m / carm.source_to_image_m;
+    let source = grid.source.coords - carm.isocenter_m;
     let corner = source + (grid.corner.coords - grid.source.coords) * sod_over_sid;
     [
         v4(&source, 0.0),
@@ -338,15 +340,9 @@ impl Renderer for GpuRenderer {
         carm.validate()?;
         settings.validate()?;
         let (w, h) = (carm.detector.width_px, carm.detector.height_px);
-        let iso = carm.isocenter_m;
-        let grid = carm.ray_grid();
         let (m, offset) = volume.index_transform();
-        let source_index = m * grid.source.coords + offset;
-        let [source, corner, step_u, step_v] = grid_params(
-            &grid,
-            &iso,
-            carm.source_to_isocenter_m / carm.source_to_image_m,
-        );
+        let source_index = m * carm.source().coords + offset;
+        let [source, corner, step_u, step_v] = grid_params(carm);
         let params = MarchParams {
             source,
             corner,
@@ -358,12 +354,7 @@ impl Renderer for GpuRenderer {
                 v4(&m.column(2).into(), 0.0),
             ],
             source_index: v4(&source_index, 0.0),
-            dims: [
-                volume.dims[0] as u32,
-                volume.dims[1] as u32,
-                volume.dims[2] as u32,
-                0,
-            ],
+            dims: [volume.dims[0], volume.dims[1], volume.dims[2], 0].map(|n| n as u32),
             size: [w, h, 0, 0],
             settings: [
                 (settings.step_voxels * volume.min_spacing_m()) as f32,
@@ -405,10 +396,8 @@ impl Renderer for GpuRenderer {
         if layers.pieces().is_empty() {
             return Ok(PathImage::zeros(w, h, LAYER_CHANNELS));
         }
-        let iso = carm.isocenter_m;
-        let grid = carm.ray_grid();
         let bins = TileBins::build(layers, carm, TILE_PX);
-        let rel = |p: &Point3<f64>| p.coords - iso;
+        let rel = |p: &Point3<f64>| p.coords - carm.isocenter_m;
         let pieces: Vec<GpuPiece> = layers
             .pieces()
             .iter()
@@ -427,11 +416,7 @@ impl Renderer for GpuRenderer {
                 pixel_box: *b,
             })
             .collect();
-        let [source, corner, step_u, step_v] = grid_params(
-            &grid,
-            &iso,
-            carm.source_to_isocenter_m / carm.source_to_image_m,
-        );
+        let [source, corner, step_u, step_v] = grid_params(carm);
         let params = LayerParams {
             source,
             corner,
