@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use crate::error::{Result, XrayError};
 use crate::geometry::DetectorGeometry;
 use crate::render::PathImage;
-use crate::spectrum::Spectrum;
+use crate::spectrum::{MaterialPaths, Spectrum};
 
 /// Detector and display settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -87,11 +87,6 @@ pub fn transmission(
     width: u32,
     height: u32,
 ) -> Vec<f32> {
-    let coefficients: Vec<(f64, [f64; 5])> = spectrum
-        .bins()
-        .iter()
-        .map(|bin| (bin.weight, bin.attenuation.channel_coefficients()))
-        .collect();
     let n = (width * height) as usize;
     fn plane(image: Option<&PathImage>, c: usize) -> Option<&[f32]> {
         image.map(|i| &i.channels[c][..])
@@ -107,15 +102,14 @@ pub fn transmission(
         .into_par_iter()
         .with_min_len(4096)
         .map(|i| {
-            let paths: [f64; 5] =
-                std::array::from_fn(|c| planes[c].map_or(0.0, |p| f64::from(p[i])));
-            coefficients
-                .iter()
-                .map(|(weight, mu)| {
-                    let l: f64 = paths.iter().zip(mu).map(|(p, m)| p * m).sum();
-                    weight * (-l).exp()
-                })
-                .sum::<f64>() as f32
+            let path = |c: usize| planes[c].map_or(0.0, |p| f64::from(p[i]));
+            spectrum.transmission(&MaterialPaths {
+                water: path(0),
+                bone: path(1),
+                iodine: path(2),
+                nitinol: path(3),
+                platinum: path(4),
+            }) as f32
         })
         .collect()
 }

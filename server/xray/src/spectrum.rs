@@ -58,6 +58,7 @@ impl MaterialAttenuation {
     }
 
     /// The coefficients applied to the five path channels, in [`MaterialPaths`] order (1/m).
+    #[inline]
     pub fn channel_coefficients(&self) -> [f64; 5] {
         [
             self.water,
@@ -182,6 +183,7 @@ impl Spectrum {
     }
 
     /// Transmitted fraction of the detector signal through the given material paths.
+    #[inline]
     pub fn transmission(&self, paths: &MaterialPaths) -> f64 {
         self.bins
             .iter()
@@ -207,6 +209,7 @@ pub struct MaterialPaths {
 
 impl MaterialPaths {
     /// The five channels in order: water, bone, iodine, nitinol, platinum.
+    #[inline]
     pub fn as_array(&self) -> [f64; 5] {
         [
             self.water,
@@ -218,6 +221,7 @@ impl MaterialPaths {
     }
 
     /// ∫ μ ds at one energy (dimensionless).
+    #[inline]
     pub fn line_integral(&self, attenuation: &MaterialAttenuation) -> f64 {
         self.as_array()
             .iter()
