@@ -47,20 +47,6 @@ impl PathImage {
     pub fn memory_bytes(&self) -> usize {
         self.channels.len() * self.len() * std::mem::size_of::<f32>()
     }
-
-    /// Largest absolute difference over all channels and pixels, and the largest absolute
-    /// value of `self` (for relative comparisons).
-    pub fn max_difference(&self, other: &Self) -> (f64, f64) {
-        let mut diff: f64 = 0.0;
-        let mut scale: f64 = 0.0;
-        for (a, b) in self.channels.iter().zip(&other.channels) {
-            for (x, y) in a.iter().zip(b) {
-                diff = diff.max(f64::from((x - y).abs()));
-                scale = scale.max(f64::from(x.abs()));
-            }
-        }
-        (diff, scale)
-    }
 }
 
 /// How the background is ray-marched.
