@@ -170,9 +170,9 @@ impl Renderer for CpuRenderer {
                     let mut s = 0;
                     while s < march.samples {
                         let x = march.index_at(s);
-                        if bricks.is_air(&x) {
+                        if let Some(run) = bricks.air_run(&march, &x) {
                             // Air bricks add nothing: jump past their samples.
-                            s += bricks.samples_left_in_brick(&march, s) + 1;
+                            s += run;
                             continue;
                         }
                         let (fw, fb) = model.fractions(volume.sample_index(&x));

@@ -333,34 +333,29 @@ impl AirBricks {
         Self { dims, air }
     }
 
-    /// Whether the brick holding continuous index `x` is air.
+    /// When sample `x` of `march` lies in an air brick: how many samples, `x`'s included,
+    /// lie in that brick's closed box and may be skipped (each adds nothing); else `None`.
     #[inline]
-    pub fn is_air(&self, x: &Vector3<f64>) -> bool {
-        let b = |a: usize| ((x[a] / AIR_BRICK as f64) as usize).min(self.dims[a] - 1);
-        self.air[b(0) + self.dims[0] * (b(1) + self.dims[1] * b(2))] == 1
-    }
-
-    /// Samples after `s` that still lie in the closed box of the brick holding sample `s`
-    /// (all of which may be skipped when that brick is air).
-    #[inline]
-    pub fn samples_left_in_brick(&self, march: &RayMarch, s: usize) -> usize {
-        let x = march.index_at(s);
+    pub fn air_run(&self, march: &RayMarch, x: &Vector3<f64>) -> Option<usize> {
+        let brick = [0, 1, 2].map(|a| ((x[a] / AIR_BRICK as f64) as usize).min(self.dims[a] - 1));
+        if self.air[brick[0] + self.dims[0] * (brick[1] + self.dims[1] * brick[2])] == 0 {
+            return None;
+        }
         let mut t_exit = f64::INFINITY;
-        for a in 0..3 {
+        for (a, b) in brick.into_iter().enumerate() {
             let d = march.step_index[a];
-            let lo = ((x[a] / AIR_BRICK as f64) as usize).min(self.dims[a] - 1) as f64
-                * AIR_BRICK as f64;
+            let lo = (b * AIR_BRICK) as f64;
             if d > 1e-300 {
                 t_exit = t_exit.min((lo + AIR_BRICK as f64 - x[a]) / d);
             } else if d < -1e-300 {
                 t_exit = t_exit.min((lo - x[a]) / d);
             }
         }
-        if t_exit.is_finite() {
-            t_exit.max(0.0) as usize
+        Some(if t_exit.is_finite() {
+            t_exit.max(0.0) as usize + 1
         } else {
             march.samples
-        }
+        })
     }
 }
 
