@@ -266,14 +266,15 @@ impl SceneSpec {
             None => None,
         };
         let to_lps = |p: &Point3<f64>| Point3::from(rotation * p.coords);
+        // The vessel tree, or an error saying which part of the scene needed one.
+        let need_graph = |why: &str| {
+            graph
+                .as_ref()
+                .ok_or_else(|| scene_error(file, format!("{why} needs an anatomy")))
+        };
         let volume = match &self.ct {
             CtSpec::Phantom { spacing_mm } => {
-                let graph = graph.as_ref().ok_or_else(|| {
-                    scene_error(
-                        file,
-                        "ct: phantom needs an anatomy to build the body around",
-                    )
-                })?;
+                let graph = need_graph("ct: phantom")?;
                 let points: Vec<Point3<f64>> = graph
                     .branches
                     .iter()
@@ -299,9 +300,7 @@ impl SceneSpec {
                 volume.position_of(&(far * 0.5)).coords
             }
             IsocenterSpec::Branch { name, at } => {
-                let graph = graph
-                    .as_ref()
-                    .ok_or_else(|| scene_error(file, "isocenter on a branch needs an anatomy"))?;
+                let graph = need_graph("isocenter on a branch")?;
                 let b = graph
                     .branch(name)
                     .map_err(|e| scene_error(file, format!("isocenter: {e}")))?;
@@ -324,9 +323,7 @@ impl SceneSpec {
         carm.validate()?;
         let mut devices = Layers::new();
         for (i, d) in self.devices.iter().enumerate() {
-            let graph = graph
-                .as_ref()
-                .ok_or_else(|| scene_error(file, "devices need an anatomy to lie in"))?;
+            let graph = need_graph("a device")?;
             let look = match d.preset.as_str() {
                 "guidewire_035" => DeviceAppearance::guidewire_035(),
                 "microwire_014" => DeviceAppearance::microwire_014(),
@@ -365,9 +362,7 @@ impl SceneSpec {
         }
         let mut contrast = Layers::new();
         if let Some(spec) = &self.contrast {
-            let graph = graph
-                .as_ref()
-                .ok_or_else(|| scene_error(file, "contrast needs an anatomy"))?;
+            let graph = need_graph("contrast")?;
             let mut tubes = Vec::new();
             for b in &graph.branches {
                 if !spec.branches.is_empty() && !spec.branches.contains(&b.name) {
