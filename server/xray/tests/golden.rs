@@ -138,4 +138,17 @@ fn bad_scenes_give_named_errors() {
         "ct: !file\n  path: tiny.mha\ncarm:\n  isocenter: !point [0, 0, 0]\n  size_px: [0, 512]\n",
     );
     assert!(err.contains("width"), "{err}");
+    let err = load_error(
+        "device_without_anatomy.yaml",
+        "ct: !file\n  path: tiny.mha\ncarm:\n  isocenter: volume_centre\ndevices:\n  - preset: catheter_5f\n    to: LCCA\n    length_m: 0.1\n",
+    );
+    assert!(err.contains("a device needs an anatomy"), "{err}");
+    let err = load_error(
+        "iso_without_anatomy.yaml",
+        "ct: !file\n  path: tiny.mha\ncarm:\n  isocenter: !branch\n    name: LCCA\n    at: 0.5\n",
+    );
+    assert!(
+        err.contains("isocenter on a branch needs an anatomy"),
+        "{err}"
+    );
 }
