@@ -27,7 +27,9 @@ pub use beam::{
 pub use contact::{Contact, ContactResponse, ContactSettings};
 pub use device::{Device, RestShape, Section, presets};
 pub use error::{PhysicsError, Result};
-pub use navigation::{Command, Insertion, Navigation, NavigationReport, NavigationSettings, Twist};
+pub use navigation::{
+    Command, Insertion, Navigation, NavigationReport, NavigationSettings, Refinement, Twist,
+};
 pub use section::{BeamProperties, CircularSection, Material};
 pub use substructure::{BlockTridiagonal, Flexibility, Substructure};
 pub use wall::{CappedTube, RingTube, Wall, WallProbe};

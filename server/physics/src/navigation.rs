@@ -307,6 +307,11 @@ impl<W: Wall> Navigation<W> {
         Ok(())
     }
 
+    /// The operator's command in force.
+    pub fn current_command(&self) -> Command {
+        self.command
+    }
+
     /// Replaces the Gauss–Seidel settings (from the next step on).
     pub fn set_contact_settings(&mut self, contact: ContactSettings) {
         self.settings.contact = contact;

@@ -245,6 +245,12 @@ impl Fluoroscope {
         Ok(())
     }
 
+    /// Whether an exposure is due at `time_s` with the pedal down: callers can skip building
+    /// layers for ticks between pulses.
+    pub fn pulse_due(&self, time_s: f64) -> bool {
+        self.next_pulse_s.is_none_or(|next| time_s >= next)
+    }
+
     /// Advances to `time_s`. With the pedal down an exposure is made when a pulse is due
     /// (at the fluoroscopy pulse rate), and the new frame is returned; otherwise the last
     /// image is returned again (marked `held` while the pedal is up), or `None` before any
@@ -256,7 +262,7 @@ impl Fluoroscope {
                 value: time_s,
             });
         }
-        let due = self.next_pulse_s.is_none_or(|next| time_s >= next);
+        let due = self.pulse_due(time_s);
         if !pedal || !due {
             if !pedal {
                 self.next_pulse_s = None;

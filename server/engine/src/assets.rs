@@ -1,0 +1,319 @@
+//! What sessions on the same scene share, loaded once: the anatomy (lumen surface and vessel
+//! graph), the CT volume, the flow network, the devices and the start pose. Sessions hold
+//! `Arc`s to these; nothing here is copied per session.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use cathlab_anatomy::real::{Anatomy, load_arch_to_cow};
+use cathlab_anatomy::{Lumen, VesselPath};
+use cathlab_hemo::{FlowNetwork, GraphFlowSettings, InletCondition, MMHG, network_from_graph};
+use cathlab_physics::autopilot::{Autopilot, AutopilotSettings};
+use cathlab_physics::{Device, Wall, WallProbe, presets};
+use cathlab_xray::phantom::{BodyLandmarks, head_and_neck};
+use cathlab_xray::scene::ARCH_TO_COW_TO_LPS;
+use cathlab_xray::{CArm, DetectorGeometry, DeviceAppearance, Volume};
+use nalgebra::{Matrix3, Point3, Vector3};
+use parking_lot::Mutex;
+
+use crate::error::{EngineError, Result};
+use crate::scene::{AnatomySpec, CtSpec, DeviceSpec, SceneSpec};
+
+/// The anatomy's lumen as the device's wall, shared between sessions.
+#[derive(Debug, Clone)]
+pub struct SharedWall(pub Arc<Anatomy>);
+
+impl Wall for SharedWall {
+    fn probe(&self, point: &Vector3<f64>, search_m: f64) -> Option<WallProbe> {
+        let lumen: &Lumen = &self.0.lumen;
+        lumen.probe(point, search_m)
+    }
+}
+
+/// A scene loaded and ready for sessions.
+pub struct SceneAssets {
+    /// The scene.
+    pub spec: SceneSpec,
+    /// Vessels and wall, in the anatomy's own frame (m).
+    pub anatomy: Arc<Anatomy>,
+    /// Rotation from the anatomy's frame to patient LPS.
+    pub to_lps: Matrix3<f64>,
+    /// The CT (LPS).
+    pub volume: Arc<Volume>,
+    /// The selectable devices and how each looks on X-ray.
+    pub devices: Vec<(Device, DeviceAppearance)>,
+    /// Entry point and direction (anatomy frame, m).
+    pub entry: (Vector3<f64>, Vector3<f64>),
+    /// Route from the access point to the target.
+    pub route: VesselPath,
+    /// The target branch's index in the graph.
+    pub target_branch: usize,
+    /// The C-arm at the start.
+    pub carm: CArm,
+    /// The flow network (vessel i = graph branch i), when the scene has flow.
+    pub network: Option<FlowNetwork>,
+}
+
+impl std::fmt::Debug for SceneAssets {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SceneAssets")
+            .field("scene", &self.spec.name)
+            .field("volume_dims", &self.volume.dims)
+            .finish_non_exhaustive()
+    }
+}
+
+impl SceneAssets {
+    /// A point of the anatomy's frame in LPS.
+    pub fn point_to_lps(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.to_lps * p
+    }
+}
+
+/// Loads scenes, keeping one copy of every anatomy and volume for all sessions. Entries stay
+/// for the server's lifetime (a handful of scenes).
+#[derive(Default)]
+pub struct AssetCache {
+    anatomies: Mutex<HashMap<String, Arc<Anatomy>>>,
+    volumes: Mutex<HashMap<String, Arc<Volume>>>,
+    scenes: Mutex<HashMap<String, Arc<SceneAssets>>>,
+}
+
+impl std::fmt::Debug for AssetCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AssetCache")
+            .field("anatomies", &self.anatomies.lock().len())
+            .field("volumes", &self.volumes.lock().len())
+            .finish()
+    }
+}
+
+fn scene_error(path: &str, reason: impl std::fmt::Display) -> EngineError {
+    EngineError::Scene {
+        path: path.into(),
+        reason: reason.to_string(),
+    }
+}
+
+/// The physics device and X-ray appearance of a preset.
+pub fn device_of(spec: &DeviceSpec) -> (Device, DeviceAppearance) {
+    match spec {
+        DeviceSpec::Guidewire035 => (presets::guidewire_035(), DeviceAppearance::guidewire_035()),
+        DeviceSpec::Guidewire035Shaped {
+            bend_deg,
+            bend_length_mm,
+        } => (
+            presets::guidewire_035_shaped(bend_deg.to_radians(), bend_length_mm * 1e-3),
+            DeviceAppearance::guidewire_035(),
+        ),
+        DeviceSpec::Microwire014 => (
+            presets::micro_guidewire_014(),
+            DeviceAppearance::microwire_014(),
+        ),
+        DeviceSpec::Catheter5f => (
+            presets::diagnostic_catheter_5f(),
+            DeviceAppearance::catheter_5f(),
+        ),
+    }
+}
+
+impl AssetCache {
+    /// Loads `spec` (relative paths from `base`), reusing whatever an identical scene or an
+    /// identical anatomy/CT loaded before.
+    pub fn load(&self, spec: &SceneSpec, base: &Path) -> Result<Arc<SceneAssets>> {
+        let key = format!(
+            "{}|{}",
+            base.display(),
+            serde_json::to_string(spec).unwrap_or_default()
+        );
+        if let Some(found) = self.scenes.lock().get(&key) {
+            return Ok(found.clone());
+        }
+        let assets = Arc::new(self.build(spec, base)?);
+        self.scenes.lock().insert(key, assets.clone());
+        Ok(assets)
+    }
+
+    fn anatomy(&self, spec: &AnatomySpec, base: &Path) -> Result<(Arc<Anatomy>, Matrix3<f64>)> {
+        let (key, to_lps) = match spec {
+            AnatomySpec::ArchToCow { dir } => (
+                format!("arch_to_cow:{}", resolve(base, dir).display()),
+                Matrix3::from_fn(|r, c| ARCH_TO_COW_TO_LPS[r][c]),
+            ),
+            AnatomySpec::NeuroPhantom { seed, tortuosity } => (
+                format!("neuro:{seed}:{tortuosity}"),
+                Matrix3::identity(),
+            ),
+        };
+        if let Some(found) = self.anatomies.lock().get(&key) {
+            return Ok((found.clone(), to_lps));
+        }
+        let anatomy = match spec {
+            AnatomySpec::ArchToCow { dir } => load_arch_to_cow(&resolve(base, dir))
+                .map_err(|e| scene_error("anatomy.dir", e))?,
+            AnatomySpec::NeuroPhantom { seed, tortuosity } => {
+                use cathlab_anatomy::phantom::{NeuroPhantomParams, neuro_phantom};
+                use cathlab_anatomy::surface::{SurfaceSettings, lumen_surface};
+                let graph = neuro_phantom(&NeuroPhantomParams {
+                    seed: *seed,
+                    tortuosity: *tortuosity,
+                    ..NeuroPhantomParams::default()
+                })?;
+                let mesh = lumen_surface(&graph, &SurfaceSettings::default())?;
+                let lumen = Lumen::new(mesh, "neuro phantom")?;
+                Anatomy { graph, lumen }
+            }
+        };
+        let anatomy = Arc::new(anatomy);
+        self.anatomies.lock().insert(key, anatomy.clone());
+        Ok((anatomy, to_lps))
+    }
+
+    fn volume(
+        &self,
+        spec: &CtSpec,
+        base: &Path,
+        anatomy_key: &str,
+        vessels_lps: impl FnOnce() -> Vec<Point3<f64>>,
+    ) -> Result<Arc<Volume>> {
+        let key = match spec {
+            CtSpec::Phantom { spacing_mm } => format!("phantom:{spacing_mm}:{anatomy_key}"),
+            CtSpec::File {
+                path,
+                hu_slope,
+                hu_intercept,
+            } => format!(
+                "file:{}:{hu_slope}:{hu_intercept}",
+                resolve(base, path).display()
+            ),
+        };
+        if let Some(found) = self.volumes.lock().get(&key) {
+            return Ok(found.clone());
+        }
+        let volume = match spec {
+            CtSpec::Phantom { spacing_mm } => {
+                let landmarks = BodyLandmarks::from_vessels(&vessels_lps())?;
+                head_and_neck(&landmarks, spacing_mm * 1e-3)?
+            }
+            CtSpec::File {
+                path,
+                hu_slope,
+                hu_intercept,
+            } => {
+                let mut v = Volume::load(&resolve(base, path)).map_err(|e| scene_error("ct.path", e))?;
+                v.rescale(*hu_slope, *hu_intercept)?;
+                v
+            }
+        };
+        let volume = Arc::new(volume);
+        self.volumes.lock().insert(key, volume.clone());
+        Ok(volume)
+    }
+
+    fn build(&self, spec: &SceneSpec, base: &Path) -> Result<SceneAssets> {
+        let (anatomy, to_lps) = self.anatomy(&spec.anatomy, base)?;
+        let graph = &anatomy.graph;
+        let target_branch = graph
+            .branch_id(&spec.target.branch)
+            .map_err(|e| scene_error("target.branch", e))?;
+        let access = graph
+            .landmarks
+            .get("access")
+            .copied()
+            .ok_or_else(|| scene_error("anatomy", "the anatomy has no access landmark"))?;
+        let route = graph
+            .path_to(&access, &spec.target.branch)
+            .map_err(|e| scene_error("target.branch", e))?;
+        let along = spec.start.along_route_mm * 1e-3;
+        if along >= route.length {
+            return Err(scene_error(
+                "start.along_route_mm",
+                format!(
+                    "{} mm is beyond the route's {:.1} mm",
+                    spec.start.along_route_mm,
+                    route.length * 1e3
+                ),
+            ));
+        }
+        let pilot = Autopilot::new(graph, route.clone(), along, AutopilotSettings::default())?;
+        let entry = pilot.entry();
+        let devices: Vec<_> = spec.devices.iter().map(device_of).collect();
+        for (i, (device, _)) in devices.iter().enumerate() {
+            if spec.start.inserted_mm * 1e-3 > device.length_m() {
+                return Err(scene_error(
+                    &format!("devices[{i}]"),
+                    "shorter than start.inserted_mm",
+                ));
+            }
+        }
+        let anatomy_key = format!("{:?}", spec.anatomy);
+        let volume = self.volume(&spec.ct, base, &anatomy_key, || {
+            graph
+                .branches
+                .iter()
+                .flat_map(|b| b.points.iter().map(|p| Point3::from(to_lps * p.coords)))
+                .collect()
+        })?;
+        let iso_name = if spec.carm.isocenter_branch.is_empty() {
+            &spec.target.branch
+        } else {
+            &spec.carm.isocenter_branch
+        };
+        let iso_branch = graph
+            .branch(iso_name)
+            .map_err(|e| scene_error("carm.isocenter_branch", e))?;
+        let isocenter =
+            to_lps * iso_branch.point_at(spec.carm.isocenter_at * iso_branch.length()).coords;
+        let c = &spec.carm;
+        let px = spec.fidelity.frame_px;
+        let carm = CArm {
+            primary_deg: c.primary_deg,
+            secondary_deg: c.secondary_deg,
+            source_to_image_m: c.source_to_image_mm * 1e-3,
+            source_to_isocenter_m: c.source_to_isocenter_mm * 1e-3,
+            isocenter_m: isocenter,
+            detector: DetectorGeometry {
+                width_px: px,
+                height_px: px,
+                field_of_view_m: c.field_of_view_mm * 1e-3,
+                collimation: (1.0, 1.0),
+            },
+        };
+        carm.validate().map_err(|e| scene_error("carm", e))?;
+        let network = match &spec.flow {
+            None => None,
+            Some(flow) => {
+                graph
+                    .branch_id(&flow.inlet_branch)
+                    .map_err(|e| scene_error("flow.inlet_branch", e))?;
+                let settings = GraphFlowSettings {
+                    inlet_branch: flow.inlet_branch.clone(),
+                    inlet: InletCondition::Pressure(flow.pressure_mmhg * MMHG),
+                    ..GraphFlowSettings::default()
+                };
+                Some(network_from_graph(graph, &settings).map_err(|e| scene_error("flow", e))?)
+            }
+        };
+        Ok(SceneAssets {
+            spec: spec.clone(),
+            anatomy,
+            to_lps,
+            volume,
+            devices,
+            entry,
+            route,
+            target_branch,
+            carm,
+            network,
+        })
+    }
+}
+
+fn resolve(base: &Path, path: &Path) -> PathBuf {
+    if path.is_absolute() {
+        path.to_owned()
+    } else {
+        base.join(path)
+    }
+}

@@ -1,0 +1,162 @@
+//! The session manager: the scene catalog, the asset cache shared by all sessions, and the
+//! running sessions by id.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use parking_lot::RwLock;
+
+use crate::assets::{AssetCache, SceneAssets};
+use crate::error::{EngineError, Result};
+use crate::imaging::SharedRenderer;
+use crate::scene::{SceneCatalog, SceneFormat, SceneSpec};
+use crate::session::{Recorder, Session, SessionContext, SessionSettings};
+use crate::telemetry::EngineMetrics;
+
+/// Engine configuration.
+#[derive(Debug, Clone)]
+pub struct EngineSettings {
+    /// Directory of scene files; inline scenes resolve relative paths from here too.
+    pub scenes_dir: PathBuf,
+    /// Session thread knobs.
+    pub session: SessionSettings,
+    /// Most sessions running at once.
+    pub max_sessions: usize,
+}
+
+/// Where a session's scene comes from.
+#[derive(Debug, Clone)]
+pub enum SceneSource {
+    /// A catalog scene by name.
+    Named(String),
+    /// A scene text.
+    Inline(String, SceneFormat),
+}
+
+/// Sessions and what they share.
+pub struct Engine {
+    settings: EngineSettings,
+    catalog: SceneCatalog,
+    assets: AssetCache,
+    sessions: RwLock<HashMap<String, Arc<Session>>>,
+    context: SessionContext,
+}
+
+impl std::fmt::Debug for Engine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Engine")
+            .field("scenes", &self.catalog.scenes().len())
+            .field("sessions", &self.sessions.read().len())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Engine {
+    /// Reads the scene catalog; sessions will record to `recorder` and render on `renderer`.
+    pub fn new(
+        settings: EngineSettings,
+        recorder: Arc<dyn Recorder>,
+        renderer: SharedRenderer,
+        metrics: EngineMetrics,
+    ) -> Result<Self> {
+        let catalog = SceneCatalog::read_dir(&settings.scenes_dir)?;
+        Ok(Self {
+            context: SessionContext {
+                recorder,
+                renderer,
+                metrics,
+                settings: settings.session,
+            },
+            settings,
+            catalog,
+            assets: AssetCache::default(),
+            sessions: RwLock::new(HashMap::new()),
+        })
+    }
+
+    /// The scenes.
+    pub fn catalog(&self) -> &SceneCatalog {
+        &self.catalog
+    }
+
+    /// The server-wide metrics.
+    pub fn metrics(&self) -> &EngineMetrics {
+        &self.context.metrics
+    }
+
+    /// The scene a source names, with the directory its relative paths start from.
+    pub fn scene(&self, source: &SceneSource) -> Result<(SceneSpec, PathBuf)> {
+        match source {
+            SceneSource::Named(name) => {
+                let (spec, base) = self.catalog.get(name)?;
+                Ok((spec.clone(), base))
+            }
+            SceneSource::Inline(text, format) => {
+                let mut spec = SceneSpec::parse(text, *format)?;
+                if spec.name.is_empty() {
+                    spec.name = "inline".into();
+                }
+                Ok((spec, self.settings.scenes_dir.clone()))
+            }
+        }
+    }
+
+    /// Loads (or finds loaded) the assets of a scene.
+    pub fn load(&self, spec: &SceneSpec, base: &Path) -> Result<Arc<SceneAssets>> {
+        self.assets.load(spec, base)
+    }
+
+    /// Starts a session (loading the scene if no session has yet). Blocks while loading.
+    pub fn create(
+        &self,
+        id: String,
+        label: String,
+        spec: &SceneSpec,
+        base: &Path,
+    ) -> Result<Arc<Session>> {
+        if self.sessions.read().len() >= self.settings.max_sessions {
+            return Err(EngineError::FailedPrecondition(format!(
+                "the server runs its maximum of {} sessions",
+                self.settings.max_sessions
+            )));
+        }
+        let assets = self.load(spec, base)?;
+        let session = Session::start(id.clone(), label, assets, self.context.clone())?;
+        self.sessions.write().insert(id, session.clone());
+        Ok(session)
+    }
+
+    /// A running session.
+    pub fn get(&self, id: &str) -> Result<Arc<Session>> {
+        self.sessions
+            .read()
+            .get(id)
+            .cloned()
+            .ok_or_else(|| EngineError::NotFound(format!("session {id:?}")))
+    }
+
+    /// Every running session.
+    pub fn sessions(&self) -> Vec<Arc<Session>> {
+        self.sessions.read().values().cloned().collect()
+    }
+
+    /// Stops a session and forgets it.
+    pub fn close(&self, id: &str) -> Result<Arc<Session>> {
+        let session = self
+            .sessions
+            .write()
+            .remove(id)
+            .ok_or_else(|| EngineError::NotFound(format!("session {id:?}")))?;
+        session.close();
+        Ok(session)
+    }
+
+    /// Stops every session (graceful shutdown).
+    pub fn shutdown(&self) {
+        let all: Vec<_> = self.sessions.write().drain().map(|(_, s)| s).collect();
+        for s in all {
+            s.close();
+        }
+    }
+}

@@ -1,0 +1,156 @@
+//! From a world snapshot to an X-ray frame: the renderer shared by all sessions (one copy of
+//! each CT on the device), the layers of a snapshot (contrast and the device), and frame
+//! encodings for clients (raw 8/16-bit, PNG, JPEG, resized).
+
+use std::sync::Arc;
+
+use cathlab_xray::{CArm, Layers, MarchSettings, PathImage, Renderer, Volume};
+use image::codecs::jpeg::JpegEncoder;
+use image::codecs::png::PngEncoder;
+use image::{ImageBuffer, ImageEncoder, Luma};
+use nalgebra::Point3;
+use parking_lot::Mutex;
+
+use crate::assets::SceneAssets;
+use crate::error::{EngineError, Result};
+use crate::world::Snapshot;
+
+/// One renderer for every session: calls are serialized, and a GPU renderer keeps one copy of
+/// each volume for all of them.
+#[derive(Clone)]
+pub struct SharedRenderer(Arc<Mutex<Box<dyn Renderer>>>);
+
+impl std::fmt::Debug for SharedRenderer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_tuple("SharedRenderer")
+            .field(&self.0.lock().name())
+            .finish()
+    }
+}
+
+impl SharedRenderer {
+    /// Shares `renderer`.
+    pub fn new(renderer: Box<dyn Renderer>) -> Self {
+        Self(Arc::new(Mutex::new(renderer)))
+    }
+}
+
+impl Renderer for SharedRenderer {
+    fn name(&self) -> String {
+        self.0.lock().name()
+    }
+
+    fn project_volume(
+        &mut self,
+        volume: &Arc<Volume>,
+        carm: &CArm,
+        settings: &MarchSettings,
+    ) -> cathlab_xray::Result<PathImage> {
+        self.0.lock().project_volume(volume, carm, settings)
+    }
+
+    fn project_layers(&mut self, layers: &Layers, carm: &CArm) -> cathlab_xray::Result<PathImage> {
+        self.0.lock().project_layers(layers, carm)
+    }
+
+    fn device_memory_bytes(&self) -> usize {
+        self.0.lock().device_memory_bytes()
+    }
+}
+
+/// The contrast and device layers of `snapshot`.
+pub fn layers_of(assets: &SceneAssets, snapshot: &Snapshot) -> Result<Layers> {
+    let mut layers = Layers::new();
+    if !snapshot.contrast.is_empty() {
+        layers.add_contrast(&snapshot.contrast, 0.0)?;
+    }
+    let points: Vec<Point3<f64>> = snapshot.nodes.iter().map(|p| Point3::from(*p)).collect();
+    if points.len() >= 2 {
+        let look = &assets.devices[snapshot.active_device as usize].1;
+        layers.add_device(&points, look)?;
+    }
+    Ok(layers)
+}
+
+/// The C-arm of `assets` turned to the snapshot's angles.
+pub fn carm_of(assets: &SceneAssets, snapshot: &Snapshot) -> CArm {
+    CArm {
+        primary_deg: snapshot.imaging.primary_deg,
+        secondary_deg: snapshot.imaging.secondary_deg,
+        ..assets.carm
+    }
+}
+
+/// How a client wants frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Encoding {
+    /// 8-bit grey, row-major.
+    Raw8,
+    /// 16-bit grey, little-endian, row-major.
+    Raw16,
+    /// PNG (8-bit grey).
+    Png,
+    /// JPEG (8-bit grey) at a quality 1–100.
+    Jpeg(u8),
+}
+
+/// Encodes a displayed frame at `width` × `height` (the frame's own size when either is 0).
+/// Returns the bytes and the size used.
+pub fn encode_frame(
+    frame: &cathlab_xray::Frame,
+    encoding: Encoding,
+    width: u32,
+    height: u32,
+) -> Result<(Vec<u8>, u32, u32)> {
+    let (w, h) = if width == 0 || height == 0 {
+        (frame.width, frame.height)
+    } else {
+        (width, height)
+    };
+    let resize = (w, h) != (frame.width, frame.height);
+    let encode_error = |e: image::ImageError| EngineError::InvalidArgument {
+        field: "encoding".into(),
+        reason: e.to_string(),
+    };
+    if encoding == Encoding::Raw16 {
+        let grey = frame.to_16bit();
+        let mut image: ImageBuffer<Luma<u16>, Vec<u16>> =
+            ImageBuffer::from_raw(frame.width, frame.height, grey).ok_or_else(size_mismatch)?;
+        if resize {
+            image = image::imageops::resize(&image, w, h, image::imageops::FilterType::Triangle);
+        }
+        let bytes = image.into_raw().iter().flat_map(|v| v.to_le_bytes()).collect();
+        return Ok((bytes, w, h));
+    }
+    let grey = frame.to_8bit();
+    let mut image: ImageBuffer<Luma<u8>, Vec<u8>> =
+        ImageBuffer::from_raw(frame.width, frame.height, grey).ok_or_else(size_mismatch)?;
+    if resize {
+        image = image::imageops::resize(&image, w, h, image::imageops::FilterType::Triangle);
+    }
+    let bytes = match encoding {
+        Encoding::Raw8 | Encoding::Raw16 => image.into_raw(),
+        Encoding::Png => {
+            let mut out = Vec::new();
+            PngEncoder::new(&mut out)
+                .write_image(image.as_raw(), w, h, image::ExtendedColorType::L8)
+                .map_err(encode_error)?;
+            out
+        }
+        Encoding::Jpeg(quality) => {
+            let mut out = Vec::new();
+            JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
+                .write_image(image.as_raw(), w, h, image::ExtendedColorType::L8)
+                .map_err(encode_error)?;
+            out
+        }
+    };
+    Ok((bytes, w, h))
+}
+
+fn size_mismatch() -> EngineError {
+    EngineError::InvalidArgument {
+        field: "frame".into(),
+        reason: "pixel count does not match the frame size".into(),
+    }
+}

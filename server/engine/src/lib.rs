@@ -1,0 +1,28 @@
+//! The cathlab engine: scenes, a session's deterministic world (device physics, flow and
+//! contrast, imaging state, metrics), the threads that run it (a fixed-rate physics loop and a
+//! render loop per session) with latest-value channels out, recording through a [`Recorder`],
+//! and replay. The only crate that knows both the simulation and the renderer; no networking.
+
+pub mod assets;
+pub mod engine;
+pub mod error;
+pub mod imaging;
+pub mod metrics;
+pub mod replay;
+pub mod scene;
+pub mod session;
+pub mod telemetry;
+pub mod world;
+
+pub use assets::{AssetCache, SceneAssets};
+pub use engine::{Engine, EngineSettings};
+pub use error::{EngineError, Result};
+pub use imaging::{Encoding, SharedRenderer, encode_frame};
+pub use metrics::{Event, EventKind, Metrics};
+pub use replay::{ReplayOutcome, replay};
+pub use scene::{SceneCatalog, SceneFormat, SceneSpec};
+pub use session::{
+    Checkpoint, CommandRecord, NullRecorder, Recorder, RenderedFrame, Session, SessionSettings,
+};
+pub use telemetry::{EngineMetrics, TimingSummary};
+pub use world::{Command, Mode, Snapshot, World};

@@ -1,0 +1,90 @@
+//! What instructors grade by, accumulated step by step in simulated time, and the events a
+//! session reports (divergence, target reached, imaging and device changes).
+
+use serde::{Deserialize, Serialize};
+
+/// Per-session training metrics (SI units unless the name says otherwise).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Metrics {
+    /// Simulated time since the start (s).
+    pub procedure_time_s: f64,
+    /// Simulated time with the fluoroscopy pedal down (s).
+    pub fluoroscopy_time_s: f64,
+    /// Digital subtraction runs started.
+    pub dsa_runs: u32,
+    /// Contrast agent injected (mL).
+    pub contrast_volume_ml: f64,
+    /// Largest single wall contact force (N).
+    pub max_wall_force_n: f64,
+    /// Mean total wall force over steps with any wall contact (N).
+    pub mean_wall_force_n: f64,
+    /// Distance travelled by the tip (m).
+    pub tip_path_length_m: f64,
+    /// Simulated time at which the target was first reached (s).
+    pub target_reached_at_s: Option<f64>,
+    /// Physics steps taken.
+    pub steps: u64,
+    /// Physics resets after divergence.
+    pub divergence_resets: u32,
+    /// Sum of total wall force over contact steps (N), for the mean.
+    pub wall_force_sum_n: f64,
+    /// Steps with wall contact.
+    pub wall_contact_steps: u64,
+}
+
+impl Metrics {
+    /// Adds one step's wall forces: the largest single contact force and their total (N).
+    pub fn add_wall_forces(&mut self, largest_n: f64, total_n: f64) {
+        self.max_wall_force_n = self.max_wall_force_n.max(largest_n);
+        if total_n > 0.0 {
+            self.wall_force_sum_n += total_n;
+            self.wall_contact_steps += 1;
+            self.mean_wall_force_n = self.wall_force_sum_n / self.wall_contact_steps as f64;
+        }
+    }
+}
+
+/// Kinds of session events.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EventKind {
+    /// The physics diverged and the device was put back at its start.
+    Divergence,
+    /// The tip reached the target.
+    TargetReached,
+    /// Imaging changed (mode, pose, pulse rate) or could not.
+    Imaging,
+    /// The device was changed.
+    Device,
+    /// The trainee reset the scene.
+    Reset,
+    /// The session closed.
+    Closed,
+}
+
+impl EventKind {
+    /// Lower-case name, as on the wire.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            EventKind::Divergence => "divergence",
+            EventKind::TargetReached => "target_reached",
+            EventKind::Imaging => "imaging",
+            EventKind::Device => "device",
+            EventKind::Reset => "reset",
+            EventKind::Closed => "closed",
+        }
+    }
+}
+
+/// Something that happened in a session.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Event {
+    /// Step at which it happened.
+    pub step: u64,
+    /// Simulated time (s).
+    pub time_s: f64,
+    /// What kind.
+    pub kind: EventKind,
+    /// Human-readable detail.
+    pub message: String,
+}

@@ -1,0 +1,572 @@
+//! Scene files (TOML or JSON via serde): the anatomy, the CT, the devices a trainee may
+//! select, where the device enters, the C-arm, fluoroscopy, optional blood flow for contrast,
+//! the target, and the fidelity knobs. Parse errors name the field path and the reason.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{EngineError, Result};
+
+/// A scene: everything a session starts from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneSpec {
+    /// Short name (the file stem for catalog scenes).
+    #[serde(default)]
+    pub name: String,
+    /// One line for the scene list.
+    #[serde(default)]
+    pub description: String,
+    /// The vessels.
+    pub anatomy: AnatomySpec,
+    /// The CT behind the vessels.
+    pub ct: CtSpec,
+    /// Devices the trainee may select; the first is inserted at the start.
+    pub devices: Vec<DeviceSpec>,
+    /// Where the device enters.
+    #[serde(default)]
+    pub start: StartSpec,
+    /// The C-arm at the start.
+    #[serde(default)]
+    pub carm: CArmSpec,
+    /// Fluoroscopy.
+    #[serde(default)]
+    pub fluoroscopy: FluoroscopySpec,
+    /// Blood flow and contrast; a scene without it runs no flow solver and refuses injections.
+    #[serde(default)]
+    pub flow: Option<FlowSpec>,
+    /// The target the trainee steers to.
+    pub target: TargetSpec,
+    /// Accuracy against cost.
+    #[serde(default)]
+    pub fidelity: FidelitySpec,
+}
+
+/// The vessels.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum AnatomySpec {
+    /// Imported files in the layout of the bundled arch-to-circle-of-Willis anatomy:
+    /// `vessels.obj` (mm) and `centerlines/*.mrk.json`; placed into LPS by
+    /// [`cathlab_xray::scene::ARCH_TO_COW_TO_LPS`].
+    ArchToCow {
+        /// The directory (relative to the scene file).
+        dir: PathBuf,
+    },
+    /// The seeded neuro phantom (aortic arch to circle of Willis), meshed into a lumen
+    /// surface at load.
+    NeuroPhantom {
+        /// Seed of its variations.
+        #[serde(default)]
+        seed: u64,
+        /// Tortuosity 0–1.
+        #[serde(default = "default_tortuosity")]
+        tortuosity: f64,
+    },
+}
+
+fn default_tortuosity() -> f64 {
+    0.3
+}
+
+/// The CT.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum CtSpec {
+    /// The synthesized head-and-neck body placed around the vessels.
+    Phantom {
+        /// Voxel spacing (mm), 0.5–5.
+        spacing_mm: f64,
+    },
+    /// A MetaImage or NIfTI file (relative to the scene file).
+    File {
+        /// The volume.
+        path: PathBuf,
+        /// HU = slope · value + intercept.
+        #[serde(default = "one")]
+        hu_slope: f64,
+        /// See `hu_slope`.
+        #[serde(default)]
+        hu_intercept: f64,
+    },
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// A device preset.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "preset", rename_all = "snake_case", deny_unknown_fields)]
+pub enum DeviceSpec {
+    /// 0.035" guidewire with a J tip.
+    #[serde(rename = "guidewire_035")]
+    Guidewire035,
+    /// 0.035" guidewire with a shaped tip.
+    #[serde(rename = "guidewire_035_shaped")]
+    Guidewire035Shaped {
+        /// Bend angle (deg), 0–180.
+        bend_deg: f64,
+        /// Length over which the tip bends (mm), 2–100.
+        bend_length_mm: f64,
+    },
+    /// 0.014" micro-guidewire, angled 45°.
+    #[serde(rename = "microwire_014")]
+    Microwire014,
+    /// 5 F diagnostic catheter, angled 45°.
+    #[serde(rename = "catheter_5f")]
+    Catheter5f,
+}
+
+impl DeviceSpec {
+    /// A short name for lists.
+    pub fn label(&self) -> String {
+        match self {
+            DeviceSpec::Guidewire035 => "guidewire_035".into(),
+            DeviceSpec::Guidewire035Shaped {
+                bend_deg,
+                bend_length_mm,
+            } => format!("guidewire_035_shaped ({bend_deg}° over {bend_length_mm} mm)"),
+            DeviceSpec::Microwire014 => "microwire_014".into(),
+            DeviceSpec::Catheter5f => "catheter_5f".into(),
+        }
+    }
+}
+
+/// Where the device enters the vessels.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StartSpec {
+    /// Distance along the route from the access point to the target where the device enters
+    /// (mm): 0 at the femoral access, more for a guide catheter parked further up.
+    #[serde(default)]
+    pub along_route_mm: f64,
+    /// Length inserted at the start (mm).
+    #[serde(default = "default_inserted_mm")]
+    pub inserted_mm: f64,
+}
+
+fn default_inserted_mm() -> f64 {
+    10.0
+}
+
+impl Default for StartSpec {
+    fn default() -> Self {
+        Self {
+            along_route_mm: 0.0,
+            inserted_mm: default_inserted_mm(),
+        }
+    }
+}
+
+/// The C-arm at the start.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CArmSpec {
+    /// LAO + / RAO − (deg).
+    #[serde(default)]
+    pub primary_deg: f64,
+    /// CRA + / CAU − (deg).
+    #[serde(default)]
+    pub secondary_deg: f64,
+    /// Source–image distance (mm).
+    #[serde(default = "default_sid_mm")]
+    pub source_to_image_mm: f64,
+    /// Source–isocenter distance (mm).
+    #[serde(default = "default_sod_mm")]
+    pub source_to_isocenter_mm: f64,
+    /// Field of view at the detector (mm).
+    #[serde(default = "default_fov_mm")]
+    pub field_of_view_mm: f64,
+    /// Branch the isocenter sits on (the target branch when empty).
+    #[serde(default)]
+    pub isocenter_branch: String,
+    /// Fraction along that branch, 0–1.
+    #[serde(default = "default_isocenter_at")]
+    pub isocenter_at: f64,
+}
+
+fn default_sid_mm() -> f64 {
+    1200.0
+}
+fn default_sod_mm() -> f64 {
+    800.0
+}
+fn default_fov_mm() -> f64 {
+    300.0
+}
+fn default_isocenter_at() -> f64 {
+    0.0
+}
+
+impl Default for CArmSpec {
+    fn default() -> Self {
+        Self {
+            primary_deg: 0.0,
+            secondary_deg: 0.0,
+            source_to_image_mm: default_sid_mm(),
+            source_to_isocenter_mm: default_sod_mm(),
+            field_of_view_mm: default_fov_mm(),
+            isocenter_branch: String::new(),
+            isocenter_at: default_isocenter_at(),
+        }
+    }
+}
+
+/// Fluoroscopy.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluoroscopySpec {
+    /// Pulses per second: 7.5, 15 or 30.
+    #[serde(default = "default_pulse_rate")]
+    pub pulse_rate: f64,
+    /// Mean quanta per pixel (dose).
+    #[serde(default = "default_photons")]
+    pub photons_per_pixel: f64,
+    /// Quantum noise.
+    #[serde(default = "yes")]
+    pub noise: bool,
+    /// Noise seed.
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+}
+
+fn default_pulse_rate() -> f64 {
+    15.0
+}
+fn default_photons() -> f64 {
+    2000.0
+}
+fn yes() -> bool {
+    true
+}
+fn default_seed() -> u64 {
+    1
+}
+
+impl Default for FluoroscopySpec {
+    fn default() -> Self {
+        Self {
+            pulse_rate: default_pulse_rate(),
+            photons_per_pixel: default_photons(),
+            noise: true,
+            seed: default_seed(),
+        }
+    }
+}
+
+/// Blood flow and contrast.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlowSpec {
+    /// The branch whose free end is the inlet.
+    pub inlet_branch: String,
+    /// Inlet pressure (mmHg).
+    #[serde(default = "default_pressure")]
+    pub pressure_mmhg: f64,
+    /// Iodine concentration of the contrast agent (mg/mL).
+    #[serde(default = "default_agent")]
+    pub agent_mg_per_ml: f64,
+}
+
+fn default_pressure() -> f64 {
+    100.0
+}
+fn default_agent() -> f64 {
+    300.0
+}
+
+/// The target.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetSpec {
+    /// Target branch name.
+    pub branch: String,
+    /// Reached when the tip is this far along the branch (mm).
+    #[serde(default = "default_reach_mm")]
+    pub reach_mm: f64,
+}
+
+fn default_reach_mm() -> f64 {
+    50.0
+}
+
+/// Accuracy against cost.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FidelitySpec {
+    /// Physics steps per second (100–2000).
+    #[serde(default = "default_step_rate")]
+    pub step_rate_hz: f64,
+    /// Element length near the tip (mm).
+    #[serde(default = "default_tip_element_mm")]
+    pub tip_element_mm: f64,
+    /// Element length along the shaft (mm).
+    #[serde(default = "default_shaft_element_mm")]
+    pub shaft_element_mm: f64,
+    /// Gauss–Seidel relative force tolerance.
+    #[serde(default = "default_contact_tolerance")]
+    pub contact_tolerance: f64,
+    /// Refine elements where the device bends or touches.
+    #[serde(default = "yes")]
+    pub refine: bool,
+    /// Detector size (pixels, square).
+    #[serde(default = "default_frame_px")]
+    pub frame_px: u32,
+    /// Contrast cell length (mm).
+    #[serde(default = "default_cell_mm")]
+    pub contrast_cell_mm: f64,
+    /// Contrast advances every this many physics steps.
+    #[serde(default = "default_contrast_every")]
+    pub contrast_every_steps: u32,
+}
+
+fn default_step_rate() -> f64 {
+    500.0
+}
+fn default_tip_element_mm() -> f64 {
+    1.5
+}
+fn default_shaft_element_mm() -> f64 {
+    5.0
+}
+fn default_contact_tolerance() -> f64 {
+    1e-3
+}
+fn default_frame_px() -> u32 {
+    512
+}
+fn default_cell_mm() -> f64 {
+    0.5
+}
+fn default_contrast_every() -> u32 {
+    10
+}
+
+impl Default for FidelitySpec {
+    fn default() -> Self {
+        Self {
+            step_rate_hz: default_step_rate(),
+            tip_element_mm: default_tip_element_mm(),
+            shaft_element_mm: default_shaft_element_mm(),
+            contact_tolerance: default_contact_tolerance(),
+            refine: true,
+            frame_px: default_frame_px(),
+            contrast_cell_mm: default_cell_mm(),
+            contrast_every_steps: default_contrast_every(),
+        }
+    }
+}
+
+/// Scene text formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SceneFormat {
+    /// TOML.
+    Toml,
+    /// JSON.
+    Json,
+}
+
+fn scene_error(path: impl Into<String>, reason: impl Into<String>) -> EngineError {
+    EngineError::Scene {
+        path: path.into(),
+        reason: reason.into(),
+    }
+}
+
+impl SceneSpec {
+    /// Parses a scene text; errors name the field path (`fidelity.step_rate_hz`) and the
+    /// reason, and the values are checked ([`SceneSpec::validate`]).
+    pub fn parse(text: &str, format: SceneFormat) -> Result<Self> {
+        let spec: SceneSpec = match format {
+            SceneFormat::Toml => {
+                let de = toml::Deserializer::parse(text)
+                    .map_err(|e| scene_error("(document)", e.message().to_owned()))?;
+                serde_path_to_error::deserialize(de).map_err(|e| {
+                    let path = e.path().to_string();
+                    scene_error(path, e.into_inner().message().to_owned())
+                })?
+            }
+            SceneFormat::Json => {
+                let mut de = serde_json::Deserializer::from_str(text);
+                serde_path_to_error::deserialize(&mut de).map_err(|e| {
+                    let path = e.path().to_string();
+                    scene_error(path, e.into_inner().to_string())
+                })?
+            }
+        };
+        spec.validate()?;
+        Ok(spec)
+    }
+
+    /// Reads a scene file (`.toml` or `.json`); its name defaults to the file stem.
+    pub fn read(file: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(file).map_err(|source| EngineError::Io {
+            file: file.to_owned(),
+            source,
+        })?;
+        let format = if file.extension().is_some_and(|e| e == "json") {
+            SceneFormat::Json
+        } else {
+            SceneFormat::Toml
+        };
+        let mut spec = Self::parse(&text, format).map_err(|e| match e {
+            EngineError::Scene { path, reason } => EngineError::Scene {
+                path: format!("{}: {path}", file.display()),
+                reason,
+            },
+            other => other,
+        })?;
+        if spec.name.is_empty() {
+            spec.name = file
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+        }
+        Ok(spec)
+    }
+
+    /// Checks every value's range; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        let range = |path: &str, value: f64, lo: f64, hi: f64| -> Result<()> {
+            if value.is_finite() && value >= lo && value <= hi {
+                Ok(())
+            } else {
+                Err(scene_error(
+                    path,
+                    format!("{value} is outside {lo}..={hi}"),
+                ))
+            }
+        };
+        if self.devices.is_empty() {
+            return Err(scene_error("devices", "at least one device is needed"));
+        }
+        for (i, d) in self.devices.iter().enumerate() {
+            if let DeviceSpec::Guidewire035Shaped {
+                bend_deg,
+                bend_length_mm,
+            } = d
+            {
+                range(&format!("devices[{i}].bend_deg"), *bend_deg, 0.0, 180.0)?;
+                range(
+                    &format!("devices[{i}].bend_length_mm"),
+                    *bend_length_mm,
+                    2.0,
+                    100.0,
+                )?;
+            }
+        }
+        if let AnatomySpec::NeuroPhantom { tortuosity, .. } = &self.anatomy {
+            range("anatomy.tortuosity", *tortuosity, 0.0, 1.0)?;
+        }
+        match &self.ct {
+            CtSpec::Phantom { spacing_mm } => range("ct.spacing_mm", *spacing_mm, 0.5, 5.0)?,
+            CtSpec::File {
+                hu_slope,
+                hu_intercept,
+                ..
+            } => {
+                range("ct.hu_slope", *hu_slope, -1e6, 1e6)?;
+                range("ct.hu_intercept", *hu_intercept, -1e6, 1e6)?;
+            }
+        }
+        range("start.along_route_mm", self.start.along_route_mm, 0.0, 2000.0)?;
+        range("start.inserted_mm", self.start.inserted_mm, 2.0, 500.0)?;
+        let c = &self.carm;
+        range("carm.primary_deg", c.primary_deg, -120.0, 120.0)?;
+        range("carm.secondary_deg", c.secondary_deg, -60.0, 60.0)?;
+        range("carm.source_to_image_mm", c.source_to_image_mm, 500.0, 2000.0)?;
+        range(
+            "carm.source_to_isocenter_mm",
+            c.source_to_isocenter_mm,
+            200.0,
+            c.source_to_image_mm - 50.0,
+        )?;
+        range("carm.field_of_view_mm", c.field_of_view_mm, 50.0, 500.0)?;
+        range("carm.isocenter_at", c.isocenter_at, 0.0, 1.0)?;
+        let f = &self.fluoroscopy;
+        if ![7.5, 15.0, 30.0].contains(&f.pulse_rate) {
+            return Err(scene_error(
+                "fluoroscopy.pulse_rate",
+                format!("{} is not one of 7.5, 15, 30", f.pulse_rate),
+            ));
+        }
+        range(
+            "fluoroscopy.photons_per_pixel",
+            f.photons_per_pixel,
+            1.0,
+            1e7,
+        )?;
+        if let Some(flow) = &self.flow {
+            range("flow.pressure_mmhg", flow.pressure_mmhg, 10.0, 300.0)?;
+            range("flow.agent_mg_per_ml", flow.agent_mg_per_ml, 50.0, 400.0)?;
+        }
+        range("target.reach_mm", self.target.reach_mm, 0.0, 500.0)?;
+        let q = &self.fidelity;
+        range("fidelity.step_rate_hz", q.step_rate_hz, 100.0, 2000.0)?;
+        range("fidelity.tip_element_mm", q.tip_element_mm, 0.25, 10.0)?;
+        range(
+            "fidelity.shaft_element_mm",
+            q.shaft_element_mm,
+            q.tip_element_mm,
+            50.0,
+        )?;
+        range("fidelity.contact_tolerance", q.contact_tolerance, 1e-8, 0.5)?;
+        range("fidelity.frame_px", q.frame_px as f64, 64.0, 2048.0)?;
+        range("fidelity.contrast_cell_mm", q.contrast_cell_mm, 0.1, 5.0)?;
+        range(
+            "fidelity.contrast_every_steps",
+            q.contrast_every_steps as f64,
+            1.0,
+            100.0,
+        )?;
+        Ok(())
+    }
+
+    /// Physics time step (s).
+    pub fn time_step_s(&self) -> f64 {
+        1.0 / self.fidelity.step_rate_hz
+    }
+}
+
+/// Scenes found in a directory, by name.
+#[derive(Debug, Clone, Default)]
+pub struct SceneCatalog {
+    scenes: Vec<(SceneSpec, PathBuf)>,
+}
+
+impl SceneCatalog {
+    /// Reads every `.toml` and `.json` scene in `dir` (sorted by name); a scene that does not
+    /// parse is an error naming its file.
+    pub fn read_dir(dir: &Path) -> Result<Self> {
+        let entries = std::fs::read_dir(dir).map_err(|source| EngineError::Io {
+            file: dir.to_owned(),
+            source,
+        })?;
+        let mut files: Vec<PathBuf> = entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|e| e == "toml" || e == "json"))
+            .collect();
+        files.sort();
+        let scenes = files
+            .into_iter()
+            .map(|f| SceneSpec::read(&f).map(|s| (s, f)))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Self { scenes })
+    }
+
+    /// The scenes with the files they came from.
+    pub fn scenes(&self) -> &[(SceneSpec, PathBuf)] {
+        &self.scenes
+    }
+
+    /// A scene by name, with the directory its relative paths start from.
+    pub fn get(&self, name: &str) -> Result<(&SceneSpec, PathBuf)> {
+        self.scenes
+            .iter()
+            .find(|(s, _)| s.name == name)
+            .map(|(s, f)| (s, f.parent().unwrap_or(Path::new(".")).to_owned()))
+            .ok_or_else(|| EngineError::NotFound(format!("scene {name:?}")))
+    }
+}

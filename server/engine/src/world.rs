@@ -1,0 +1,670 @@
+//! A session's deterministic world: the navigated device, optional flow and contrast, the
+//! imaging state the trainee controls, and the metrics. No threads and no wall clock: the same
+//! scene and the same commands at the same steps give the same state, bit for bit, which is
+//! what replay relies on.
+
+use std::sync::Arc;
+
+use cathlab_hemo::{Contrast, ContrastSettings, FlowSolver, Injection};
+use cathlab_physics::{Insertion, Navigation, NavigationSettings, Refinement, Twist};
+use cathlab_xray::{ContrastTube, PulseRate};
+use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::assets::{SceneAssets, SharedWall};
+use crate::error::{EngineError, Result};
+use crate::metrics::{Event, EventKind, Metrics};
+
+/// A trainee's or bridge's command, in SI units, as recorded.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Command {
+    /// Push/pull speed (m/s).
+    PushVelocity(f64),
+    /// Inserted length to move to (m).
+    PushTarget(f64),
+    /// Twist rate (rad/s).
+    TwistRate(f64),
+    /// Twist angle to move to (rad).
+    TwistTarget(f64),
+    /// Both speeds at once (haptic bridge): push (m/s), twist (rad/s).
+    Setpoints {
+        /// Push/pull speed (m/s).
+        push_m_s: f64,
+        /// Twist rate (rad/s).
+        twist_rad_s: f64,
+    },
+    /// Withdraw the device and insert the scene's device with this index.
+    SelectDevice(u32),
+    /// Fluoroscopy pedal down or up.
+    Fluoroscopy(bool),
+    /// Pulse rate.
+    PulseRate(PulseRate),
+    /// Start (true) or end a DSA run.
+    Dsa(bool),
+    /// Roadmap on or off.
+    Roadmap(bool),
+    /// C-arm angles (deg).
+    CArm {
+        /// LAO + / RAO −.
+        primary_deg: f64,
+        /// CRA + / CAU −.
+        secondary_deg: f64,
+    },
+    /// Inject contrast through the device tip: volume (mL) at a rate (mL/s).
+    Inject {
+        /// Volume (mL).
+        volume_ml: f64,
+        /// Rate (mL/s).
+        rate_ml_s: f64,
+    },
+    /// Back to the scene's start.
+    Reset,
+}
+
+/// What the monitor is asked to show.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// Live fluoroscopy.
+    Fluoroscopy,
+    /// A DSA run.
+    Subtraction,
+    /// Roadmap over live fluoroscopy.
+    Roadmap,
+}
+
+/// The imaging state the trainee controls.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Imaging {
+    /// Pedal down.
+    pub pedal: bool,
+    /// Pulse rate.
+    pub pulse_rate: PulseRate,
+    /// Mode.
+    pub mode: Mode,
+    /// LAO + / RAO − (deg).
+    pub primary_deg: f64,
+    /// CRA + / CAU − (deg).
+    pub secondary_deg: f64,
+    /// Counts DSA runs: a change tells the renderer to take a new mask.
+    pub dsa_run: u32,
+    /// The pose of the last DSA run (roadmap needs the same pose).
+    pub dsa_pose: Option<(f64, f64)>,
+}
+
+/// A wall contact for clients (LPS, m and N).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WallContact {
+    /// Point on the device centerline (m).
+    pub position: Vector3<f64>,
+    /// Force of the wall on the device (N).
+    pub force: Vector3<f64>,
+}
+
+/// The world after a step, for clients and the renderer (LPS, SI units).
+#[derive(Debug, Clone)]
+pub struct Snapshot {
+    /// Steps taken.
+    pub step: u64,
+    /// Simulated time (s).
+    pub time_s: f64,
+    /// Sequence number of the last command applied.
+    pub last_seq: u64,
+    /// Node positions, base to tip (m).
+    pub nodes: Vec<Vector3<f64>>,
+    /// Unit tangent at the tip.
+    pub tip_direction: Vector3<f64>,
+    /// Inserted length (m).
+    pub inserted_m: f64,
+    /// Twist at the entry (rad).
+    pub twist_rad: f64,
+    /// Active wall contacts.
+    pub contacts: Vec<WallContact>,
+    /// Proximal reaction: force (N) and moment (N·m).
+    pub proximal: [f64; 6],
+    /// The scene's device index in use.
+    pub active_device: u32,
+    /// Imaging state.
+    pub imaging: Imaging,
+    /// Contrast-filled vessel pieces (LPS), shared until contrast next moves.
+    pub contrast: Arc<Vec<ContrastTube>>,
+    /// Metrics so far.
+    pub metrics: Metrics,
+}
+
+impl Snapshot {
+    /// Tip position (m, LPS).
+    pub fn tip(&self) -> Vector3<f64> {
+        self.nodes.last().copied().unwrap_or_else(Vector3::zeros)
+    }
+}
+
+/// Flow and contrast of a scene that has them.
+struct Hemo {
+    solver: FlowSolver,
+    contrast: Contrast,
+    agent_mg_per_ml: f64,
+    /// Volume left to inject (m³) and rate (m³/s), while injecting.
+    injection: Option<(f64, f64)>,
+    steps_since_contrast: u32,
+    tubes: Arc<Vec<ContrastTube>>,
+    /// Whether any iodine is in the vessels (contrast steps only then).
+    active: bool,
+}
+
+/// Threshold below which contrast cells are not drawn (mg/mL).
+const CONTRAST_DRAW_THRESHOLD: f64 = 1.0;
+
+/// One session's simulation.
+pub struct World {
+    assets: Arc<SceneAssets>,
+    nav: Navigation<SharedWall>,
+    active_device: usize,
+    imaging: Imaging,
+    hemo: Option<Hemo>,
+    metrics: Metrics,
+    step: u64,
+    last_seq: u64,
+    previous_tip: Vector3<f64>,
+    events: Vec<Event>,
+    proximal: [f64; 6],
+}
+
+impl std::fmt::Debug for World {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("World")
+            .field("scene", &self.assets.spec.name)
+            .field("step", &self.step)
+            .finish_non_exhaustive()
+    }
+}
+
+fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
+    let q = &assets.spec.fidelity;
+    let mut settings = NavigationSettings {
+        time_step_s: assets.spec.time_step_s(),
+        tip_element_m: q.tip_element_mm * 1e-3,
+        shaft_element_m: q.shaft_element_mm * 1e-3,
+        refinement: q.refine.then(Refinement::default),
+        ..NavigationSettings::default()
+    };
+    settings.contact.tolerance = q.contact_tolerance;
+    settings
+}
+
+fn start_navigation(assets: &Arc<SceneAssets>, device: usize) -> Result<Navigation<SharedWall>> {
+    let (entry, direction) = assets.entry;
+    Ok(Navigation::new(
+        assets.devices[device].0.clone(),
+        SharedWall(assets.anatomy.clone()),
+        entry,
+        direction,
+        assets.spec.start.inserted_mm * 1e-3,
+        navigation_settings(assets),
+    )?)
+}
+
+impl World {
+    /// The scene's start: its first device inserted, pedal up, the scene's C-arm pose.
+    pub fn new(assets: Arc<SceneAssets>) -> Result<Self> {
+        let nav = start_navigation(&assets, 0)?;
+        let hemo = match &assets.network {
+            None => None,
+            Some(network) => {
+                let solver = FlowSolver::new(network.clone())?;
+                let mut contrast = Contrast::new(
+                    network,
+                    ContrastSettings {
+                        cell_length: assets.spec.fidelity.contrast_cell_mm * 1e-3,
+                        ..ContrastSettings::default()
+                    },
+                )?;
+                contrast.set_flow(network, &solver.solve(None)?)?;
+                Some(Hemo {
+                    solver,
+                    contrast,
+                    agent_mg_per_ml: assets.spec.flow.as_ref().map_or(300.0, |f| f.agent_mg_per_ml),
+                    injection: None,
+                    steps_since_contrast: 0,
+                    tubes: Arc::new(Vec::new()),
+                    active: false,
+                })
+            }
+        };
+        let rate = assets.spec.fluoroscopy.pulse_rate;
+        let pulse_rate = if rate < 10.0 {
+            PulseRate::Hz7_5
+        } else if rate > 20.0 {
+            PulseRate::Hz30
+        } else {
+            PulseRate::Hz15
+        };
+        let tip = nav.tip_position();
+        Ok(Self {
+            imaging: Imaging {
+                pedal: false,
+                pulse_rate,
+                mode: Mode::Fluoroscopy,
+                primary_deg: assets.spec.carm.primary_deg,
+                secondary_deg: assets.spec.carm.secondary_deg,
+                dsa_run: 0,
+                dsa_pose: None,
+            },
+            assets,
+            nav,
+            active_device: 0,
+            hemo,
+            metrics: Metrics::default(),
+            step: 0,
+            last_seq: 0,
+            previous_tip: tip,
+            events: Vec::new(),
+            proximal: [0.0; 6],
+        })
+    }
+
+    /// The scene.
+    pub fn assets(&self) -> &Arc<SceneAssets> {
+        &self.assets
+    }
+
+    /// Steps taken.
+    pub fn step_index(&self) -> u64 {
+        self.step
+    }
+
+    /// Metrics so far.
+    pub fn metrics(&self) -> &Metrics {
+        &self.metrics
+    }
+
+    /// Events since the last call.
+    pub fn take_events(&mut self) -> Vec<Event> {
+        std::mem::take(&mut self.events)
+    }
+
+    fn event(&mut self, kind: EventKind, message: impl Into<String>) {
+        self.events.push(Event {
+            step: self.step,
+            time_s: self.metrics.procedure_time_s,
+            kind,
+            message: message.into(),
+        });
+    }
+
+    /// Applies a command at the current step boundary; `seq` is the client's sequence number.
+    /// A command that cannot apply (roadmap without a DSA run at this pose, injection without
+    /// flow, a device index out of range) changes nothing and says why.
+    pub fn apply(&mut self, seq: u64, command: &Command) -> Result<()> {
+        let current = self.nav_command();
+        match *command {
+            Command::PushVelocity(v) => self.set_nav(Insertion::Velocity(v), current.twist)?,
+            Command::PushTarget(x) => self.set_nav(Insertion::Target(x), current.twist)?,
+            Command::TwistRate(w) => self.set_nav(current.insertion, Twist::Rate(w))?,
+            Command::TwistTarget(a) => self.set_nav(current.insertion, Twist::Target(a))?,
+            Command::Setpoints {
+                push_m_s,
+                twist_rad_s,
+            } => self.set_nav(Insertion::Velocity(push_m_s), Twist::Rate(twist_rad_s))?,
+            Command::SelectDevice(index) => {
+                let index = index as usize;
+                if index >= self.assets.devices.len() {
+                    return Err(EngineError::InvalidArgument {
+                        field: "select_device".into(),
+                        reason: format!(
+                            "{index} is not a device of this scene (it has {})",
+                            self.assets.devices.len()
+                        ),
+                    });
+                }
+                self.restart_device(index)?;
+                let name = self.assets.devices[index].0.name.clone();
+                self.event(EventKind::Device, format!("device {index} ({name}) inserted"));
+            }
+            Command::Fluoroscopy(on) => self.imaging.pedal = on,
+            Command::PulseRate(rate) => self.imaging.pulse_rate = rate,
+            Command::Dsa(start) => {
+                if start {
+                    self.imaging.mode = Mode::Subtraction;
+                    self.imaging.dsa_run += 1;
+                    self.imaging.dsa_pose =
+                        Some((self.imaging.primary_deg, self.imaging.secondary_deg));
+                    self.metrics.dsa_runs += 1;
+                } else if self.imaging.mode == Mode::Subtraction {
+                    self.imaging.mode = Mode::Fluoroscopy;
+                }
+            }
+            Command::Roadmap(on) => {
+                if on {
+                    let pose = (self.imaging.primary_deg, self.imaging.secondary_deg);
+                    if self.imaging.dsa_pose != Some(pose) {
+                        return Err(EngineError::FailedPrecondition(
+                            "roadmap needs a DSA run at the current C-arm pose".into(),
+                        ));
+                    }
+                    self.imaging.mode = Mode::Roadmap;
+                } else if self.imaging.mode == Mode::Roadmap {
+                    self.imaging.mode = Mode::Fluoroscopy;
+                }
+            }
+            Command::CArm {
+                primary_deg,
+                secondary_deg,
+            } => {
+                self.imaging.primary_deg = primary_deg;
+                self.imaging.secondary_deg = secondary_deg;
+                if self.imaging.mode == Mode::Roadmap
+                    && self.imaging.dsa_pose != Some((primary_deg, secondary_deg))
+                {
+                    self.imaging.mode = Mode::Fluoroscopy;
+                    self.event(EventKind::Imaging, "roadmap off: the C-arm moved");
+                }
+            }
+            Command::Inject {
+                volume_ml,
+                rate_ml_s,
+            } => {
+                let Some(hemo) = &mut self.hemo else {
+                    return Err(EngineError::FailedPrecondition(
+                        "this scene has no blood flow: contrast cannot be injected".into(),
+                    ));
+                };
+                hemo.injection = Some((volume_ml * 1e-6, rate_ml_s * 1e-6));
+                self.update_injection()?;
+            }
+            Command::Reset => {
+                self.restart_device(self.active_device)?;
+                self.event(EventKind::Reset, "scene reset");
+            }
+        }
+        self.last_seq = seq;
+        Ok(())
+    }
+
+    fn nav_command(&self) -> cathlab_physics::Command {
+        self.nav.current_command()
+    }
+
+    fn set_nav(&mut self, insertion: Insertion, twist: Twist) -> Result<()> {
+        self.nav
+            .set_command(cathlab_physics::Command { insertion, twist })?;
+        Ok(())
+    }
+
+    fn restart_device(&mut self, index: usize) -> Result<()> {
+        self.nav = start_navigation(&self.assets, index)?;
+        self.active_device = index;
+        self.previous_tip = self.nav.tip_position();
+        if let Some(hemo) = &mut self.hemo
+            && hemo.injection.is_some()
+        {
+            hemo.injection = None;
+            self.update_injection()?;
+        }
+        Ok(())
+    }
+
+    /// Re-solves the flow for the current injection (at the device tip) or none.
+    fn update_injection(&mut self) -> Result<()> {
+        let tip = Point3::from(self.nav.tip_position());
+        let graph = &self.assets.anatomy.graph;
+        let Some(hemo) = &mut self.hemo else {
+            return Ok(());
+        };
+        let network = hemo.solver.network().clone();
+        let injection = match hemo.injection {
+            Some((_, rate)) => {
+                let location = graph.nearest(&tip).ok_or_else(|| {
+                    EngineError::FailedPrecondition("the tip is not near any vessel".into())
+                })?;
+                Some(Injection {
+                    vessel: location.branch,
+                    arc: location.arc_length,
+                    rate,
+                    concentration: hemo.agent_mg_per_ml,
+                })
+            }
+            None => None,
+        };
+        let solution = hemo.solver.solve(injection.as_ref())?;
+        hemo.contrast.set_flow(&network, &solution)?;
+        hemo.active |= injection.is_some();
+        Ok(())
+    }
+
+    /// Advances one physics step (and contrast every few steps). Divergence puts the device
+    /// back at its start, reports it and counts it; the world stays usable.
+    pub fn step(&mut self) -> Result<()> {
+        let dt = self.assets.spec.time_step_s();
+        let outcome = self.nav.step();
+        let diverged = match outcome {
+            Ok(_) => {
+                let tip = self.nav.tip_position();
+                let escaped = self
+                    .nav
+                    .wall()
+                    .0
+                    .lumen
+                    .query(&Point3::from(tip))
+                    .signed_distance
+                    > MAX_ESCAPE_M;
+                if !tip.iter().all(|v| v.is_finite()) {
+                    Some("non-finite tip position".to_owned())
+                } else if escaped {
+                    Some("the tip left the vessel".to_owned())
+                } else {
+                    None
+                }
+            }
+            Err(e) => Some(e.to_string()),
+        };
+        if let Some(reason) = diverged {
+            self.metrics.divergence_resets += 1;
+            self.restart_device(self.active_device)?;
+            self.event(
+                EventKind::Divergence,
+                format!("physics diverged ({reason}); the device was put back at its start"),
+            );
+        }
+        self.step += 1;
+        self.metrics.steps = self.step;
+        self.metrics.procedure_time_s = self.step as f64 * dt;
+        if self.imaging.pedal {
+            self.metrics.fluoroscopy_time_s += dt;
+        }
+        // Wall forces and the tip's path.
+        if let Some(contacts) = self.nav.last_contacts() {
+            let mut largest: f64 = 0.0;
+            let mut total = 0.0;
+            for f in &contacts.response.forces {
+                let n = f.norm();
+                largest = largest.max(n);
+                total += n;
+            }
+            self.metrics.add_wall_forces(largest, total);
+        }
+        let tip = self.nav.tip_position();
+        self.metrics.tip_path_length_m += (tip - self.previous_tip).norm();
+        self.previous_tip = tip;
+        if self.metrics.target_reached_at_s.is_none() {
+            let graph = &self.assets.anatomy.graph;
+            if let Some(location) = graph.nearest(&Point3::from(tip))
+                && location.branch == self.assets.target_branch
+                && location.arc_length >= self.assets.spec.target.reach_mm * 1e-3
+            {
+                self.metrics.target_reached_at_s = Some(self.metrics.procedure_time_s);
+                let name = self.assets.spec.target.branch.clone();
+                self.event(EventKind::TargetReached, format!("the tip reached {name}"));
+            }
+        }
+        let r = self.nav.proximal_reaction();
+        self.proximal = [r[0], r[1], r[2], r[3], r[4], r[5]];
+        self.step_contrast(dt)?;
+        Ok(())
+    }
+
+    fn step_contrast(&mut self, dt: f64) -> Result<()> {
+        let every = self.assets.spec.fidelity.contrast_every_steps;
+        let to_lps = self.assets.to_lps;
+        let Some(hemo) = &mut self.hemo else {
+            return Ok(());
+        };
+        // Injected volume counts every step; the flow changes when the bolus is done.
+        let mut finished = false;
+        if let Some((left, rate)) = &mut hemo.injection {
+            let dv = (*rate * dt).min(*left);
+            *left -= dv;
+            self.metrics.contrast_volume_ml += dv * 1e6;
+            finished = *left <= 0.0;
+        }
+        hemo.steps_since_contrast += 1;
+        if hemo.active && hemo.steps_since_contrast >= every {
+            let span = hemo.steps_since_contrast as f64 * dt;
+            hemo.steps_since_contrast = 0;
+            hemo.contrast.step(span)?;
+            let network = hemo.solver.network();
+            let tubes: Vec<ContrastTube> = hemo
+                .contrast
+                .segments(network, CONTRAST_DRAW_THRESHOLD)
+                .into_iter()
+                .map(|s| ContrastTube {
+                    start: Point3::from(to_lps * s.start.coords),
+                    end: Point3::from(to_lps * s.end.coords),
+                    start_radius_m: s.start_radius,
+                    end_radius_m: s.end_radius,
+                    concentration_mg_per_ml: s.concentration,
+                })
+                .collect();
+            hemo.active = hemo.injection.is_some() || !tubes.is_empty();
+            hemo.tubes = Arc::new(tubes);
+        }
+        if finished {
+            hemo.injection = None;
+            self.update_injection()?;
+        }
+        Ok(())
+    }
+
+    /// The world now, for clients and the renderer (LPS).
+    pub fn snapshot(&self) -> Snapshot {
+        let to_lps = self.assets.to_lps;
+        let model = self.nav.model();
+        let positions = model.positions();
+        let nodes: Vec<Vector3<f64>> = positions.iter().map(|p| to_lps * p).collect();
+        let tip_direction = model
+            .rotations()
+            .last()
+            .map(|q| to_lps * (q * Vector3::x()))
+            .unwrap_or_else(Vector3::x);
+        let contacts = match self.nav.last_contacts() {
+            Some(step) => step
+                .contacts
+                .iter()
+                .zip(&step.response.forces)
+                .filter(|(_, f)| f.norm() > 0.0)
+                .filter_map(|(c, f)| {
+                    let a = positions.get(c.element)?;
+                    let b = positions.get(c.element + 1)?;
+                    Some(WallContact {
+                        position: to_lps * (a + (b - a) * c.t),
+                        force: to_lps * f,
+                    })
+                })
+                .collect(),
+            None => Vec::new(),
+        };
+        let p = &self.proximal;
+        let force = to_lps * Vector3::new(p[0], p[1], p[2]);
+        let moment = to_lps * Vector3::new(p[3], p[4], p[5]);
+        Snapshot {
+            step: self.step,
+            time_s: self.metrics.procedure_time_s,
+            last_seq: self.last_seq,
+            nodes,
+            tip_direction,
+            inserted_m: self.nav.inserted_m(),
+            twist_rad: self.nav.twist_rad(),
+            contacts,
+            proximal: [force.x, force.y, force.z, moment.x, moment.y, moment.z],
+            active_device: self.active_device as u32,
+            imaging: self.imaging,
+            contrast: self
+                .hemo
+                .as_ref()
+                .map(|h| h.tubes.clone())
+                .unwrap_or_default(),
+            metrics: self.metrics,
+        }
+    }
+
+    /// A 64-bit digest of the whole simulated state (positions, frames, material points,
+    /// controls, contrast, imaging, metrics): equal digests mean bit-identical states.
+    pub fn digest(&self) -> u64 {
+        let mut h = Fnv1a::default();
+        h.u64(self.step);
+        h.u64(self.last_seq);
+        h.u64(self.active_device as u64);
+        let model = self.nav.model();
+        for p in model.positions() {
+            h.f64s(p.as_slice());
+        }
+        for q in model.rotations() {
+            h.f64s(q.coords.as_slice());
+        }
+        h.f64s(self.nav.node_material_m());
+        h.f64s(&[self.nav.inserted_m(), self.nav.twist_rad()]);
+        h.f64s(&self.proximal);
+        if let Some(hemo) = &self.hemo {
+            for v in 0..hemo.solver.network().vessels.len() {
+                h.f64s(hemo.contrast.concentration(v));
+            }
+        }
+        let i = &self.imaging;
+        h.u64(i.pedal as u64 | (i.dsa_run as u64) << 8);
+        h.f64s(&[i.primary_deg, i.secondary_deg]);
+        let m = &self.metrics;
+        h.f64s(&[
+            m.procedure_time_s,
+            m.fluoroscopy_time_s,
+            m.contrast_volume_ml,
+            m.max_wall_force_n,
+            m.wall_force_sum_n,
+            m.tip_path_length_m,
+            m.target_reached_at_s.unwrap_or(-1.0),
+        ]);
+        h.u64(m.divergence_resets as u64);
+        h.finish()
+    }
+}
+
+/// A tip farther than this outside the lumen surface (m) counts as divergence: the device has
+/// gone through the wall, which the contact solver never allows on a sound step.
+pub const MAX_ESCAPE_M: f64 = 3e-3;
+
+/// FNV-1a over the bytes of integers and floats (bit patterns, so −0 ≠ +0 and NaNs count).
+#[derive(Debug, Clone, Copy)]
+struct Fnv1a(u64);
+
+impl Default for Fnv1a {
+    fn default() -> Self {
+        Self(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Fnv1a {
+    fn u64(&mut self, v: u64) {
+        for b in v.to_le_bytes() {
+            self.0 ^= b as u64;
+            self.0 = self.0.wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+    fn f64s(&mut self, values: &[f64]) {
+        for v in values {
+            self.u64(v.to_bits());
+        }
+    }
+    fn finish(self) -> u64 {
+        self.0
+    }
+}
