@@ -1,1 +1,306 @@
-//! placeholder
+//! The wire API (`proto/cathlab/v1`, package `cathlab.v1`): generated messages and the
+//! `Simulator` service, the encoded descriptor set for reflection, validation of client
+//! messages into engine commands (errors name the field), conversions of engine values into
+//! messages, and the one place engine errors become gRPC status codes.
+
+use cathlab_engine::telemetry::TimingSummary;
+use cathlab_engine::{Command, EngineError, Event, Metrics, Snapshot};
+use tonic::Status;
+
+/// Generated code of `cathlab.v1`.
+#[allow(missing_docs, clippy::all)]
+pub mod pb {
+    tonic::include_proto!("cathlab.v1");
+}
+
+/// The encoded `FileDescriptorSet` of the API, for gRPC reflection.
+pub const FILE_DESCRIPTOR_SET: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/cathlab_descriptor.bin"));
+
+/// Largest push/pull speed a client may ask for (mm/s); the physics clamps to its own limit.
+pub const MAX_PUSH_MM_S: f64 = 500.0;
+/// Largest twist rate (deg/s).
+pub const MAX_TWIST_DEG_S: f64 = 3600.0;
+
+/// The gRPC status for an engine error.
+pub fn status_of(error: &EngineError) -> Status {
+    match error {
+        EngineError::Scene { .. } | EngineError::InvalidArgument { .. } => {
+            Status::invalid_argument(error.to_string())
+        }
+        EngineError::FailedPrecondition(_) => Status::failed_precondition(error.to_string()),
+        EngineError::NotFound(_) => Status::not_found(error.to_string()),
+        EngineError::Closed(_) => Status::failed_precondition(error.to_string()),
+        EngineError::QueueFull(_) => Status::resource_exhausted(error.to_string()),
+        EngineError::Io { .. }
+        | EngineError::Anatomy(_)
+        | EngineError::Physics(_)
+        | EngineError::Hemo(_)
+        | EngineError::Xray(_)
+        | EngineError::Store(_) => Status::internal(error.to_string()),
+    }
+}
+
+/// `value` if finite and within `lo..=hi`, else INVALID_ARGUMENT naming `field`.
+pub fn checked(field: &str, value: f64, lo: f64, hi: f64) -> Result<f64, Status> {
+    if !value.is_finite() {
+        return Err(Status::invalid_argument(format!(
+            "{field}: {value} is not a finite number"
+        )));
+    }
+    if value < lo || value > hi {
+        return Err(Status::invalid_argument(format!(
+            "{field}: {value} is outside {lo}..={hi}"
+        )));
+    }
+    Ok(value)
+}
+
+/// A wire command as an engine command (SI units), every number checked.
+pub fn command_from_wire(command: Option<&pb::Command>) -> Result<Command, Status> {
+    use pb::command::Kind;
+    let kind = command
+        .and_then(|c| c.kind.as_ref())
+        .ok_or_else(|| Status::invalid_argument("command: missing"))?;
+    Ok(match kind {
+        Kind::Insertion(i) => match i.mode {
+            Some(pb::insertion::Mode::VelocityMmS(v)) => Command::PushVelocity(
+                checked(
+                    "command.insertion.velocity_mm_s",
+                    v,
+                    -MAX_PUSH_MM_S,
+                    MAX_PUSH_MM_S,
+                )? * 1e-3,
+            ),
+            Some(pb::insertion::Mode::TargetMm(x)) => Command::PushTarget(
+                checked("command.insertion.target_mm", x, 0.0, 5000.0)? * 1e-3,
+            ),
+            None => return Err(Status::invalid_argument("command.insertion.mode: missing")),
+        },
+        Kind::Twist(t) => match t.mode {
+            Some(pb::twist::Mode::RateDegS(w)) => Command::TwistRate(
+                checked(
+                    "command.twist.rate_deg_s",
+                    w,
+                    -MAX_TWIST_DEG_S,
+                    MAX_TWIST_DEG_S,
+                )?
+                .to_radians(),
+            ),
+            Some(pb::twist::Mode::TargetDeg(a)) => Command::TwistTarget(
+                checked("command.twist.target_deg", a, -36000.0, 36000.0)?.to_radians(),
+            ),
+            None => return Err(Status::invalid_argument("command.twist.mode: missing")),
+        },
+        Kind::SelectDevice(i) => Command::SelectDevice(*i),
+        Kind::Fluoroscopy(on) => Command::Fluoroscopy(*on),
+        Kind::PulseRate(rate) => Command::PulseRate(match pb::PulseRate::try_from(*rate) {
+            Ok(pb::PulseRate::PulseRate75) => cathlab_xray::PulseRate::Hz7_5,
+            Ok(pb::PulseRate::PulseRate15) => cathlab_xray::PulseRate::Hz15,
+            Ok(pb::PulseRate::PulseRate30) => cathlab_xray::PulseRate::Hz30,
+            _ => {
+                return Err(Status::invalid_argument(format!(
+                    "command.pulse_rate: {rate} is not 7.5, 15 or 30 pulses per second"
+                )));
+            }
+        }),
+        Kind::Dsa(on) => Command::Dsa(*on),
+        Kind::Roadmap(on) => Command::Roadmap(*on),
+        Kind::Carm(pose) => Command::CArm {
+            primary_deg: checked("command.carm.primary_deg", pose.primary_deg, -120.0, 120.0)?,
+            secondary_deg: checked(
+                "command.carm.secondary_deg",
+                pose.secondary_deg,
+                -60.0,
+                60.0,
+            )?,
+        },
+        Kind::Inject(inj) => {
+            let volume_ml = checked("command.inject.volume_ml", inj.volume_ml, 0.0, 20.0)?;
+            let rate_ml_s = checked("command.inject.rate_ml_s", inj.rate_ml_s, 0.0, 10.0)?;
+            if volume_ml <= 0.0 || rate_ml_s <= 0.0 {
+                return Err(Status::invalid_argument(
+                    "command.inject: volume_ml and rate_ml_s must be above 0",
+                ));
+            }
+            Command::Inject {
+                volume_ml,
+                rate_ml_s,
+            }
+        }
+        Kind::Reset(_) => Command::Reset,
+    })
+}
+
+/// A haptic bridge input as an engine command.
+pub fn control_from_wire(input: &pb::ControlInput) -> Result<Command, Status> {
+    Ok(Command::Setpoints {
+        push_m_s: checked(
+            "push_mm_s",
+            input.push_mm_s,
+            -MAX_PUSH_MM_S,
+            MAX_PUSH_MM_S,
+        )? * 1e-3,
+        twist_rad_s: checked(
+            "twist_deg_s",
+            input.twist_deg_s,
+            -MAX_TWIST_DEG_S,
+            MAX_TWIST_DEG_S,
+        )?
+        .to_radians(),
+    })
+}
+
+fn vec3_mm(v: &nalgebra::Vector3<f64>) -> pb::Vec3 {
+    pb::Vec3 {
+        x: v.x * 1e3,
+        y: v.y * 1e3,
+        z: v.z * 1e3,
+    }
+}
+
+fn vec3(x: f64, y: f64, z: f64) -> pb::Vec3 {
+    pb::Vec3 { x, y, z }
+}
+
+/// A snapshot on the wire (mm, N, N·mm); `tip_only` leaves out the nodes and contacts.
+pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::DeviceState {
+    let p = &s.proximal;
+    pb::DeviceState {
+        step: s.step,
+        time_s: s.time_s,
+        last_seq: s.last_seq,
+        nodes_mm: if tip_only {
+            Vec::new()
+        } else {
+            s.nodes
+                .iter()
+                .flat_map(|n| [n.x as f32 * 1e3, n.y as f32 * 1e3, n.z as f32 * 1e3])
+                .collect()
+        },
+        tip_position_mm: Some(vec3_mm(&s.tip())),
+        tip_direction: Some(vec3(s.tip_direction.x, s.tip_direction.y, s.tip_direction.z)),
+        inserted_mm: s.inserted_m * 1e3,
+        twist_deg: s.twist_rad.to_degrees(),
+        contacts: if tip_only {
+            Vec::new()
+        } else {
+            s.contacts
+                .iter()
+                .map(|c| pb::WallContact {
+                    position: Some(vec3_mm(&c.position)),
+                    force: Some(vec3(c.force.x, c.force.y, c.force.z)),
+                })
+                .collect()
+        },
+        proximal_force_n: Some(vec3(p[0], p[1], p[2])),
+        proximal_torque_nmm: Some(vec3(p[3] * 1e3, p[4] * 1e3, p[5] * 1e3)),
+        active_device: s.active_device,
+        server_unix_us,
+    }
+}
+
+/// Metrics on the wire.
+pub fn metrics_to_wire(m: &Metrics) -> pb::Metrics {
+    pb::Metrics {
+        procedure_time_s: m.procedure_time_s,
+        fluoroscopy_time_s: m.fluoroscopy_time_s,
+        dsa_runs: m.dsa_runs,
+        contrast_volume_ml: m.contrast_volume_ml,
+        max_wall_force_n: m.max_wall_force_n,
+        mean_wall_force_n: m.mean_wall_force_n,
+        tip_path_length_mm: m.tip_path_length_m * 1e3,
+        target_reached: m.target_reached_at_s.is_some(),
+        target_reached_at_s: m.target_reached_at_s.unwrap_or(0.0),
+        steps: m.steps,
+        divergence_resets: m.divergence_resets,
+    }
+}
+
+/// Thread timing on the wire (ms).
+pub fn timing_to_wire(t: &TimingSummary) -> pb::Timing {
+    pb::Timing {
+        steps: t.steps,
+        late_steps: t.late_steps,
+        missed_steps: t.missed_steps,
+        step_time_p50_ms: t.step_p50_s * 1e3,
+        step_time_p99_ms: t.step_p99_s * 1e3,
+        step_time_max_ms: t.step_max_s * 1e3,
+        frames: t.frames,
+        frame_time_p50_ms: t.frame_p50_s * 1e3,
+        frame_time_p99_ms: t.frame_p99_s * 1e3,
+        frame_time_max_ms: t.frame_max_s * 1e3,
+    }
+}
+
+/// An event on the wire.
+pub fn event_to_wire(e: &Event) -> pb::Event {
+    pb::Event {
+        step: e.step,
+        time_s: e.time_s,
+        kind: e.kind.as_str().into(),
+        message: e.message.clone(),
+    }
+}
+
+/// The wire imaging mode.
+pub fn mode_to_wire(mode: cathlab_xray::ImagingMode) -> pb::ImagingMode {
+    match mode {
+        cathlab_xray::ImagingMode::Fluoroscopy => pb::ImagingMode::Fluoroscopy,
+        cathlab_xray::ImagingMode::Subtraction => pb::ImagingMode::Subtraction,
+        cathlab_xray::ImagingMode::Roadmap => pb::ImagingMode::Roadmap,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn push(v: f64) -> pb::Command {
+        pb::Command {
+            kind: Some(pb::command::Kind::Insertion(pb::Insertion {
+                mode: Some(pb::insertion::Mode::VelocityMmS(v)),
+            })),
+        }
+    }
+
+    #[test]
+    fn non_finite_and_out_of_range_values_name_their_field() {
+        for bad in [f64::NAN, f64::INFINITY, -f64::INFINITY, 1e4] {
+            let err = command_from_wire(Some(&push(bad))).unwrap_err();
+            assert_eq!(err.code(), tonic::Code::InvalidArgument);
+            assert!(
+                err.message().contains("command.insertion.velocity_mm_s"),
+                "{}",
+                err.message()
+            );
+        }
+        assert_eq!(
+            command_from_wire(Some(&push(20.0))).unwrap(),
+            Command::PushVelocity(0.02)
+        );
+        let missing = command_from_wire(None).unwrap_err();
+        assert!(missing.message().starts_with("command"));
+        let carm = pb::Command {
+            kind: Some(pb::command::Kind::Carm(pb::CArmPose {
+                primary_deg: 0.0,
+                secondary_deg: f64::NAN,
+            })),
+        };
+        assert!(
+            command_from_wire(Some(&carm))
+                .unwrap_err()
+                .message()
+                .contains("command.carm.secondary_deg")
+        );
+        let rate = pb::Command {
+            kind: Some(pb::command::Kind::PulseRate(0)),
+        };
+        assert!(
+            command_from_wire(Some(&rate))
+                .unwrap_err()
+                .message()
+                .contains("command.pulse_rate")
+        );
+    }
+}

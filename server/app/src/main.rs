@@ -1,1 +1,127 @@
-fn main() {}
+//! `cathlab-server`: runs the simulation server (default), or replays a recorded session.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use cathlab_app::config::{ConfigFile, RendererChoice, ServerConfig, TlsFiles};
+use clap::{Parser, Subcommand};
+
+#[derive(Debug, Parser)]
+#[command(name = "cathlab-server", about = "cathlab simulation server")]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Action>,
+    #[command(flatten)]
+    options: Options,
+}
+
+#[derive(Debug, clap::Args, Clone)]
+struct Options {
+    /// Configuration file (TOML); flags override it.
+    #[arg(long, global = true)]
+    config: Option<PathBuf>,
+    /// Address to listen on (port 0 picks a free port).
+    #[arg(long, global = true)]
+    listen: Option<String>,
+    /// SQLite database file.
+    #[arg(long, global = true)]
+    database: Option<PathBuf>,
+    /// Scene directory.
+    #[arg(long, global = true)]
+    scenes: Option<PathBuf>,
+    /// Renderer.
+    #[arg(long, value_enum, global = true)]
+    renderer: Option<RendererChoice>,
+    /// TLS certificate (PEM); needs --tls-key.
+    #[arg(long, global = true)]
+    tls_cert: Option<PathBuf>,
+    /// TLS private key (PEM).
+    #[arg(long, global = true)]
+    tls_key: Option<PathBuf>,
+}
+
+#[derive(Debug, Subcommand)]
+enum Action {
+    /// Run the server (the default).
+    Serve,
+    /// Replay a recorded session and compare its checkpoints.
+    Replay {
+        /// The session id.
+        #[arg(long)]
+        session: String,
+    },
+}
+
+fn config(options: &Options) -> anyhow::Result<ServerConfig> {
+    let file = match &options.config {
+        Some(f) => ConfigFile::read(f)?,
+        None => ConfigFile::default(),
+    };
+    let mut config = ServerConfig::from_file(file);
+    if let Some(v) = &options.listen {
+        config.listen = v.clone();
+    }
+    if let Some(v) = &options.database {
+        config.database = v.clone();
+    }
+    if let Some(v) = &options.scenes {
+        config.scenes = v.clone();
+    }
+    if let Some(v) = options.renderer {
+        config.renderer = v;
+    }
+    match (&options.tls_cert, &options.tls_key) {
+        (Some(cert), Some(key)) => {
+            config.tls = Some(TlsFiles {
+                cert: cert.clone(),
+                key: key.clone(),
+            })
+        }
+        (None, None) => {}
+        _ => anyhow::bail!("--tls-cert and --tls-key go together"),
+    }
+    if let Ok(key) = std::env::var("CATHLAB_INSTRUCTOR_KEY") {
+        config.instructor_key = Some(key);
+    }
+    Ok(config)
+}
+
+fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    let config = config(&cli.options)?;
+    match cli.command.unwrap_or(Action::Serve) {
+        Action::Serve => {
+            let runtime = tokio::runtime::Runtime::new().context("starting tokio")?;
+            runtime.block_on(cathlab_app::server::serve(
+                config,
+                cathlab_app::server::shutdown_signal(),
+            ))
+        }
+        Action::Replay { session } => {
+            let (engine, store, _) = cathlab_app::server::engine(&config)?;
+            let result = cathlab_app::service::replay_stored(&engine, &store, &session)
+                .map_err(|s| anyhow::anyhow!("{}: {}", s.code(), s.message()))?;
+            println!(
+                "replayed {} steps, {} commands: {}/{} checkpoints match; last digest recorded \
+                 {} replayed {}",
+                result.steps,
+                result.commands,
+                result.matched,
+                result.checkpoints,
+                result.recorded_digest,
+                result.replayed_digest
+            );
+            if result.matched != result.checkpoints {
+                anyhow::bail!("replay diverged from the recording");
+            }
+            Ok(())
+        }
+    }
+}

@@ -1,0 +1,112 @@
+//! Server configuration: a TOML file, overridden by command-line flags and environment.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+/// Which renderer the sessions share.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, clap::ValueEnum, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum RendererChoice {
+    /// wgpu when an adapter exists, else the CPU reference.
+    #[default]
+    Auto,
+    /// The CPU reference renderer.
+    Cpu,
+    /// wgpu (an error when no adapter exists).
+    Gpu,
+}
+
+/// TLS certificate and key (PEM files).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TlsFiles {
+    /// Certificate chain.
+    pub cert: PathBuf,
+    /// Private key.
+    pub key: PathBuf,
+}
+
+/// The configuration file's contents; every field optional.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConfigFile {
+    /// Address to listen on (`127.0.0.1:50051`; port 0 picks a free port).
+    pub listen: Option<String>,
+    /// SQLite database file.
+    pub database: Option<PathBuf>,
+    /// Scene directory.
+    pub scenes: Option<PathBuf>,
+    /// The instructor key (also `CATHLAB_INSTRUCTOR_KEY`).
+    pub instructor_key: Option<String>,
+    /// TLS; plaintext when absent.
+    pub tls: Option<TlsFiles>,
+    /// Renderer.
+    pub renderer: Option<RendererChoice>,
+    /// Most sessions at once.
+    pub max_sessions: Option<usize>,
+    /// Largest request message (bytes).
+    pub max_message_bytes: Option<usize>,
+}
+
+impl ConfigFile {
+    /// Reads a configuration file; errors name the file and the field.
+    pub fn read(file: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(file)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))
+    }
+}
+
+/// The resolved configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServerConfig {
+    /// Address to listen on.
+    pub listen: String,
+    /// SQLite database file.
+    pub database: PathBuf,
+    /// Scene directory.
+    pub scenes: PathBuf,
+    /// Instructor key, if any.
+    pub instructor_key: Option<String>,
+    /// TLS files, if any.
+    pub tls: Option<TlsFiles>,
+    /// Renderer.
+    pub renderer: RendererChoice,
+    /// Most sessions at once.
+    pub max_sessions: usize,
+    /// Largest request message (bytes).
+    pub max_message_bytes: usize,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        Self {
+            listen: "127.0.0.1:50051".into(),
+            database: PathBuf::from("var/cathlab.sqlite"),
+            scenes: PathBuf::from("scenes"),
+            instructor_key: None,
+            tls: None,
+            renderer: RendererChoice::Auto,
+            max_sessions: 16,
+            max_message_bytes: 1 << 20,
+        }
+    }
+}
+
+impl ServerConfig {
+    /// Defaults, overridden by the file's fields.
+    pub fn from_file(file: ConfigFile) -> Self {
+        let d = Self::default();
+        Self {
+            listen: file.listen.unwrap_or(d.listen),
+            database: file.database.unwrap_or(d.database),
+            scenes: file.scenes.unwrap_or(d.scenes),
+            instructor_key: file.instructor_key,
+            tls: file.tls,
+            renderer: file.renderer.unwrap_or(d.renderer),
+            max_sessions: file.max_sessions.unwrap_or(d.max_sessions),
+            max_message_bytes: file.max_message_bytes.unwrap_or(d.max_message_bytes),
+        }
+    }
+}

@@ -1,0 +1,7 @@
+//! The cathlab server: configuration, the SQLite store, the Simulator service and the
+//! assembly of everything into one listening server (`cathlab-server`).
+
+pub mod config;
+pub mod server;
+pub mod service;
+pub mod store;

@@ -1,0 +1,164 @@
+//! Putting the server together: the engine with the shared renderer and the store, the
+//! Simulator service with health and reflection, gRPC-Web and CORS for browsers, the
+//! Prometheus `/metrics` route on the same port, TLS when configured, and graceful shutdown.
+
+use std::future::Future;
+use std::sync::Arc;
+
+use anyhow::Context;
+use axum::routing::get;
+use cathlab_api::pb::simulator_server::SimulatorServer;
+use cathlab_engine::engine::EngineSettings;
+use cathlab_engine::{Engine, EngineMetrics, SessionSettings, SharedRenderer};
+use cathlab_xray::{CpuRenderer, GpuRenderer, Renderer};
+use prometheus_client::registry::Registry;
+use tonic::service::Routes;
+use tonic::transport::{Identity, Server, ServerTlsConfig};
+use tower_http::cors::{AllowOrigin, CorsLayer};
+
+use crate::config::{RendererChoice, ServerConfig};
+use crate::service::SimulatorService;
+use crate::store::Store;
+
+/// The renderer sessions share.
+pub fn renderer(choice: RendererChoice) -> anyhow::Result<Box<dyn Renderer>> {
+    Ok(match choice {
+        RendererChoice::Cpu => Box::new(CpuRenderer::default()),
+        RendererChoice::Gpu => Box::new(GpuRenderer::new()?),
+        RendererChoice::Auto => match GpuRenderer::if_available()? {
+            Some(gpu) => Box::new(gpu),
+            None => Box::new(CpuRenderer::default()),
+        },
+    })
+}
+
+/// The engine and store of a configuration.
+pub fn engine(config: &ServerConfig) -> anyhow::Result<(Arc<Engine>, Arc<Store>, EngineMetrics)> {
+    if let Some(dir) = config.database.parent()
+        && !dir.as_os_str().is_empty()
+    {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let store = Arc::new(Store::open(&config.database)?);
+    let metrics = EngineMetrics::default();
+    let renderer = SharedRenderer::new(renderer(config.renderer)?);
+    let engine = Engine::new(
+        EngineSettings {
+            scenes_dir: config.scenes.clone(),
+            session: SessionSettings::default(),
+            max_sessions: config.max_sessions,
+        },
+        store.clone(),
+        renderer,
+        metrics.clone(),
+    )?;
+    Ok((Arc::new(engine), store, metrics))
+}
+
+/// Runs the server until `shutdown` resolves, then closes every session and flushes the
+/// store. Prints `cathlab-server listening on ADDR` once the socket is bound.
+pub async fn serve(config: ServerConfig, shutdown: impl Future<Output = ()> + Send) -> anyhow::Result<()> {
+    let (engine, store, metrics) = engine(&config)?;
+    tracing::info!(
+        renderer = %format!("{:?}", config.renderer),
+        scenes = engine.catalog().scenes().len(),
+        "engine ready"
+    );
+    let service = Arc::new(SimulatorService::new(
+        engine.clone(),
+        store.clone(),
+        config.instructor_key.clone(),
+    ));
+    let simulator = SimulatorServer::from_arc(service.clone())
+        .max_decoding_message_size(config.max_message_bytes)
+        .max_encoding_message_size(64 << 20);
+    let (health, health_service) = tonic_health::server::health_reporter();
+    health
+        .set_serving::<SimulatorServer<SimulatorService>>()
+        .await;
+    let reflection = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(cathlab_api::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1()?;
+    let mut registry = Registry::default();
+    metrics.register(&mut registry);
+    let registry = Arc::new(registry);
+    let router = Routes::new(simulator)
+        .add_service(health_service)
+        .add_service(reflection)
+        .into_axum_router()
+        .route(
+            "/metrics",
+            get(move || {
+                let registry = registry.clone();
+                async move {
+                    let mut text = String::new();
+                    match prometheus_client::encoding::text::encode(&mut text, &registry) {
+                        Ok(()) => (
+                            [(
+                                "content-type",
+                                "application/openmetrics-text; version=1.0.0; charset=utf-8",
+                            )],
+                            text,
+                        ),
+                        Err(e) => ([("content-type", "text/plain")], format!("error: {e}")),
+                    }
+                }
+            }),
+        );
+    let cors = CorsLayer::new()
+        .allow_origin(AllowOrigin::mirror_request())
+        .allow_methods([http_method("POST"), http_method("GET"), http_method("OPTIONS")])
+        .allow_headers(tower_http::cors::Any)
+        .expose_headers([
+            "grpc-status".parse()?,
+            "grpc-message".parse()?,
+            "grpc-status-details-bin".parse()?,
+        ]);
+    let mut builder = Server::builder().accept_http1(true);
+    if let Some(tls) = &config.tls {
+        let cert = std::fs::read(&tls.cert).with_context(|| format!("{}", tls.cert.display()))?;
+        let key = std::fs::read(&tls.key).with_context(|| format!("{}", tls.key.display()))?;
+        builder = builder.tls_config(ServerTlsConfig::new().identity(Identity::from_pem(cert, key)))?;
+    }
+    let listener = tokio::net::TcpListener::bind(&config.listen)
+        .await
+        .with_context(|| format!("binding {}", config.listen))?;
+    let address = listener.local_addr()?;
+    println!("cathlab-server listening on {address}");
+    let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
+    let result = builder
+        .layer(cors)
+        .layer(tonic_web::GrpcWebLayer::new())
+        .add_routes(Routes::from(router))
+        .serve_with_incoming_shutdown(incoming, shutdown)
+        .await;
+    tracing::info!("shutting down: closing sessions, flushing the store");
+    let closing = service.clone();
+    tokio::task::spawn_blocking(move || closing.shutdown()).await?;
+    result?;
+    Ok(())
+}
+
+fn http_method(name: &str) -> axum::http::Method {
+    axum::http::Method::from_bytes(name.as_bytes()).expect("valid method")
+}
+
+/// Resolves on SIGINT or SIGTERM.
+pub async fn shutdown_signal() {
+    let interrupt = tokio::signal::ctrl_c();
+    #[cfg(unix)]
+    {
+        let mut terminate =
+            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+                .expect("SIGTERM handler");
+        tokio::select! {
+            _ = interrupt => {}
+            _ = terminate.recv() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = interrupt.await;
+    }
+}

@@ -1,0 +1,711 @@
+//! The `cathlab.v1.Simulator` service: thin handlers that authenticate the bearer token,
+//! validate the message (through `cathlab-api`), call the engine and convert the answer.
+//! Streams forward the newest value of the engine's latest-value channels.
+
+use std::collections::{HashMap, VecDeque};
+use std::path::Path;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use cathlab_api::pb::simulator_server::Simulator;
+use cathlab_api::{
+    command_from_wire, control_from_wire, event_to_wire, metrics_to_wire, mode_to_wire, pb,
+    state_to_wire, status_of, timing_to_wire,
+};
+use cathlab_engine::engine::SceneSource;
+use cathlab_engine::session::Session;
+use cathlab_engine::{CommandRecord, Encoding, Engine, EngineError, SceneFormat, SceneSpec};
+use parking_lot::RwLock;
+use tokio::sync::{mpsc, oneshot};
+use tokio_stream::wrappers::ReceiverStream;
+use tokio_stream::{Stream, StreamExt};
+use tonic::{Request, Response, Status, Streaming};
+
+use crate::store::{Store, StoredSession};
+
+/// A boxed response stream.
+pub type ResponseStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send + 'static>>;
+
+/// Who a token belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    /// May command the session.
+    Controller,
+    /// May read the session.
+    Observer,
+    /// May read and list every session.
+    Instructor,
+}
+
+#[derive(Debug, Clone)]
+struct Tokens {
+    controller: String,
+    observer: String,
+}
+
+/// The service state.
+pub struct SimulatorService {
+    engine: Arc<Engine>,
+    store: Arc<Store>,
+    instructor_key: Option<String>,
+    tokens: RwLock<HashMap<String, Tokens>>,
+}
+
+impl std::fmt::Debug for SimulatorService {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SimulatorService").finish_non_exhaustive()
+    }
+}
+
+fn random_hex(bytes: usize) -> String {
+    use rand::RngExt;
+    let mut rng = rand::rng();
+    (0..bytes)
+        .map(|_| format!("{:02x}", rng.random::<u8>()))
+        .collect()
+}
+
+fn unix_us() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
+}
+
+fn bearer<T>(request: &Request<T>) -> Option<String> {
+    let value = request.metadata().get("authorization")?.to_str().ok()?;
+    value
+        .strip_prefix("Bearer ")
+        .or_else(|| value.strip_prefix("bearer "))
+        .map(|t| t.trim().to_owned())
+}
+
+fn engine_status(e: EngineError) -> Status {
+    status_of(&e)
+}
+
+fn store_status(e: impl std::fmt::Display) -> Status {
+    Status::internal(format!("store: {e}"))
+}
+
+impl SimulatorService {
+    /// A service over `engine`, recording to `store`; `instructor_key` unlocks listing and
+    /// watching every session.
+    pub fn new(engine: Arc<Engine>, store: Arc<Store>, instructor_key: Option<String>) -> Self {
+        Self {
+            engine,
+            store,
+            instructor_key: instructor_key.filter(|k| !k.is_empty()),
+            tokens: RwLock::new(HashMap::new()),
+        }
+    }
+
+    fn is_instructor(&self, token: Option<&str>) -> bool {
+        matches!((token, &self.instructor_key), (Some(t), Some(k)) if t == k)
+    }
+
+    /// Checks the caller's token for `session_id`: NOT_FOUND for an unknown session,
+    /// UNAUTHENTICATED without a valid token, PERMISSION_DENIED when reading is not enough.
+    fn authorize<T>(&self, request: &Request<T>, session_id: &str, control: bool) -> Result<Role, Status> {
+        let token = bearer(request);
+        let known = self.tokens.read().get(session_id).cloned();
+        let role = if self.is_instructor(token.as_deref()) {
+            Role::Instructor
+        } else {
+            let Some(tokens) = known.as_ref() else {
+                return Err(Status::not_found(format!("session {session_id:?}")));
+            };
+            match token.as_deref() {
+                Some(t) if t == tokens.controller => Role::Controller,
+                Some(t) if t == tokens.observer => Role::Observer,
+                Some(_) => {
+                    return Err(Status::unauthenticated(format!(
+                        "the token is not one of session {session_id:?}"
+                    )));
+                }
+                None => {
+                    return Err(Status::unauthenticated(
+                        "missing `authorization: Bearer <token>` metadata",
+                    ));
+                }
+            }
+        };
+        if control && role != Role::Controller {
+            return Err(Status::permission_denied(format!(
+                "{} may watch session {session_id:?} but not command it",
+                match role {
+                    Role::Observer => "an observer",
+                    _ => "an instructor",
+                }
+            )));
+        }
+        Ok(role)
+    }
+
+    fn session(&self, id: &str) -> Result<Arc<Session>, Status> {
+        self.engine.get(id).map_err(engine_status)
+    }
+
+    fn info_of(&self, session: &Session) -> pb::SessionInfo {
+        let state = session.state().borrow().clone();
+        pb::SessionInfo {
+            session_id: session.id().to_owned(),
+            scene_name: session.assets().spec.name.clone(),
+            label: session.label().to_owned(),
+            status: if session.is_running() {
+                pb::SessionStatus::Running
+            } else {
+                pb::SessionStatus::Closed
+            } as i32,
+            created_unix_s: session.created_unix_s(),
+            step_rate_hz: session.assets().spec.fidelity.step_rate_hz,
+            metrics: Some(metrics_to_wire(&state.metrics)),
+            timing: Some(timing_to_wire(&session.timing().summary())),
+            commands: session.commands_recorded(),
+            active_device: state.active_device,
+        }
+    }
+
+    fn stored_info(&self, s: &StoredSession) -> Result<pb::SessionInfo, Status> {
+        let checkpoints = self.store.checkpoints(&s.id).map_err(store_status)?;
+        let metrics = checkpoints.last().map(|c| metrics_to_wire(&c.metrics));
+        Ok(pb::SessionInfo {
+            session_id: s.id.clone(),
+            scene_name: s.scene_name.clone(),
+            label: s.label.clone(),
+            status: match s.status.as_str() {
+                "running" => pb::SessionStatus::Running,
+                "closed" => pb::SessionStatus::Closed,
+                _ => pb::SessionStatus::Interrupted,
+            } as i32,
+            created_unix_s: s.created_unix_s,
+            step_rate_hz: s.step_rate_hz,
+            metrics,
+            timing: None,
+            commands: self.store.command_count(&s.id).map_err(store_status)?,
+            active_device: 0,
+        })
+    }
+
+    /// Closes every session and waits for the store (graceful shutdown).
+    pub fn shutdown(&self) {
+        for s in self.engine.sessions() {
+            self.store.set_status(s.id(), "closed");
+        }
+        self.engine.shutdown();
+        self.store.flush();
+    }
+}
+
+fn encoding_of(request: &pb::StreamFramesRequest) -> Result<Encoding, Status> {
+    Ok(match pb::FrameEncoding::try_from(request.encoding) {
+        Ok(pb::FrameEncoding::Raw8) | Ok(pb::FrameEncoding::Unspecified) => Encoding::Raw8,
+        Ok(pb::FrameEncoding::Raw16) => Encoding::Raw16,
+        Ok(pb::FrameEncoding::Png) => Encoding::Png,
+        Ok(pb::FrameEncoding::Jpeg) => {
+            let q = if request.jpeg_quality == 0 {
+                85
+            } else {
+                request.jpeg_quality
+            };
+            if q > 100 {
+                return Err(Status::invalid_argument(format!(
+                    "jpeg_quality: {q} is outside 1..=100"
+                )));
+            }
+            Encoding::Jpeg(q as u8)
+        }
+        Err(_) => {
+            return Err(Status::invalid_argument(format!(
+                "encoding: {} is not a FrameEncoding",
+                request.encoding
+            )));
+        }
+    })
+}
+
+#[tonic::async_trait]
+impl Simulator for SimulatorService {
+    async fn list_scenes(
+        &self,
+        _: Request<pb::ListScenesRequest>,
+    ) -> Result<Response<pb::ListScenesResponse>, Status> {
+        let scenes = self
+            .engine
+            .catalog()
+            .scenes()
+            .iter()
+            .map(|(s, _)| pb::SceneSummary {
+                name: s.name.clone(),
+                description: s.description.clone(),
+                devices: s.devices.iter().map(|d| d.label()).collect(),
+                has_flow: s.flow.is_some(),
+                target: s.target.branch.clone(),
+            })
+            .collect();
+        Ok(Response::new(pb::ListScenesResponse { scenes }))
+    }
+
+    async fn create_session(
+        &self,
+        request: Request<pb::CreateSessionRequest>,
+    ) -> Result<Response<pb::CreateSessionResponse>, Status> {
+        let r = request.into_inner();
+        let source = match r.scene {
+            Some(pb::create_session_request::Scene::SceneName(name)) => SceneSource::Named(name),
+            Some(pb::create_session_request::Scene::SceneToml(text)) => {
+                SceneSource::Inline(text, SceneFormat::Toml)
+            }
+            Some(pb::create_session_request::Scene::SceneJson(text)) => {
+                SceneSource::Inline(text, SceneFormat::Json)
+            }
+            None => return Err(Status::invalid_argument("scene: missing")),
+        };
+        if r.label.len() > 200 {
+            return Err(Status::invalid_argument("label: longer than 200 bytes"));
+        }
+        let (spec, base) = self.engine.scene(&source).map_err(engine_status)?;
+        let id = random_hex(16);
+        let tokens = Tokens {
+            controller: random_hex(24),
+            observer: random_hex(24),
+        };
+        let engine = self.engine.clone();
+        let (label, session_id) = (r.label.clone(), id.clone());
+        let spec_for_load = spec.clone();
+        let base_for_load = base.clone();
+        let session = tokio::task::spawn_blocking(move || {
+            engine.create(session_id, label, &spec_for_load, &base_for_load)
+        })
+        .await
+        .map_err(|e| Status::internal(e.to_string()))?
+        .map_err(engine_status)?;
+        self.store
+            .insert_session(StoredSession {
+                id: id.clone(),
+                label: r.label,
+                scene_name: spec.name.clone(),
+                scene_json: serde_json::to_string(&spec).map_err(store_status)?,
+                base_dir: base,
+                created_unix_s: session.created_unix_s(),
+                status: "running".into(),
+                step_rate_hz: spec.fidelity.step_rate_hz,
+            })
+            .map_err(store_status)?;
+        self.tokens.write().insert(id.clone(), tokens.clone());
+        tracing::info!(session = %id, scene = %spec.name, "session created");
+        Ok(Response::new(pb::CreateSessionResponse {
+            session_id: id,
+            controller_token: tokens.controller,
+            observer_token: tokens.observer,
+            info: Some(self.info_of(&session)),
+        }))
+    }
+
+    async fn list_sessions(
+        &self,
+        request: Request<pb::ListSessionsRequest>,
+    ) -> Result<Response<pb::ListSessionsResponse>, Status> {
+        if !self.is_instructor(bearer(&request).as_deref()) {
+            return Err(Status::permission_denied(
+                "listing sessions needs the instructor key",
+            ));
+        }
+        let mut sessions: Vec<pb::SessionInfo> = self
+            .engine
+            .sessions()
+            .iter()
+            .map(|s| self.info_of(s))
+            .collect();
+        if request.get_ref().include_recorded {
+            let live: Vec<String> = sessions.iter().map(|s| s.session_id.clone()).collect();
+            for stored in self.store.sessions().map_err(store_status)? {
+                if !live.contains(&stored.id) {
+                    sessions.push(self.stored_info(&stored)?);
+                }
+            }
+        }
+        Ok(Response::new(pb::ListSessionsResponse { sessions }))
+    }
+
+    async fn get_session(
+        &self,
+        request: Request<pb::GetSessionRequest>,
+    ) -> Result<Response<pb::SessionInfo>, Status> {
+        let id = request.get_ref().session_id.clone();
+        if let Ok(session) = self.engine.get(&id) {
+            self.authorize(&request, &id, false)?;
+            return Ok(Response::new(self.info_of(&session)));
+        }
+        // A recorded session (closed, or from before a restart): instructors only.
+        let stored = self
+            .store
+            .session(&id)
+            .map_err(store_status)?
+            .ok_or_else(|| Status::not_found(format!("session {id:?}")))?;
+        if !self.is_instructor(bearer(&request).as_deref()) {
+            return Err(Status::permission_denied(
+                "recorded sessions are for the instructor key",
+            ));
+        }
+        Ok(Response::new(self.stored_info(&stored)?))
+    }
+
+    async fn close_session(
+        &self,
+        request: Request<pb::CloseSessionRequest>,
+    ) -> Result<Response<pb::CloseSessionResponse>, Status> {
+        let id = request.get_ref().session_id.clone();
+        let role = self.authorize(&request, &id, false)?;
+        if role == Role::Observer {
+            return Err(Status::permission_denied("an observer cannot close a session"));
+        }
+        let engine = self.engine.clone();
+        let closing = id.clone();
+        let session = tokio::task::spawn_blocking(move || engine.close(&closing))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?
+            .map_err(engine_status)?;
+        self.store.set_status(&id, "closed");
+        self.store.flush();
+        self.tokens.write().remove(&id);
+        Ok(Response::new(pb::CloseSessionResponse {
+            info: Some(self.info_of(&session)),
+        }))
+    }
+
+    async fn send_command(
+        &self,
+        request: Request<pb::SendCommandRequest>,
+    ) -> Result<Response<pb::CommandAck>, Status> {
+        let id = request.get_ref().session_id.clone();
+        self.authorize(&request, &id, true)?;
+        let r = request.into_inner();
+        let command = command_from_wire(r.command.as_ref())?;
+        let session = self.session(&id)?;
+        let record = session.command(r.seq, command).await.map_err(engine_status)?;
+        Ok(Response::new(pb::CommandAck {
+            seq: record.seq,
+            step: record.step,
+        }))
+    }
+
+    type ControlStream = ResponseStream<pb::ControlOutput>;
+
+    async fn control(
+        &self,
+        request: Request<Streaming<pb::ControlInput>>,
+    ) -> Result<Response<Self::ControlStream>, Status> {
+        let token = bearer(&request);
+        let mut inputs = request.into_inner();
+        let first = inputs
+            .message()
+            .await?
+            .ok_or_else(|| Status::invalid_argument("session_id: the stream sent nothing"))?;
+        let id = first.session_id.clone();
+        // Authorize with the token from the stream's metadata.
+        let mut probe = Request::new(());
+        if let Some(t) = &token
+            && let Ok(v) = format!("Bearer {t}").parse()
+        {
+            probe.metadata_mut().insert("authorization", v);
+        }
+        self.authorize(&probe, &id, true)?;
+        let session = self.session(&id)?;
+        let (out_tx, out_rx) = mpsc::channel::<Result<pb::ControlOutput, Status>>(64);
+        let (pending_tx, mut pending_rx) =
+            mpsc::channel::<(u64, oneshot::Receiver<cathlab_engine::Result<CommandRecord>>)>(4096);
+        // Inputs: validate and queue; a bad input ends the stream with its error.
+        {
+            let session = session.clone();
+            let out_tx = out_tx.clone();
+            tokio::spawn(async move {
+                let mut next = Some(first);
+                loop {
+                    let input = match next.take() {
+                        Some(i) => i,
+                        None => match inputs.message().await {
+                            Ok(Some(i)) => i,
+                            Ok(None) => break,
+                            Err(e) => {
+                                let _ = out_tx.send(Err(e)).await;
+                                break;
+                            }
+                        },
+                    };
+                    let command = match control_from_wire(&input) {
+                        Ok(c) => c,
+                        Err(e) => {
+                            let _ = out_tx.send(Err(e)).await;
+                            break;
+                        }
+                    };
+                    let (ack_tx, ack_rx) = oneshot::channel();
+                    if let Err(e) = session.send(input.seq, command, Some(ack_tx)) {
+                        let _ = out_tx.send(Err(engine_status(e))).await;
+                        break;
+                    }
+                    if pending_tx.send((input.seq, ack_rx)).await.is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        // Outputs: every new state, once the commands it reports are durable.
+        {
+            let mut state = session.state();
+            tokio::spawn(async move {
+                let mut pending: VecDeque<(u64, oneshot::Receiver<_>)> = VecDeque::new();
+                loop {
+                    if state.changed().await.is_err() {
+                        break;
+                    }
+                    let snapshot = state.borrow_and_update().clone();
+                    while let Ok(p) = pending_rx.try_recv() {
+                        pending.push_back(p);
+                    }
+                    while pending
+                        .front()
+                        .is_some_and(|(seq, _)| *seq <= snapshot.last_seq)
+                    {
+                        let (_, ack) = pending.pop_front().expect("front exists");
+                        if let Ok(Err(e)) = ack.await {
+                            let _ = out_tx.send(Err(engine_status(e))).await;
+                            return;
+                        }
+                    }
+                    let message = pb::ControlOutput {
+                        state: Some(state_to_wire(&snapshot, true, unix_us())),
+                    };
+                    if out_tx.send(Ok(message)).await.is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        Ok(Response::new(Box::pin(ReceiverStream::new(out_rx))))
+    }
+
+    type StreamStateStream = ResponseStream<pb::DeviceState>;
+
+    async fn stream_state(
+        &self,
+        request: Request<pb::StreamStateRequest>,
+    ) -> Result<Response<Self::StreamStateStream>, Status> {
+        let id = request.get_ref().session_id.clone();
+        self.authorize(&request, &id, false)?;
+        let tip_only = request.get_ref().tip_only;
+        let session = self.session(&id)?;
+        let stream = tokio_stream::wrappers::WatchStream::new(session.state())
+            .map(move |s| Ok(state_to_wire(&s, tip_only, unix_us())));
+        Ok(Response::new(Box::pin(stream)))
+    }
+
+    type StreamFramesStream = ResponseStream<pb::XrayFrame>;
+
+    async fn stream_frames(
+        &self,
+        request: Request<pb::StreamFramesRequest>,
+    ) -> Result<Response<Self::StreamFramesStream>, Status> {
+        let id = request.get_ref().session_id.clone();
+        self.authorize(&request, &id, false)?;
+        let r = request.into_inner();
+        let encoding = encoding_of(&r)?;
+        for (field, v) in [("width", r.width), ("height", r.height)] {
+            if v != 0 && !(16..=2048).contains(&v) {
+                return Err(Status::invalid_argument(format!(
+                    "{field}: {v} is outside 16..=2048 (0 keeps the detector size)"
+                )));
+            }
+        }
+        if (r.width == 0) != (r.height == 0) {
+            return Err(Status::invalid_argument(
+                "width, height: give both or neither",
+            ));
+        }
+        let session = self.session(&id)?;
+        let metrics = self.engine.metrics().clone();
+        let mut frames = session.frames();
+        let (tx, rx) = mpsc::channel::<Result<pb::XrayFrame, Status>>(1);
+        tokio::spawn(async move {
+            let mut last_index: Option<u64> = None;
+            loop {
+                let frame = frames.borrow_and_update().clone();
+                if let Some(frame) = frame {
+                    let skipped = match last_index {
+                        Some(i) if frame.frame.index > i + 1 => frame.frame.index - i - 1,
+                        _ => 0,
+                    };
+                    last_index = Some(frame.frame.index);
+                    let (w, h) = (r.width, r.height);
+                    let encoded = tokio::task::spawn_blocking(move || {
+                        cathlab_engine::encode_frame(&frame.frame, encoding, w, h)
+                            .map(|bytes| (bytes, frame))
+                    })
+                    .await;
+                    let message = match encoded {
+                        Ok(Ok(((data, width, height), frame))) => Ok(pb::XrayFrame {
+                            index: frame.frame.index,
+                            time_s: frame.frame.time_s,
+                            width,
+                            height,
+                            encoding: match encoding {
+                                Encoding::Raw8 => pb::FrameEncoding::Raw8,
+                                Encoding::Raw16 => pb::FrameEncoding::Raw16,
+                                Encoding::Png => pb::FrameEncoding::Png,
+                                Encoding::Jpeg(_) => pb::FrameEncoding::Jpeg,
+                            } as i32,
+                            data,
+                            mode: mode_to_wire(frame.frame.mode) as i32,
+                            held: frame.frame.held,
+                            last_seq: frame.last_seq,
+                            skipped,
+                        }),
+                        Ok(Err(e)) => Err(engine_status(e)),
+                        Err(e) => Err(Status::internal(e.to_string())),
+                    };
+                    metrics.frames_sent.inc();
+                    metrics.frames_skipped.inc_by(skipped);
+                    if tx.send(message).await.is_err() {
+                        break;
+                    }
+                }
+                if frames.changed().await.is_err() {
+                    break;
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    type StreamMetricsStream = ResponseStream<pb::SessionUpdate>;
+
+    async fn stream_metrics(
+        &self,
+        request: Request<pb::StreamMetricsRequest>,
+    ) -> Result<Response<Self::StreamMetricsStream>, Status> {
+        let id = request.get_ref().session_id.clone();
+        self.authorize(&request, &id, false)?;
+        let session = self.session(&id)?;
+        let mut events = session.events();
+        let state = session.state();
+        let (tx, rx) = mpsc::channel::<Result<pb::SessionUpdate, Status>>(16);
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_secs(1));
+            loop {
+                let update = tokio::select! {
+                    _ = tick.tick() => pb::session_update::Kind::Metrics(
+                        metrics_to_wire(&state.borrow().metrics)),
+                    event = events.recv() => match event {
+                        Ok(e) => pb::session_update::Kind::Event(event_to_wire(&e)),
+                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                            pb::session_update::Kind::Event(pb::Event {
+                                kind: "lagged".into(),
+                                message: format!("{n} events skipped (slow reader)"),
+                                ..pb::Event::default()
+                            })
+                        }
+                        Err(_) => break,
+                    },
+                };
+                if tx
+                    .send(Ok(pb::SessionUpdate { kind: Some(update) }))
+                    .await
+                    .is_err()
+                {
+                    break;
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn get_anatomy(
+        &self,
+        request: Request<pb::GetAnatomyRequest>,
+    ) -> Result<Response<pb::Anatomy>, Status> {
+        let id = request.get_ref().session_id.clone();
+        self.authorize(&request, &id, false)?;
+        let session = self.session(&id)?;
+        let assets = session.assets();
+        let to_lps = |p: &nalgebra::Point3<f64>| {
+            let v = assets.to_lps * p.coords;
+            [v.x as f32 * 1e3, v.y as f32 * 1e3, v.z as f32 * 1e3]
+        };
+        let graph = &assets.anatomy.graph;
+        let branches = graph
+            .branches
+            .iter()
+            .map(|b| pb::Branch {
+                name: b.name.clone(),
+                points_mm: b.points.iter().flat_map(to_lps).collect(),
+                radii_mm: b.radii.iter().map(|r| *r as f32 * 1e3).collect(),
+            })
+            .collect();
+        let mesh = assets.anatomy.lumen.mesh();
+        let access = assets.point_to_lps(&assets.entry.0) * 1e3;
+        Ok(Response::new(pb::Anatomy {
+            branches,
+            vertices_mm: mesh.vertices.iter().flat_map(to_lps).collect(),
+            triangles: mesh
+                .triangles
+                .iter()
+                .flat_map(|t| t.iter().copied())
+                .collect(),
+            access_mm: Some(pb::Vec3 {
+                x: access.x,
+                y: access.y,
+                z: access.z,
+            }),
+            target: assets.spec.target.branch.clone(),
+        }))
+    }
+
+    async fn replay_session(
+        &self,
+        request: Request<pb::ReplaySessionRequest>,
+    ) -> Result<Response<pb::ReplayResult>, Status> {
+        let id = request.get_ref().session_id.clone();
+        if self.engine.get(&id).is_ok() {
+            self.authorize(&request, &id, false)?;
+        } else if !self.is_instructor(bearer(&request).as_deref()) {
+            return Err(if self.store.session(&id).map_err(store_status)?.is_some() {
+                Status::permission_denied("replaying a recorded session needs the instructor key")
+            } else {
+                Status::not_found(format!("session {id:?}"))
+            });
+        }
+        let engine = self.engine.clone();
+        let store = self.store.clone();
+        let outcome = tokio::task::spawn_blocking(move || replay_stored(&engine, &store, &id))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))??;
+        Ok(Response::new(outcome))
+    }
+}
+
+/// Replays a stored session from the store (also used by `cathlab-server replay`).
+pub fn replay_stored(engine: &Engine, store: &Store, id: &str) -> Result<pb::ReplayResult, Status> {
+    let stored = store
+        .session(id)
+        .map_err(store_status)?
+        .ok_or_else(|| Status::not_found(format!("session {id:?}")))?;
+    let spec: SceneSpec = serde_json::from_str(&stored.scene_json)
+        .map_err(|e| Status::internal(format!("stored scene of {id}: {e}")))?;
+    let assets = engine
+        .load(&spec, Path::new(&stored.base_dir))
+        .map_err(engine_status)?;
+    let commands = store.commands(id).map_err(store_status)?;
+    let checkpoints = store.checkpoints(id).map_err(store_status)?;
+    let outcome =
+        cathlab_engine::replay(assets, &commands, &checkpoints).map_err(engine_status)?;
+    Ok(pb::ReplayResult {
+        steps: outcome.steps,
+        commands: outcome.commands as u32,
+        checkpoints: outcome.checkpoints as u32,
+        matched: outcome.matched as u32,
+        recorded_digest: format!("{:016x}", outcome.recorded_digest),
+        replayed_digest: format!("{:016x}", outcome.replayed_digest),
+        metrics: Some(metrics_to_wire(&outcome.metrics)),
+    })
+}

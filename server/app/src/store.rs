@@ -1,0 +1,479 @@
+//! The embedded SQLite store: sessions, every applied command with its step, checkpoints
+//! (state digest and metrics), events. One writer thread batches what the physics threads
+//! hand it into transactions and acknowledges commands only after their transaction commits
+//! (WAL mode: a commit survives the process being killed). Reads open their own connections.
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::thread::JoinHandle;
+
+use cathlab_engine::session::Ack;
+use cathlab_engine::{Checkpoint, CommandRecord, EngineError, Event, Metrics, Recorder};
+use rusqlite::{Connection, OptionalExtension, params};
+
+/// Store errors.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    /// SQLite refused something.
+    #[error("{file}: {source}")]
+    Sqlite {
+        /// The database.
+        file: PathBuf,
+        /// The cause.
+        source: rusqlite::Error,
+    },
+    /// A stored value does not parse.
+    #[error("{file}: corrupt {what}: {reason}")]
+    Corrupt {
+        /// The database.
+        file: PathBuf,
+        /// Which value.
+        what: String,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// A session as stored.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredSession {
+    /// Id.
+    pub id: String,
+    /// Label.
+    pub label: String,
+    /// Scene name.
+    pub scene_name: String,
+    /// The scene as JSON (what replay loads).
+    pub scene_json: String,
+    /// Directory the scene's relative paths start from.
+    pub base_dir: PathBuf,
+    /// Unix time of creation (s).
+    pub created_unix_s: f64,
+    /// `running`, `closed` or `interrupted`.
+    pub status: String,
+    /// Physics rate (Hz).
+    pub step_rate_hz: f64,
+}
+
+enum Write {
+    Session(StoredSession, std::sync::mpsc::Sender<Result<(), String>>),
+    Status(String, &'static str),
+    Command(String, CommandRecord, Option<Ack>),
+    Checkpoint(String, Checkpoint),
+    Event(String, Event),
+    Flush(std::sync::mpsc::Sender<()>),
+}
+
+/// The store: a writer thread and the database file.
+pub struct Store {
+    file: PathBuf,
+    writes: SyncSender<Write>,
+    _writer: JoinHandle<()>,
+}
+
+impl std::fmt::Debug for Store {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Store").field("file", &self.file).finish()
+    }
+}
+
+const SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS sessions (
+    id TEXT PRIMARY KEY, label TEXT NOT NULL, scene_name TEXT NOT NULL,
+    scene_json TEXT NOT NULL, base_dir TEXT NOT NULL, created_unix_s REAL NOT NULL,
+    status TEXT NOT NULL, step_rate_hz REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS commands (
+    session_id TEXT NOT NULL, ordinal INTEGER NOT NULL, step INTEGER NOT NULL,
+    seq INTEGER NOT NULL, command TEXT NOT NULL, PRIMARY KEY (session_id, ordinal));
+CREATE TABLE IF NOT EXISTS checkpoints (
+    session_id TEXT NOT NULL, step INTEGER NOT NULL, digest TEXT NOT NULL,
+    metrics TEXT NOT NULL, PRIMARY KEY (session_id, step));
+CREATE TABLE IF NOT EXISTS events (
+    session_id TEXT NOT NULL, step INTEGER NOT NULL, time_s REAL NOT NULL,
+    kind TEXT NOT NULL, message TEXT NOT NULL);
+";
+
+fn open(file: &Path) -> Result<Connection, StoreError> {
+    let sqlite = |source| StoreError::Sqlite {
+        file: file.to_owned(),
+        source,
+    };
+    let conn = Connection::open(file).map_err(sqlite)?;
+    conn.pragma_update(None, "journal_mode", "WAL")
+        .map_err(sqlite)?;
+    // In WAL mode NORMAL syncs at checkpoints, not at every commit: a commit survives the
+    // process being killed (it is in the WAL file) but not a power cut before the next sync.
+    conn.pragma_update(None, "synchronous", "NORMAL")
+        .map_err(sqlite)?;
+    conn.busy_timeout(std::time::Duration::from_secs(5))
+        .map_err(sqlite)?;
+    Ok(conn)
+}
+
+impl Store {
+    /// Opens (or creates) the database, marks sessions left running by a previous process as
+    /// interrupted, and starts the writer.
+    pub fn open(file: &Path) -> Result<Self, StoreError> {
+        let conn = open(file)?;
+        let sqlite = |source| StoreError::Sqlite {
+            file: file.to_owned(),
+            source,
+        };
+        conn.execute_batch(SCHEMA).map_err(sqlite)?;
+        conn.execute(
+            "UPDATE sessions SET status = 'interrupted' WHERE status = 'running'",
+            [],
+        )
+        .map_err(sqlite)?;
+        let (tx, rx) = sync_channel(1 << 16);
+        let path = file.to_owned();
+        let writer = std::thread::Builder::new()
+            .name("store-writer".into())
+            .spawn(move || writer_loop(conn, rx, path))
+            .map_err(|e| StoreError::Corrupt {
+                file: file.to_owned(),
+                what: "writer thread".into(),
+                reason: e.to_string(),
+            })?;
+        Ok(Self {
+            file: file.to_owned(),
+            writes: tx,
+            _writer: writer,
+        })
+    }
+
+    /// The database file.
+    pub fn file(&self) -> &Path {
+        &self.file
+    }
+
+    fn push(&self, write: Write) {
+        match self.writes.try_send(write) {
+            Ok(()) => {}
+            // The writer is behind by 65,536 writes: wait rather than lose one.
+            Err(TrySendError::Full(w)) => {
+                let _ = self.writes.send(w);
+            }
+            Err(TrySendError::Disconnected(w)) => {
+                if let Write::Command(_, _, Some(ack)) = w {
+                    let _ = ack.send(Err(EngineError::Store("the store is closed".into())));
+                }
+            }
+        }
+    }
+
+    /// Inserts a new session and waits until it is committed.
+    pub fn insert_session(&self, session: StoredSession) -> Result<(), String> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        self.push(Write::Session(session, tx));
+        rx.recv().map_err(|_| "the store is closed".to_owned())?
+    }
+
+    /// Sets a session's status (`closed`).
+    pub fn set_status(&self, id: &str, status: &'static str) {
+        self.push(Write::Status(id.to_owned(), status));
+    }
+
+    /// Waits until everything queued so far is committed.
+    pub fn flush(&self) {
+        let (tx, rx) = std::sync::mpsc::channel();
+        self.push(Write::Flush(tx));
+        let _ = rx.recv();
+    }
+
+    /// A read connection.
+    fn reader(&self) -> Result<Connection, StoreError> {
+        open(&self.file)
+    }
+
+    fn sqlite(&self) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
+        |source| StoreError::Sqlite {
+            file: self.file.clone(),
+            source,
+        }
+    }
+
+    /// Every stored session, newest first.
+    pub fn sessions(&self) -> Result<Vec<StoredSession>, StoreError> {
+        let conn = self.reader()?;
+        let mut stmt = conn
+            .prepare(
+                "SELECT id, label, scene_name, scene_json, base_dir, created_unix_s, status,
+                 step_rate_hz FROM sessions ORDER BY created_unix_s DESC",
+            )
+            .map_err(self.sqlite())?;
+        let rows = stmt
+            .query_map([], row_to_session)
+            .map_err(self.sqlite())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(self.sqlite())?;
+        Ok(rows)
+    }
+
+    /// One stored session.
+    pub fn session(&self, id: &str) -> Result<Option<StoredSession>, StoreError> {
+        let conn = self.reader()?;
+        conn.query_row(
+            "SELECT id, label, scene_name, scene_json, base_dir, created_unix_s, status,
+             step_rate_hz FROM sessions WHERE id = ?1",
+            [id],
+            row_to_session,
+        )
+        .optional()
+        .map_err(self.sqlite())
+    }
+
+    /// A session's commands in application order.
+    pub fn commands(&self, id: &str) -> Result<Vec<CommandRecord>, StoreError> {
+        let conn = self.reader()?;
+        let mut stmt = conn
+            .prepare(
+                "SELECT ordinal, step, seq, command FROM commands WHERE session_id = ?1
+                 ORDER BY ordinal",
+            )
+            .map_err(self.sqlite())?;
+        let rows = stmt
+            .query_map([id], |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, i64>(1)?,
+                    r.get::<_, i64>(2)?,
+                    r.get::<_, String>(3)?,
+                ))
+            })
+            .map_err(self.sqlite())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(self.sqlite())?;
+        rows.into_iter()
+            .map(|(ordinal, step, seq, json)| {
+                Ok(CommandRecord {
+                    ordinal: ordinal as u64,
+                    step: step as u64,
+                    seq: seq as u64,
+                    command: serde_json::from_str(&json).map_err(|e| StoreError::Corrupt {
+                        file: self.file.clone(),
+                        what: format!("command {ordinal} of session {id}"),
+                        reason: e.to_string(),
+                    })?,
+                })
+            })
+            .collect()
+    }
+
+    /// A session's checkpoints by step.
+    pub fn checkpoints(&self, id: &str) -> Result<Vec<Checkpoint>, StoreError> {
+        let conn = self.reader()?;
+        let mut stmt = conn
+            .prepare(
+                "SELECT step, digest, metrics FROM checkpoints WHERE session_id = ?1
+                 ORDER BY step",
+            )
+            .map_err(self.sqlite())?;
+        let rows = stmt
+            .query_map([id], |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, String>(1)?,
+                    r.get::<_, String>(2)?,
+                ))
+            })
+            .map_err(self.sqlite())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(self.sqlite())?;
+        rows.into_iter()
+            .map(|(step, digest, metrics)| {
+                let corrupt = |what: &str, reason: String| StoreError::Corrupt {
+                    file: self.file.clone(),
+                    what: format!("{what} at step {step} of session {id}"),
+                    reason,
+                };
+                Ok(Checkpoint {
+                    step: step as u64,
+                    digest: u64::from_str_radix(&digest, 16)
+                        .map_err(|e| corrupt("digest", e.to_string()))?,
+                    metrics: serde_json::from_str::<Metrics>(&metrics)
+                        .map_err(|e| corrupt("metrics", e.to_string()))?,
+                })
+            })
+            .collect()
+    }
+
+    /// How many commands a session has recorded.
+    pub fn command_count(&self, id: &str) -> Result<u64, StoreError> {
+        let conn = self.reader()?;
+        conn.query_row(
+            "SELECT COUNT(*) FROM commands WHERE session_id = ?1",
+            [id],
+            |r| r.get::<_, i64>(0),
+        )
+        .map(|n| n as u64)
+        .map_err(self.sqlite())
+    }
+
+    /// A session's events in order.
+    pub fn events(&self, id: &str) -> Result<Vec<Event>, StoreError> {
+        let conn = self.reader()?;
+        let mut stmt = conn
+            .prepare(
+                "SELECT step, time_s, kind, message FROM events WHERE session_id = ?1
+                 ORDER BY rowid",
+            )
+            .map_err(self.sqlite())?;
+        let rows = stmt
+            .query_map([id], |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, f64>(1)?,
+                    r.get::<_, String>(2)?,
+                    r.get::<_, String>(3)?,
+                ))
+            })
+            .map_err(self.sqlite())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(self.sqlite())?;
+        rows.into_iter()
+            .map(|(step, time_s, kind, message)| {
+                Ok(Event {
+                    step: step as u64,
+                    time_s,
+                    kind: serde_json::from_value(serde_json::Value::String(kind.clone()))
+                        .map_err(|e| StoreError::Corrupt {
+                            file: self.file.clone(),
+                            what: format!("event kind {kind:?}"),
+                            reason: e.to_string(),
+                        })?,
+                    message,
+                })
+            })
+            .collect()
+    }
+}
+
+fn row_to_session(r: &rusqlite::Row<'_>) -> rusqlite::Result<StoredSession> {
+    Ok(StoredSession {
+        id: r.get(0)?,
+        label: r.get(1)?,
+        scene_name: r.get(2)?,
+        scene_json: r.get(3)?,
+        base_dir: PathBuf::from(r.get::<_, String>(4)?),
+        created_unix_s: r.get(5)?,
+        status: r.get(6)?,
+        step_rate_hz: r.get(7)?,
+    })
+}
+
+impl Recorder for Store {
+    fn command(&self, session: &str, record: CommandRecord, ack: Option<Ack>) {
+        self.push(Write::Command(session.to_owned(), record, ack));
+    }
+
+    fn checkpoint(&self, session: &str, checkpoint: Checkpoint) {
+        self.push(Write::Checkpoint(session.to_owned(), checkpoint));
+    }
+
+    fn event(&self, session: &str, event: &Event) {
+        self.push(Write::Event(session.to_owned(), event.clone()));
+    }
+}
+
+/// Most writes in one transaction.
+const BATCH: usize = 512;
+
+fn writer_loop(mut conn: Connection, rx: Receiver<Write>, file: PathBuf) {
+    let mut batch = Vec::with_capacity(BATCH);
+    while let Ok(first) = rx.recv() {
+        batch.push(first);
+        while batch.len() < BATCH {
+            match rx.try_recv() {
+                Ok(w) => batch.push(w),
+                Err(_) => break,
+            }
+        }
+        let result = write_batch(&mut conn, &batch);
+        if let Err(e) = &result {
+            tracing::error!("{}: {e}", file.display());
+        }
+        // Acknowledge after the commit (or report the failure).
+        for w in batch.drain(..) {
+            match w {
+                Write::Command(_, record, Some(ack)) => {
+                    let _ = ack.send(match &result {
+                        Ok(()) => Ok(record),
+                        Err(e) => Err(EngineError::Store(e.to_string())),
+                    });
+                }
+                Write::Session(_, done) => {
+                    let _ = done.send(result.as_ref().map(|_| ()).map_err(|e| e.to_string()));
+                }
+                Write::Flush(done) => {
+                    let _ = done.send(());
+                }
+                _ => {}
+            }
+        }
+    }
+}
+
+fn write_batch(conn: &mut Connection, batch: &[Write]) -> rusqlite::Result<()> {
+    let tx = conn.transaction()?;
+    for w in batch {
+        match w {
+            Write::Session(s, _) => {
+                tx.execute(
+                    "INSERT INTO sessions (id, label, scene_name, scene_json, base_dir,
+                     created_unix_s, status, step_rate_hz) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                    params![
+                        s.id,
+                        s.label,
+                        s.scene_name,
+                        s.scene_json,
+                        s.base_dir.to_string_lossy(),
+                        s.created_unix_s,
+                        s.status,
+                        s.step_rate_hz
+                    ],
+                )?;
+            }
+            Write::Status(id, status) => {
+                tx.execute(
+                    "UPDATE sessions SET status = ?2 WHERE id = ?1",
+                    params![id, status],
+                )?;
+            }
+            Write::Command(id, r, _) => {
+                tx.execute(
+                    "INSERT INTO commands (session_id, ordinal, step, seq, command)
+                     VALUES (?1, ?2, ?3, ?4, ?5)",
+                    params![
+                        id,
+                        r.ordinal as i64,
+                        r.step as i64,
+                        r.seq as i64,
+                        serde_json::to_string(&r.command).unwrap_or_default()
+                    ],
+                )?;
+            }
+            Write::Checkpoint(id, c) => {
+                tx.execute(
+                    "INSERT OR REPLACE INTO checkpoints (session_id, step, digest, metrics)
+                     VALUES (?1, ?2, ?3, ?4)",
+                    params![
+                        id,
+                        c.step as i64,
+                        format!("{:016x}", c.digest),
+                        serde_json::to_string(&c.metrics).unwrap_or_default()
+                    ],
+                )?;
+            }
+            Write::Event(id, e) => {
+                tx.execute(
+                    "INSERT INTO events (session_id, step, time_s, kind, message)
+                     VALUES (?1, ?2, ?3, ?4, ?5)",
+                    params![id, e.step as i64, e.time_s, e.kind.as_str(), e.message],
+                )?;
+            }
+            Write::Flush(_) => {}
+        }
+    }
+    tx.commit()
+}
