@@ -38,6 +38,10 @@ struct Options {
     /// TLS private key (PEM).
     #[arg(long, global = true)]
     tls_key: Option<PathBuf>,
+    /// Shut down gracefully when standard input closes (for supervisors and test harnesses
+    /// that hold the server's stdin).
+    #[arg(long, global = true)]
+    exit_on_stdin_eof: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -99,10 +103,17 @@ fn main() -> anyhow::Result<()> {
     match cli.command.unwrap_or(Action::Serve) {
         Action::Serve => {
             let runtime = tokio::runtime::Runtime::new().context("starting tokio")?;
-            runtime.block_on(cathlab_app::server::serve(
-                config,
-                cathlab_app::server::shutdown_signal(),
-            ))
+            let watch_stdin = cli.options.exit_on_stdin_eof;
+            runtime.block_on(cathlab_app::server::serve(config, async move {
+                if watch_stdin {
+                    tokio::select! {
+                        _ = cathlab_app::server::shutdown_signal() => {}
+                        _ = cathlab_app::server::stdin_closed() => {}
+                    }
+                } else {
+                    cathlab_app::server::shutdown_signal().await
+                }
+            }))
         }
         Action::Replay { session } => {
             let (engine, store, _) = cathlab_app::server::engine(&config)?;

@@ -87,6 +87,9 @@ pub async fn serve(config: ServerConfig, shutdown: impl Future<Output = ()> + Se
         .add_service(health_service)
         .add_service(reflection)
         .into_axum_router()
+        // gRPC-Web for the gRPC routes only: tonic-web answers 400 to any other HTTP/1.1
+        // request, and /metrics (added after the layer) is plain HTTP.
+        .layer(tonic_web::GrpcWebLayer::new())
         .route(
             "/metrics",
             get(move || {
@@ -129,7 +132,6 @@ pub async fn serve(config: ServerConfig, shutdown: impl Future<Output = ()> + Se
     let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
     let result = builder
         .layer(cors)
-        .layer(tonic_web::GrpcWebLayer::new())
         .add_routes(Routes::from(router))
         .serve_with_incoming_shutdown(incoming, shutdown)
         .await;
@@ -160,5 +162,17 @@ pub async fn shutdown_signal() {
     #[cfg(not(unix))]
     {
         let _ = interrupt.await;
+    }
+}
+
+/// Resolves when standard input reaches its end (the parent process went away).
+pub async fn stdin_closed() {
+    use tokio::io::AsyncReadExt;
+    let mut stdin = tokio::io::stdin();
+    let mut buffer = [0u8; 256];
+    while let Ok(n) = stdin.read(&mut buffer).await {
+        if n == 0 {
+            break;
+        }
     }
 }

@@ -1,0 +1,178 @@
+//! Starting the real `cathlab-server` binary on 127.0.0.1 and talking to it with the
+//! generated gRPC client.
+
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use cathlab_api::pb;
+use cathlab_api::pb::simulator_client::SimulatorClient;
+use tonic::Request;
+use tonic::transport::Channel;
+
+/// The instructor key the test servers run with.
+pub const INSTRUCTOR_KEY: &str = "test-instructor-key";
+
+/// A server process; killed (SIGKILL) when dropped unless shut down first.
+pub struct ServerProcess {
+    pub child: Child,
+    pub address: String,
+    pub database: PathBuf,
+}
+
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// A fresh temporary directory for a test.
+pub fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "cathlab-test-{name}-{}-{}",
+        std::process::id(),
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .as_nanos()
+    ));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+impl ServerProcess {
+    /// Starts a server on a free port with `database`, with extra flags.
+    pub fn start(database: &Path, extra: &[&str]) -> Self {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+            .args(["--listen", "127.0.0.1:0", "--database"])
+            .arg(database)
+            .arg("--scenes")
+            .arg(repo_root().join("scenes"))
+            .arg("--exit-on-stdin-eof")
+            .args(extra)
+            .env("CATHLAB_INSTRUCTOR_KEY", INSTRUCTOR_KEY)
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("cathlab-server starts");
+        let stdout = child.stdout.take().unwrap();
+        let mut lines = BufReader::new(stdout).lines();
+        let address = loop {
+            let line = lines
+                .next()
+                .expect("the server prints its address")
+                .unwrap();
+            if let Some(a) = line.strip_prefix("cathlab-server listening on ") {
+                break a.trim().to_owned();
+            }
+        };
+        // Keep draining stdout so the server never blocks on it.
+        std::thread::spawn(move || for _ in lines {});
+        Self {
+            child,
+            address,
+            database: database.to_owned(),
+        }
+    }
+
+    /// `http://ADDR`.
+    pub fn url(&self) -> String {
+        format!("http://{}", self.address)
+    }
+
+    pub async fn client(&self) -> SimulatorClient<Channel> {
+        for _ in 0..50 {
+            if let Ok(c) = SimulatorClient::connect(self.url()).await {
+                return c.max_decoding_message_size(64 << 20);
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        panic!("cannot connect to {}", self.url());
+    }
+
+    /// SIGKILL, no chance to clean up.
+    pub fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for ServerProcess {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// A request carrying `Bearer token`.
+pub fn authed<T>(message: T, token: &str) -> Request<T> {
+    let mut r = Request::new(message);
+    r.metadata_mut()
+        .insert("authorization", format!("Bearer {token}").parse().unwrap());
+    r
+}
+
+/// Creates a session on the default scene.
+pub async fn create(client: &mut SimulatorClient<Channel>) -> pb::CreateSessionResponse {
+    client
+        .create_session(pb::CreateSessionRequest {
+            scene: Some(pb::create_session_request::Scene::SceneName(
+                "arch_to_cow_lcca".into(),
+            )),
+            label: "test".into(),
+        })
+        .await
+        .expect("session created")
+        .into_inner()
+}
+
+pub fn command(kind: pb::command::Kind) -> Option<pb::Command> {
+    Some(pb::Command { kind: Some(kind) })
+}
+
+pub fn push(mm_s: f64) -> Option<pb::Command> {
+    command(pb::command::Kind::Insertion(pb::Insertion {
+        mode: Some(pb::insertion::Mode::VelocityMmS(mm_s)),
+    }))
+}
+
+pub async fn send(
+    client: &mut SimulatorClient<Channel>,
+    session: &pb::CreateSessionResponse,
+    seq: u64,
+    command: Option<pb::Command>,
+) -> Result<pb::CommandAck, tonic::Status> {
+    client
+        .send_command(authed(
+            pb::SendCommandRequest {
+                session_id: session.session_id.clone(),
+                seq,
+                command,
+            },
+            &session.controller_token,
+        ))
+        .await
+        .map(|r| r.into_inner())
+}
+
+/// The newest state of a session as `token` sees it.
+pub async fn state(
+    client: &mut SimulatorClient<Channel>,
+    session_id: &str,
+    token: &str,
+) -> pb::DeviceState {
+    let mut stream = client
+        .stream_state(authed(
+            pb::StreamStateRequest {
+                session_id: session_id.into(),
+                tip_only: false,
+            },
+            token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    stream.message().await.unwrap().expect("a state")
+}

@@ -1,0 +1,123 @@
+//! Kill the server (SIGKILL) during a session and start it again on the same database: every
+//! acknowledged command and the metrics are there, the session shows as interrupted, and
+//! replaying its commands reproduces every recorded state digest bit for bit.
+
+mod common;
+
+use std::time::Duration;
+
+use cathlab_api::pb;
+use common::*;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() {
+    let dir = temp_dir("recovery");
+    let database = dir.join("cathlab.sqlite");
+    let mut server = ServerProcess::start(&database, &[]);
+    let mut client = server.client().await;
+    let session = create(&mut client).await;
+    let id = session.session_id.clone();
+
+    // A little procedure: push, twist, fluoroscopy, inject, push on, C-arm.
+    let script: Vec<Option<pb::Command>> = vec![
+        push(25.0),
+        command(pb::command::Kind::Twist(pb::Twist {
+            mode: Some(pb::twist::Mode::RateDegS(90.0)),
+        })),
+        command(pb::command::Kind::Fluoroscopy(true)),
+        command(pb::command::Kind::Inject(pb::Injection {
+            volume_ml: 3.0,
+            rate_ml_s: 3.0,
+        })),
+        push(40.0),
+        command(pb::command::Kind::Twist(pb::Twist {
+            mode: Some(pb::twist::Mode::TargetDeg(-45.0)),
+        })),
+        command(pb::command::Kind::Carm(pb::CArmPose {
+            primary_deg: 30.0,
+            secondary_deg: 10.0,
+        })),
+        push(-10.0),
+    ];
+    let mut acknowledged = Vec::new();
+    for (i, c) in script.into_iter().enumerate() {
+        let ack = send(&mut client, &session, i as u64 + 1, c).await.unwrap();
+        acknowledged.push(ack);
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+    // Let a few checkpoints (one per simulated second) pass, then kill without warning.
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    let live = state(&mut client, &id, &session.controller_token).await;
+    assert!(live.step > 1000, "only {} steps", live.step);
+    drop(client);
+    server.kill();
+
+    let server = ServerProcess::start(&database, &[]);
+    let mut client = server.client().await;
+    let listed = client
+        .list_sessions(authed(
+            pb::ListSessionsRequest {
+                include_recorded: true,
+            },
+            INSTRUCTOR_KEY,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let recorded = listed
+        .sessions
+        .iter()
+        .find(|s| s.session_id == id)
+        .expect("the session is listed after the restart");
+    assert_eq!(recorded.status, pb::SessionStatus::Interrupted as i32);
+    assert_eq!(recorded.commands, acknowledged.len() as u64);
+    let metrics = recorded.metrics.expect("metrics were recorded");
+    assert!(metrics.procedure_time_s >= 2.0, "{metrics:?}");
+    assert!((metrics.contrast_volume_ml - 3.0).abs() < 1e-6, "{metrics:?}");
+    assert!(metrics.fluoroscopy_time_s > 1.0, "{metrics:?}");
+
+    // Controllers' tokens died with the process; recorded sessions are the instructor's.
+    let refused = client
+        .get_session(authed(
+            pb::GetSessionRequest {
+                session_id: id.clone(),
+            },
+            &session.controller_token,
+        ))
+        .await
+        .unwrap_err();
+    assert_eq!(refused.code(), tonic::Code::PermissionDenied);
+
+    let replay = client
+        .replay_session(authed(
+            pb::ReplaySessionRequest {
+                session_id: id.clone(),
+            },
+            INSTRUCTOR_KEY,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(replay.commands as usize, acknowledged.len());
+    assert!(replay.checkpoints >= 2, "{replay:?}");
+    assert_eq!(replay.matched, replay.checkpoints, "{replay:?}");
+    assert_eq!(replay.recorded_digest, replay.replayed_digest);
+    let replayed = replay.metrics.unwrap();
+    assert_eq!(replayed.steps, metrics.steps);
+    assert_eq!(replayed.tip_path_length_mm, metrics.tip_path_length_mm);
+
+    // The command-line replay agrees.
+    drop(server);
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+        .arg("--database")
+        .arg(&database)
+        .arg("--scenes")
+        .arg(repo_root().join("scenes"))
+        .args(["--renderer", "cpu", "replay", "--session", &id])
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{text} {}", String::from_utf8_lossy(&output.stderr));
+    assert!(text.contains(&format!("{0}/{0} checkpoints match", replay.checkpoints)), "{text}");
+}
