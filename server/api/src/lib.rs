@@ -72,9 +72,9 @@ pub fn command_from_wire(command: Option<&pb::Command>) -> Result<Command, Statu
                     MAX_PUSH_MM_S,
                 )? * 1e-3,
             ),
-            Some(pb::insertion::Mode::TargetMm(x)) => Command::PushTarget(
-                checked("command.insertion.target_mm", x, 0.0, 5000.0)? * 1e-3,
-            ),
+            Some(pb::insertion::Mode::TargetMm(x)) => {
+                Command::PushTarget(checked("command.insertion.target_mm", x, 0.0, 5000.0)? * 1e-3)
+            }
             None => return Err(Status::invalid_argument("command.insertion.mode: missing")),
         },
         Kind::Twist(t) => match t.mode {
@@ -135,12 +135,7 @@ pub fn command_from_wire(command: Option<&pb::Command>) -> Result<Command, Statu
 /// A haptic bridge input as an engine command.
 pub fn control_from_wire(input: &pb::ControlInput) -> Result<Command, Status> {
     Ok(Command::Setpoints {
-        push_m_s: checked(
-            "push_mm_s",
-            input.push_mm_s,
-            -MAX_PUSH_MM_S,
-            MAX_PUSH_MM_S,
-        )? * 1e-3,
+        push_m_s: checked("push_mm_s", input.push_mm_s, -MAX_PUSH_MM_S, MAX_PUSH_MM_S)? * 1e-3,
         twist_rad_s: checked(
             "twist_deg_s",
             input.twist_deg_s,
@@ -179,7 +174,11 @@ pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::D
                 .collect()
         },
         tip_position_mm: Some(vec3_mm(&s.tip())),
-        tip_direction: Some(vec3(s.tip_direction.x, s.tip_direction.y, s.tip_direction.z)),
+        tip_direction: Some(vec3(
+            s.tip_direction.x,
+            s.tip_direction.y,
+            s.tip_direction.z,
+        )),
         inserted_mm: s.inserted_m * 1e3,
         twist_deg: s.twist_rad.to_degrees(),
         contacts: if tip_only {

@@ -57,7 +57,10 @@ pub fn engine(config: &ServerConfig) -> anyhow::Result<(Arc<Engine>, Arc<Store>,
 
 /// Runs the server until `shutdown` resolves, then closes every session and flushes the
 /// store. Prints `cathlab-server listening on ADDR` once the socket is bound.
-pub async fn serve(config: ServerConfig, shutdown: impl Future<Output = ()> + Send) -> anyhow::Result<()> {
+pub async fn serve(
+    config: ServerConfig,
+    shutdown: impl Future<Output = ()> + Send,
+) -> anyhow::Result<()> {
     let (engine, store, metrics) = engine(&config)?;
     tracing::info!(
         renderer = %format!("{:?}", config.renderer),
@@ -111,7 +114,11 @@ pub async fn serve(config: ServerConfig, shutdown: impl Future<Output = ()> + Se
         );
     let cors = CorsLayer::new()
         .allow_origin(AllowOrigin::mirror_request())
-        .allow_methods([http_method("POST"), http_method("GET"), http_method("OPTIONS")])
+        .allow_methods([
+            http_method("POST"),
+            http_method("GET"),
+            http_method("OPTIONS"),
+        ])
         .allow_headers(tower_http::cors::Any)
         .expose_headers([
             "grpc-status".parse()?,
@@ -122,7 +129,8 @@ pub async fn serve(config: ServerConfig, shutdown: impl Future<Output = ()> + Se
     if let Some(tls) = &config.tls {
         let cert = std::fs::read(&tls.cert).with_context(|| format!("{}", tls.cert.display()))?;
         let key = std::fs::read(&tls.key).with_context(|| format!("{}", tls.key.display()))?;
-        builder = builder.tls_config(ServerTlsConfig::new().identity(Identity::from_pem(cert, key)))?;
+        builder =
+            builder.tls_config(ServerTlsConfig::new().identity(Identity::from_pem(cert, key)))?;
     }
     let listener = tokio::net::TcpListener::bind(&config.listen)
         .await

@@ -106,7 +106,12 @@ impl SimulatorService {
 
     /// Checks the caller's token for `session_id`: NOT_FOUND for an unknown session,
     /// UNAUTHENTICATED without a valid token, PERMISSION_DENIED when reading is not enough.
-    fn authorize<T>(&self, request: &Request<T>, session_id: &str, control: bool) -> Result<Role, Status> {
+    fn authorize<T>(
+        &self,
+        request: &Request<T>,
+        session_id: &str,
+        control: bool,
+    ) -> Result<Role, Status> {
         let token = bearer(request);
         let known = self.tokens.read().get(session_id).cloned();
         let role = if self.is_instructor(token.as_deref()) {
@@ -358,7 +363,9 @@ impl Simulator for SimulatorService {
         let id = request.get_ref().session_id.clone();
         let role = self.authorize(&request, &id, false)?;
         if role == Role::Observer {
-            return Err(Status::permission_denied("an observer cannot close a session"));
+            return Err(Status::permission_denied(
+                "an observer cannot close a session",
+            ));
         }
         let engine = self.engine.clone();
         let closing = id.clone();
@@ -383,7 +390,10 @@ impl Simulator for SimulatorService {
         let r = request.into_inner();
         let command = command_from_wire(r.command.as_ref())?;
         let session = self.session(&id)?;
-        let record = session.command(r.seq, command).await.map_err(engine_status)?;
+        let record = session
+            .command(r.seq, command)
+            .await
+            .map_err(engine_status)?;
         Ok(Response::new(pb::CommandAck {
             seq: record.seq,
             step: record.step,
@@ -413,8 +423,10 @@ impl Simulator for SimulatorService {
         self.authorize(&probe, &id, true)?;
         let session = self.session(&id)?;
         let (out_tx, out_rx) = mpsc::channel::<Result<pb::ControlOutput, Status>>(64);
-        let (pending_tx, mut pending_rx) =
-            mpsc::channel::<(u64, oneshot::Receiver<cathlab_engine::Result<CommandRecord>>)>(4096);
+        let (pending_tx, mut pending_rx) = mpsc::channel::<(
+            u64,
+            oneshot::Receiver<cathlab_engine::Result<CommandRecord>>,
+        )>(4096);
         // Inputs: validate and queue; a bad input ends the stream with its error.
         {
             let session = session.clone();
@@ -669,11 +681,15 @@ impl Simulator for SimulatorService {
         if self.engine.get(&id).is_ok() {
             self.authorize(&request, &id, false)?;
         } else if !self.is_instructor(bearer(&request).as_deref()) {
-            return Err(if self.store.session(&id).map_err(store_status)?.is_some() {
-                Status::permission_denied("replaying a recorded session needs the instructor key")
-            } else {
-                Status::not_found(format!("session {id:?}"))
-            });
+            return Err(
+                if self.store.session(&id).map_err(store_status)?.is_some() {
+                    Status::permission_denied(
+                        "replaying a recorded session needs the instructor key",
+                    )
+                } else {
+                    Status::not_found(format!("session {id:?}"))
+                },
+            );
         }
         let engine = self.engine.clone();
         let store = self.store.clone();
@@ -697,8 +713,7 @@ pub fn replay_stored(engine: &Engine, store: &Store, id: &str) -> Result<pb::Rep
         .map_err(engine_status)?;
     let commands = store.commands(id).map_err(store_status)?;
     let checkpoints = store.checkpoints(id).map_err(store_status)?;
-    let outcome =
-        cathlab_engine::replay(assets, &commands, &checkpoints).map_err(engine_status)?;
+    let outcome = cathlab_engine::replay(assets, &commands, &checkpoints).map_err(engine_status)?;
     Ok(pb::ReplayResult {
         steps: outcome.steps,
         commands: outcome.commands as u32,

@@ -336,12 +336,13 @@ impl Store {
                 Ok(Event {
                     step: step as u64,
                     time_s,
-                    kind: serde_json::from_value(serde_json::Value::String(kind.clone()))
-                        .map_err(|e| StoreError::Corrupt {
+                    kind: serde_json::from_value(serde_json::Value::String(kind.clone())).map_err(
+                        |e| StoreError::Corrupt {
                             file: self.file.clone(),
                             what: format!("event kind {kind:?}"),
                             reason: e.to_string(),
-                        })?,
+                        },
+                    )?,
                     message,
                 })
             })

@@ -73,7 +73,10 @@ async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() 
     assert_eq!(recorded.commands, acknowledged.len() as u64);
     let metrics = recorded.metrics.expect("metrics were recorded");
     assert!(metrics.procedure_time_s >= 2.0, "{metrics:?}");
-    assert!((metrics.contrast_volume_ml - 3.0).abs() < 1e-6, "{metrics:?}");
+    assert!(
+        (metrics.contrast_volume_ml - 3.0).abs() < 1e-6,
+        "{metrics:?}"
+    );
     assert!(metrics.fluoroscopy_time_s > 1.0, "{metrics:?}");
 
     // Controllers' tokens died with the process; recorded sessions are the instructor's.
@@ -118,6 +121,13 @@ async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() 
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&output.stdout);
-    assert!(output.status.success(), "{text} {}", String::from_utf8_lossy(&output.stderr));
-    assert!(text.contains(&format!("{0}/{0} checkpoints match", replay.checkpoints)), "{text}");
+    assert!(
+        output.status.success(),
+        "{text} {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        text.contains(&format!("{0}/{0} checkpoints match", replay.checkpoints)),
+        "{text}"
+    );
 }

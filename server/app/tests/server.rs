@@ -26,7 +26,11 @@ async fn push_advances_the_tip_frames_decode_and_observers_see_the_same_state() 
     let session = create(&mut client).await;
     let id = session.session_id.clone();
     let start = state(&mut client, &id, &session.controller_token).await;
-    assert!((start.inserted_mm - 10.0).abs() < 1e-6, "{}", start.inserted_mm);
+    assert!(
+        (start.inserted_mm - 10.0).abs() < 1e-6,
+        "{}",
+        start.inserted_mm
+    );
 
     // Push at 20 mm/s for about half a second of simulated time.
     let ack = send(&mut client, &session, 1, push(20.0)).await.unwrap();
@@ -69,7 +73,10 @@ async fn push_advances_the_tip_frames_decode_and_observers_see_the_same_state() 
         .map(|(a, b)| (a - b).powi(2))
         .sum::<f64>()
         .sqrt();
-    assert!(moved > 0.5 * pushed, "tip moved {moved} mm for {pushed} mm pushed");
+    assert!(
+        moved > 0.5 * pushed,
+        "tip moved {moved} mm for {pushed} mm pushed"
+    );
     assert_eq!(observed.nodes_mm.len() % 3, 0);
 
     // Stop; controller and observer then read the same state.
@@ -77,7 +84,10 @@ async fn push_advances_the_tip_frames_decode_and_observers_see_the_same_state() 
     let a = state(&mut client, &id, &session.controller_token).await;
     let b = state(&mut client, &id, &session.observer_token).await;
     let c = state(&mut client, &id, INSTRUCTOR_KEY).await;
-    assert!((a.inserted_mm - b.inserted_mm).abs() < 1e-9 && (a.inserted_mm - c.inserted_mm).abs() < 1e-9);
+    assert!(
+        (a.inserted_mm - b.inserted_mm).abs() < 1e-9
+            && (a.inserted_mm - c.inserted_mm).abs() < 1e-9
+    );
 
     // The observer and the instructor may not command.
     for token in [&session.observer_token, &INSTRUCTOR_KEY.to_owned()] {
@@ -144,7 +154,12 @@ async fn push_advances_the_tip_frames_decode_and_observers_see_the_same_state() 
             pb::FrameEncoding::Png | pb::FrameEncoding::Jpeg => {
                 let image = image::load_from_memory(&frame.data).expect("decodes");
                 assert_eq!((image.width(), image.height()), (side, side));
-                image.to_luma8().into_raw().into_iter().map(u16::from).collect()
+                image
+                    .to_luma8()
+                    .into_raw()
+                    .into_iter()
+                    .map(u16::from)
+                    .collect()
             }
             pb::FrameEncoding::Raw8 => frame.data.iter().map(|&v| v as u16).collect(),
             _ => frame
@@ -166,7 +181,9 @@ async fn grpc_web_over_http1_and_cors() {
     use hyper::body::Bytes;
     let server = shared();
     let connect = || async {
-        let stream = tokio::net::TcpStream::connect(&server.address).await.unwrap();
+        let stream = tokio::net::TcpStream::connect(&server.address)
+            .await
+            .unwrap();
         let (sender, connection) =
             hyper::client::conn::http1::handshake(hyper_util::rt::TokioIo::new(stream))
                 .await
@@ -255,8 +272,14 @@ async fn reflection_lists_the_services_and_health_says_serving() {
         panic!("not a service list: {reply:?}");
     };
     let names: Vec<String> = list.service.into_iter().map(|s| s.name).collect();
-    assert!(names.contains(&"cathlab.v1.Simulator".to_owned()), "{names:?}");
-    assert!(names.contains(&"grpc.health.v1.Health".to_owned()), "{names:?}");
+    assert!(
+        names.contains(&"cathlab.v1.Simulator".to_owned()),
+        "{names:?}"
+    );
+    assert!(
+        names.contains(&"grpc.health.v1.Health".to_owned()),
+        "{names:?}"
+    );
 
     let mut health = HealthClient::new(channel);
     let status = health
@@ -303,7 +326,11 @@ async fn bad_input_gets_named_errors() {
     ] {
         let error = send(&mut client, &session, 1, bad).await.unwrap_err();
         assert_eq!(error.code(), tonic::Code::InvalidArgument, "{error:?}");
-        assert!(error.message().contains(field), "{field}: {}", error.message());
+        assert!(
+            error.message().contains(field),
+            "{field}: {}",
+            error.message()
+        );
     }
     // Roadmap before any DSA run.
     let error = send(
@@ -354,7 +381,9 @@ async fn bad_input_gets_named_errors() {
     ] {
         let error = client
             .create_session(pb::CreateSessionRequest {
-                scene: Some(pb::create_session_request::Scene::SceneToml(text.to_owned())),
+                scene: Some(pb::create_session_request::Scene::SceneToml(
+                    text.to_owned(),
+                )),
                 label: String::new(),
             })
             .await
@@ -397,7 +426,9 @@ async fn the_control_stream_applies_setpoints_and_returns_forces() {
     let mut request = tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx));
     request.metadata_mut().insert(
         "authorization",
-        format!("Bearer {}", session.controller_token).parse().unwrap(),
+        format!("Bearer {}", session.controller_token)
+            .parse()
+            .unwrap(),
     );
     let id = session.session_id.clone();
     let sender = tokio::spawn(async move {
@@ -435,7 +466,10 @@ async fn the_control_stream_applies_setpoints_and_returns_forces() {
     }
     let _tx = sender.await.unwrap();
     assert!(count > 50, "only {count} outputs for 400 inputs");
-    assert!(inserted > 15.0, "inserted {inserted} mm after pushing at 30 mm/s");
+    assert!(
+        inserted > 15.0,
+        "inserted {inserted} mm after pushing at 30 mm/s"
+    );
     // An observer cannot open the control stream.
     let (_tx2, rx2) = tokio::sync::mpsc::channel(1);
     _tx2.send(pb::ControlInput {
@@ -449,7 +483,9 @@ async fn the_control_stream_applies_setpoints_and_returns_forces() {
     let mut request = tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx2));
     request.metadata_mut().insert(
         "authorization",
-        format!("Bearer {}", session.observer_token).parse().unwrap(),
+        format!("Bearer {}", session.observer_token)
+            .parse()
+            .unwrap(),
     );
     let refused = client.control(request).await.unwrap_err();
     assert_eq!(refused.code(), tonic::Code::PermissionDenied);
@@ -471,9 +507,14 @@ async fn metrics_and_events_stream_and_instructors_list_sessions() {
         .await
         .unwrap()
         .into_inner();
-    send(&mut client, &session, 1, command(pb::command::Kind::Dsa(true)))
-        .await
-        .unwrap();
+    send(
+        &mut client,
+        &session,
+        1,
+        command(pb::command::Kind::Dsa(true)),
+    )
+    .await
+    .unwrap();
     send(
         &mut client,
         &session,
@@ -488,7 +529,10 @@ async fn metrics_and_events_stream_and_instructors_list_sessions() {
     // The 2 mL bolus takes half a second at 4 mL/s; then reset.
     let deadline = Instant::now() + Duration::from_secs(30);
     let mut metrics = None;
-    while !metrics.as_ref().is_some_and(|m: &pb::Metrics| m.contrast_volume_ml >= 1.999) {
+    while !metrics
+        .as_ref()
+        .is_some_and(|m: &pb::Metrics| m.contrast_volume_ml >= 1.999)
+    {
         assert!(Instant::now() < deadline, "the injection does not finish");
         if let pb::session_update::Kind::Metrics(m) =
             updates.message().await.unwrap().unwrap().kind.unwrap()
@@ -496,9 +540,14 @@ async fn metrics_and_events_stream_and_instructors_list_sessions() {
             metrics = Some(m);
         }
     }
-    send(&mut client, &session, 3, command(pb::command::Kind::Reset(true)))
-        .await
-        .unwrap();
+    send(
+        &mut client,
+        &session,
+        3,
+        command(pb::command::Kind::Reset(true)),
+    )
+    .await
+    .unwrap();
     let deadline = Instant::now() + Duration::from_secs(30);
     loop {
         assert!(Instant::now() < deadline, "no reset event");
@@ -511,12 +560,19 @@ async fn metrics_and_events_stream_and_instructors_list_sessions() {
     }
     let m = metrics.unwrap();
     assert_eq!(m.dsa_runs, 1);
-    assert!((m.contrast_volume_ml - 2.0).abs() < 1e-6, "{}", m.contrast_volume_ml);
+    assert!(
+        (m.contrast_volume_ml - 2.0).abs() < 1e-6,
+        "{}",
+        m.contrast_volume_ml
+    );
     assert!(m.procedure_time_s > 0.4);
 
     // Listing needs the instructor key.
     let refused = client
-        .list_sessions(authed(pb::ListSessionsRequest::default(), &session.controller_token))
+        .list_sessions(authed(
+            pb::ListSessionsRequest::default(),
+            &session.controller_token,
+        ))
         .await
         .unwrap_err();
     assert_eq!(refused.code(), tonic::Code::PermissionDenied);
@@ -529,7 +585,10 @@ async fn metrics_and_events_stream_and_instructors_list_sessions() {
 
     // Prometheus text on the same port.
     let body = reqwest_free_get(&server.address, "/metrics").await;
-    assert!(body.contains("cathlab_physics_step_seconds_bucket"), "{body}");
+    assert!(
+        body.contains("cathlab_physics_step_seconds_bucket"),
+        "{body}"
+    );
     assert!(body.contains("cathlab_sessions"), "{body}");
 }
 
@@ -551,4 +610,84 @@ async fn reqwest_free_get(address: &str, path: &str) -> String {
     assert_eq!(response.status(), 200);
     let bytes = response.into_body().collect().await.unwrap().to_bytes();
     String::from_utf8(bytes.to_vec()).unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_diverging_session_is_reset_and_reported_while_others_go_on() {
+    let server = shared();
+    let mut client = server.client().await;
+    let healthy = create(&mut client).await;
+    // The coarse scene (100 Hz, 10/50 mm elements, loose contact) diverges when pushed and
+    // twisted hard; the default fidelity does not.
+    let coarse = std::fs::read_to_string(repo_root().join("scenes/arch_to_cow_lcca.toml"))
+        .unwrap()
+        .replace(
+            "step_rate_hz = 500",
+            "step_rate_hz = 100\ntip_element_mm = 10\nshaft_element_mm = 50\n\
+             contact_tolerance = 0.5\nrefine = false",
+        );
+    let fragile = client
+        .create_session(pb::CreateSessionRequest {
+            scene: Some(pb::create_session_request::Scene::SceneToml(coarse)),
+            label: "coarse".into(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let mut updates = client
+        .stream_metrics(authed(
+            pb::StreamMetricsRequest {
+                session_id: fragile.session_id.clone(),
+            },
+            &fragile.observer_token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let before = state(&mut client, &healthy.session_id, &healthy.observer_token).await;
+    send(&mut client, &fragile, 1, push(500.0)).await.unwrap();
+    send(
+        &mut client,
+        &fragile,
+        2,
+        command(pb::command::Kind::Twist(pb::Twist {
+            mode: Some(pb::twist::Mode::RateDegS(1700.0)),
+        })),
+    )
+    .await
+    .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let event = loop {
+        assert!(Instant::now() < deadline, "no divergence reported");
+        if let pb::session_update::Kind::Event(e) =
+            updates.message().await.unwrap().unwrap().kind.unwrap()
+            && e.kind == "divergence"
+        {
+            break e;
+        }
+    };
+    assert!(event.message.contains("diverged"), "{}", event.message);
+    // The reset session streams finite state and keeps running.
+    let after = state(&mut client, &fragile.session_id, &fragile.observer_token).await;
+    assert!(after.nodes_mm.iter().all(|v| v.is_finite()));
+    send(&mut client, &fragile, 3, push(0.0)).await.unwrap();
+    // The other session went on stepping.
+    let later = state(&mut client, &healthy.session_id, &healthy.observer_token).await;
+    assert!(
+        later.step > before.step + 100,
+        "{} → {}",
+        before.step,
+        later.step
+    );
+    let info = client
+        .get_session(authed(
+            pb::GetSessionRequest {
+                session_id: fragile.session_id.clone(),
+            },
+            INSTRUCTOR_KEY,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(info.metrics.unwrap().divergence_resets >= 1);
 }

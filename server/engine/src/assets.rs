@@ -141,17 +141,17 @@ impl AssetCache {
                 format!("arch_to_cow:{}", resolve(base, dir).display()),
                 Matrix3::from_fn(|r, c| ARCH_TO_COW_TO_LPS[r][c]),
             ),
-            AnatomySpec::NeuroPhantom { seed, tortuosity } => (
-                format!("neuro:{seed}:{tortuosity}"),
-                Matrix3::identity(),
-            ),
+            AnatomySpec::NeuroPhantom { seed, tortuosity } => {
+                (format!("neuro:{seed}:{tortuosity}"), Matrix3::identity())
+            }
         };
         if let Some(found) = self.anatomies.lock().get(&key) {
             return Ok((found.clone(), to_lps));
         }
         let anatomy = match spec {
-            AnatomySpec::ArchToCow { dir } => load_arch_to_cow(&resolve(base, dir))
-                .map_err(|e| scene_error("anatomy.dir", e))?,
+            AnatomySpec::ArchToCow { dir } => {
+                load_arch_to_cow(&resolve(base, dir)).map_err(|e| scene_error("anatomy.dir", e))?
+            }
             AnatomySpec::NeuroPhantom { seed, tortuosity } => {
                 use cathlab_anatomy::phantom::{NeuroPhantomParams, neuro_phantom};
                 use cathlab_anatomy::surface::{SurfaceSettings, lumen_surface};
@@ -201,7 +201,8 @@ impl AssetCache {
                 hu_slope,
                 hu_intercept,
             } => {
-                let mut v = Volume::load(&resolve(base, path)).map_err(|e| scene_error("ct.path", e))?;
+                let mut v =
+                    Volume::load(&resolve(base, path)).map_err(|e| scene_error("ct.path", e))?;
                 v.rescale(*hu_slope, *hu_intercept)?;
                 v
             }
@@ -263,8 +264,10 @@ impl AssetCache {
         let iso_branch = graph
             .branch(iso_name)
             .map_err(|e| scene_error("carm.isocenter_branch", e))?;
-        let isocenter =
-            to_lps * iso_branch.point_at(spec.carm.isocenter_at * iso_branch.length()).coords;
+        let isocenter = to_lps
+            * iso_branch
+                .point_at(spec.carm.isocenter_at * iso_branch.length())
+                .coords;
         let c = &spec.carm;
         let px = spec.fidelity.frame_px;
         let carm = CArm {

@@ -119,7 +119,11 @@ pub fn encode_frame(
         if resize {
             image = image::imageops::resize(&image, w, h, image::imageops::FilterType::Triangle);
         }
-        let bytes = image.into_raw().iter().flat_map(|v| v.to_le_bytes()).collect();
+        let bytes = image
+            .into_raw()
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
         return Ok((bytes, w, h));
     }
     let grey = frame.to_8bit();

@@ -433,10 +433,7 @@ impl SceneSpec {
             if value.is_finite() && value >= lo && value <= hi {
                 Ok(())
             } else {
-                Err(scene_error(
-                    path,
-                    format!("{value} is outside {lo}..={hi}"),
-                ))
+                Err(scene_error(path, format!("{value} is outside {lo}..={hi}")))
             }
         };
         if self.devices.is_empty() {
@@ -471,12 +468,22 @@ impl SceneSpec {
                 range("ct.hu_intercept", *hu_intercept, -1e6, 1e6)?;
             }
         }
-        range("start.along_route_mm", self.start.along_route_mm, 0.0, 2000.0)?;
+        range(
+            "start.along_route_mm",
+            self.start.along_route_mm,
+            0.0,
+            2000.0,
+        )?;
         range("start.inserted_mm", self.start.inserted_mm, 2.0, 500.0)?;
         let c = &self.carm;
         range("carm.primary_deg", c.primary_deg, -120.0, 120.0)?;
         range("carm.secondary_deg", c.secondary_deg, -60.0, 60.0)?;
-        range("carm.source_to_image_mm", c.source_to_image_mm, 500.0, 2000.0)?;
+        range(
+            "carm.source_to_image_mm",
+            c.source_to_image_mm,
+            500.0,
+            2000.0,
+        )?;
         range(
             "carm.source_to_isocenter_mm",
             c.source_to_isocenter_mm,

@@ -301,8 +301,7 @@ impl Session {
     pub async fn command(&self, seq: u64, command: Command) -> Result<CommandRecord> {
         let (tx, rx) = oneshot::channel();
         self.send(seq, command, Some(tx))?;
-        rx.await
-            .map_err(|_| EngineError::Closed(self.id.clone()))?
+        rx.await.map_err(|_| EngineError::Closed(self.id.clone()))?
     }
 
     /// The newest state, and a receiver that hears of newer ones.

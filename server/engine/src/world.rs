@@ -224,7 +224,11 @@ impl World {
                 Some(Hemo {
                     solver,
                     contrast,
-                    agent_mg_per_ml: assets.spec.flow.as_ref().map_or(300.0, |f| f.agent_mg_per_ml),
+                    agent_mg_per_ml: assets
+                        .spec
+                        .flow
+                        .as_ref()
+                        .map_or(300.0, |f| f.agent_mg_per_ml),
                     injection: None,
                     steps_since_contrast: 0,
                     tubes: Arc::new(Vec::new()),
@@ -320,7 +324,10 @@ impl World {
                 }
                 self.restart_device(index)?;
                 let name = self.assets.devices[index].0.name.clone();
-                self.event(EventKind::Device, format!("device {index} ({name}) inserted"));
+                self.event(
+                    EventKind::Device,
+                    format!("device {index} ({name}) inserted"),
+                );
             }
             Command::Fluoroscopy(on) => self.imaging.pedal = on,
             Command::PulseRate(rate) => self.imaging.pulse_rate = rate,

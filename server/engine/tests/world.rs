@@ -1,0 +1,314 @@
+//! The engine on the real arch-to-cow scene: scene errors name their field, the world is
+//! deterministic (digests), a live threaded session replays bit for bit from what it
+//! recorded, a coarse scene that really diverges is reset and reported, frames encode.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, OnceLock};
+
+use cathlab_engine::session::{Ack, SessionContext};
+use cathlab_engine::*;
+
+fn scenes() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes")
+}
+
+fn default_text() -> String {
+    std::fs::read_to_string(scenes().join("arch_to_cow_lcca.toml")).unwrap()
+}
+
+fn cache() -> &'static AssetCache {
+    static CACHE: OnceLock<AssetCache> = OnceLock::new();
+    CACHE.get_or_init(AssetCache::default)
+}
+
+fn assets(text: &str) -> Arc<SceneAssets> {
+    let spec = SceneSpec::parse(text, SceneFormat::Toml).unwrap();
+    cache().load(&spec, &scenes()).unwrap()
+}
+
+/// The coarse, loose scene that diverges when pushed and twisted hard: 100 Hz steps, 10 mm
+/// tip and 50 mm shaft elements, no refinement, contact tolerance 0.5.
+pub fn coarse_text() -> String {
+    default_text().replace(
+        "step_rate_hz = 500",
+        "step_rate_hz = 100\ntip_element_mm = 10\nshaft_element_mm = 50\n\
+         contact_tolerance = 0.5\nrefine = false",
+    )
+}
+
+#[test]
+fn scene_errors_name_the_field_and_the_reason() {
+    let cases = [
+        (
+            default_text().replace("step_rate_hz = 500", "step_rate_hz = \"fast\""),
+            "fidelity.step_rate_hz",
+            "invalid type",
+        ),
+        (
+            default_text().replace("step_rate_hz = 500", "step_rate_hz = 5"),
+            "fidelity.step_rate_hz",
+            "outside",
+        ),
+        (
+            default_text().replace("bend_deg = 90.0", "bend_deg = 90.0\nstiffness = 1"),
+            "devices[0]",
+            "unknown field",
+        ),
+        (
+            default_text().replace("preset = \"catheter_5f\"", "preset = \"catheter_9f\""),
+            "devices[2]",
+            "unknown variant",
+        ),
+        (
+            default_text().replace("pulse_rate = 15", "pulse_rate = 12"),
+            "fluoroscopy.pulse_rate",
+            "not one of",
+        ),
+        ("not = [toml".to_owned(), "(document)", ""),
+    ];
+    for (text, path, reason) in cases {
+        match SceneSpec::parse(&text, SceneFormat::Toml) {
+            Err(EngineError::Scene { path: p, reason: r }) => {
+                assert!(p.contains(path), "{path}: got {p} ({r})");
+                assert!(r.contains(reason), "{reason}: got {r}");
+            }
+            other => panic!("{path}: {other:?}"),
+        }
+    }
+    // JSON works the same way.
+    let spec = SceneSpec::parse(&default_text(), SceneFormat::Toml).unwrap();
+    let mut json: serde_json::Value = serde_json::to_value(&spec).unwrap();
+    json["carm"]["primary_deg"] = serde_json::json!(500.0);
+    match SceneSpec::parse(&json.to_string(), SceneFormat::Json) {
+        Err(EngineError::Scene { path, .. }) => assert_eq!(path, "carm.primary_deg"),
+        other => panic!("{other:?}"),
+    }
+    // A branch the anatomy lacks is named when the scene loads.
+    let missing = default_text().replace("branch = \"LCCA\"", "branch = \"LMCA\"");
+    let spec = SceneSpec::parse(&missing, SceneFormat::Toml).unwrap();
+    match cache().load(&spec, &scenes()) {
+        Err(EngineError::Scene { path, reason }) => {
+            assert_eq!(path, "target.branch");
+            assert!(reason.contains("LMCA"), "{reason}");
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+fn drive(world: &mut World, script: &[(u64, Command)], steps: u64) -> Vec<u64> {
+    let mut digests = Vec::new();
+    let mut next = 0;
+    for _ in 0..steps {
+        while next < script.len() && script[next].0 == world.step_index() {
+            world.apply(next as u64 + 1, &script[next].1).unwrap();
+            next += 1;
+        }
+        world.step().unwrap();
+        digests.push(world.digest());
+    }
+    digests
+}
+
+#[test]
+fn the_world_is_deterministic_and_commands_change_it() {
+    let a = assets(&default_text());
+    let script = [
+        (0, Command::PushVelocity(0.03)),
+        (50, Command::TwistRate(3.0)),
+        (120, Command::Fluoroscopy(true)),
+        (
+            150,
+            Command::Inject {
+                volume_ml: 1.0,
+                rate_ml_s: 4.0,
+            },
+        ),
+        (250, Command::PushVelocity(-0.01)),
+    ];
+    let first = drive(&mut World::new(a.clone()).unwrap(), &script, 400);
+    let second = drive(&mut World::new(a.clone()).unwrap(), &script, 400);
+    assert_eq!(first, second);
+    // The same commands one step later give another history from that step on.
+    let mut shifted = script;
+    shifted[1].0 += 1;
+    let third = drive(&mut World::new(a).unwrap(), &shifted, 400);
+    assert_eq!(first[..50], third[..50]);
+    assert_ne!(first[51..], third[51..]);
+}
+
+/// Keeps what a session records, in memory.
+#[derive(Default)]
+struct MemoryRecorder {
+    commands: Mutex<Vec<CommandRecord>>,
+    checkpoints: Mutex<Vec<Checkpoint>>,
+    events: Mutex<Vec<Event>>,
+}
+
+impl Recorder for MemoryRecorder {
+    fn command(&self, _: &str, record: CommandRecord, ack: Option<Ack>) {
+        self.commands.lock().unwrap().push(record);
+        if let Some(ack) = ack {
+            let _ = ack.send(Ok(record));
+        }
+    }
+    fn checkpoint(&self, _: &str, c: Checkpoint) {
+        self.checkpoints.lock().unwrap().push(c);
+    }
+    fn event(&self, _: &str, e: &Event) {
+        self.events.lock().unwrap().push(e.clone());
+    }
+}
+
+fn start(text: &str, recorder: Arc<MemoryRecorder>) -> Arc<Session> {
+    Session::start(
+        "0123456789abcdef".into(),
+        "test".into(),
+        assets(text),
+        SessionContext {
+            recorder,
+            renderer: SharedRenderer::new(Box::new(cathlab_xray::CpuRenderer::default())),
+            metrics: EngineMetrics::default(),
+            settings: SessionSettings {
+                checkpoint_every_steps: 100,
+                ..SessionSettings::default()
+            },
+        },
+    )
+    .unwrap()
+}
+
+#[test]
+fn a_live_threaded_session_replays_bit_for_bit() {
+    let recorder = Arc::new(MemoryRecorder::default());
+    let session = start(&default_text(), recorder.clone());
+    let commands = [
+        Command::PushVelocity(0.03),
+        Command::TwistRate(2.0),
+        Command::Inject {
+            volume_ml: 1.0,
+            rate_ml_s: 5.0,
+        },
+        Command::CArm {
+            primary_deg: 20.0,
+            secondary_deg: -5.0,
+        },
+        Command::PushVelocity(0.0),
+    ];
+    for (i, c) in commands.iter().enumerate() {
+        session.send(i as u64 + 1, *c, None).unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(150));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    session.close();
+    let recorded = recorder.commands.lock().unwrap().clone();
+    let checkpoints = recorder.checkpoints.lock().unwrap().clone();
+    assert_eq!(recorded.len(), commands.len());
+    assert!(checkpoints.len() >= 5, "{} checkpoints", checkpoints.len());
+    let outcome = replay(session.assets().clone(), &recorded, &checkpoints).unwrap();
+    assert_eq!(outcome.commands, commands.len());
+    assert_eq!(outcome.matched, outcome.checkpoints);
+    assert_eq!(outcome.checkpoints, checkpoints.len());
+    // A changed record no longer matches: replay really compares.
+    let mut altered = recorded.clone();
+    altered[1].step += 1;
+    let broken = replay(session.assets().clone(), &altered, &checkpoints).unwrap();
+    assert!(broken.matched < broken.checkpoints);
+}
+
+#[test]
+fn a_diverging_world_is_reset_reported_and_stays_finite() {
+    let mut world = World::new(assets(&coarse_text())).unwrap();
+    world.apply(1, &Command::PushVelocity(0.5)).unwrap();
+    world.apply(2, &Command::TwistRate(30.0)).unwrap();
+    let mut divergences = Vec::new();
+    for _ in 0..600 {
+        world.step().unwrap();
+        let snapshot = world.snapshot();
+        assert!(
+            snapshot
+                .nodes
+                .iter()
+                .all(|p| p.iter().all(|v| v.is_finite()))
+        );
+        divergences.extend(
+            world
+                .take_events()
+                .into_iter()
+                .filter(|e| e.kind == EventKind::Divergence),
+        );
+    }
+    println!("{divergences:?}");
+    assert!(!divergences.is_empty(), "the coarse scene did not diverge");
+    assert_eq!(
+        world.metrics().divergence_resets as usize,
+        divergences.len()
+    );
+    assert!(divergences[0].message.contains("diverged"));
+    // The default fidelity takes the same abuse without diverging.
+    let mut sound = World::new(assets(&default_text())).unwrap();
+    sound.apply(1, &Command::PushVelocity(0.5)).unwrap();
+    sound.apply(2, &Command::TwistRate(30.0)).unwrap();
+    for _ in 0..1000 {
+        sound.step().unwrap();
+    }
+    assert_eq!(sound.metrics().divergence_resets, 0);
+}
+
+#[test]
+fn frames_encode_to_every_format_consistently() {
+    let a = assets(&default_text());
+    let world = World::new(a.clone()).unwrap();
+    let snapshot = world.snapshot();
+    let mut chain = cathlab_xray::Fluoroscope::new(
+        Box::new(cathlab_xray::CpuRenderer::default()),
+        cathlab_engine::session::fluoroscope_settings(&a),
+    )
+    .unwrap();
+    let layers = cathlab_engine::imaging::layers_of(&a, &snapshot).unwrap();
+    let carm = cathlab_engine::imaging::carm_of(&a, &snapshot);
+    let frame = chain
+        .expose(
+            0.0,
+            cathlab_xray::Scene {
+                volume: &a.volume,
+                carm: &carm,
+                layers: &layers,
+            },
+        )
+        .unwrap();
+    let (raw, w, h) = encode_frame(&frame, Encoding::Raw8, 0, 0).unwrap();
+    assert_eq!((w, h, raw.len()), (512, 512, 512 * 512));
+    assert_eq!(raw, frame.to_8bit());
+    let (png, ..) = encode_frame(&frame, Encoding::Png, 0, 0).unwrap();
+    let decoded = image::load_from_memory(&png).unwrap().to_luma8().into_raw();
+    assert_eq!(decoded, raw, "PNG is lossless");
+    let (jpeg, ..) = encode_frame(&frame, Encoding::Jpeg(90), 0, 0).unwrap();
+    let decoded = image::load_from_memory(&jpeg)
+        .unwrap()
+        .to_luma8()
+        .into_raw();
+    let mean_error = decoded
+        .iter()
+        .zip(&raw)
+        .map(|(a, b)| (*a as f64 - *b as f64).abs())
+        .sum::<f64>()
+        / raw.len() as f64;
+    assert!(
+        mean_error < 3.0,
+        "JPEG q90 mean error {mean_error} grey levels"
+    );
+    let (small, w, h) = encode_frame(&frame, Encoding::Raw16, 128, 128).unwrap();
+    assert_eq!((w, h, small.len()), (128, 128, 128 * 128 * 2));
+    // Downsizing keeps the mean grey (a triangle filter averages).
+    let mean16 = small
+        .chunks_exact(2)
+        .map(|c| u16::from_le_bytes([c[0], c[1]]) as f64)
+        .sum::<f64>()
+        / (128.0 * 128.0);
+    let full16: Vec<u16> = frame.to_16bit();
+    let full_mean = full16.iter().map(|&v| v as f64).sum::<f64>() / full16.len() as f64;
+    assert!(
+        (mean16 - full_mean).abs() < 0.01 * 65535.0,
+        "{mean16} vs {full_mean}"
+    );
+}
