@@ -20,15 +20,21 @@ use crate::config::{RendererChoice, ServerConfig};
 use crate::service::SimulatorService;
 use crate::store::Store;
 
-/// The renderer sessions share.
+/// The renderer sessions share: for `auto`, wgpu on a hardware adapter, else the CPU
+/// renderer (on a software rasterizer such as lavapipe the CPU renderer makes the cached-
+/// background frames faster: `cathlab-load` measures both). Made on a niced thread so that a
+/// software driver's workers run below the physics threads.
 pub fn renderer(choice: RendererChoice) -> anyhow::Result<Box<dyn Renderer>> {
-    Ok(match choice {
-        RendererChoice::Cpu => Box::new(CpuRenderer::default()),
-        RendererChoice::Gpu => Box::new(GpuRenderer::new()?),
-        RendererChoice::Auto => match GpuRenderer::if_available()? {
-            Some(gpu) => Box::new(gpu),
-            None => Box::new(CpuRenderer::default()),
-        },
+    cathlab_engine::priority::niced_rayon_pool();
+    cathlab_engine::priority::on_niced_thread(move || -> anyhow::Result<Box<dyn Renderer>> {
+        Ok(match choice {
+            RendererChoice::Cpu => Box::new(CpuRenderer::default()),
+            RendererChoice::Gpu => Box::new(GpuRenderer::new()?),
+            RendererChoice::Auto => match GpuRenderer::if_available()? {
+                Some(gpu) if !gpu.is_software() => Box::new(gpu),
+                _ => Box::new(CpuRenderer::default()),
+            },
+        })
     })
 }
 

@@ -8,6 +8,7 @@ pub mod engine;
 pub mod error;
 pub mod imaging;
 pub mod metrics;
+pub mod priority;
 pub mod replay;
 pub mod scene;
 pub mod session;

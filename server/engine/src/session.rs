@@ -488,6 +488,7 @@ struct RenderLoop {
 }
 
 fn render_loop(mut r: RenderLoop) {
+    crate::priority::lower_current_thread(crate::priority::RENDER_NICE);
     let tick = Duration::from_secs_f64(r.ctx.settings.render_tick_s);
     let empty = Layers::new();
     let mut mode = Mode::Fluoroscopy;

@@ -38,6 +38,8 @@ pub struct GpuRenderer {
     device: wgpu::Device,
     queue: wgpu::Queue,
     adapter: String,
+    /// Whether the adapter is a CPU (software) rasterizer.
+    software: bool,
     march: wgpu::ComputePipeline,
     layers: wgpu::ComputePipeline,
     sampler: wgpu::Sampler,
@@ -150,11 +152,18 @@ impl GpuRenderer {
             device,
             queue,
             adapter: format!("{} ({:?})", info.name, info.backend),
+            software: info.device_type == wgpu::DeviceType::Cpu,
             march,
             layers,
             sampler,
             uploaded: None,
         })
+    }
+
+    /// Whether the adapter is a software rasterizer on the CPU (lavapipe, llvmpipe, WARP):
+    /// there the CPU renderer shares the cores without the upload and read-back.
+    pub fn is_software(&self) -> bool {
+        self.software
     }
 
     /// The renderer if an adapter exists; `None` (with the reason on stderr) when none does

@@ -1,1 +1,485 @@
-fn main() {}
+//! `cathlab-load`: the server's load benchmark. Starts `cathlab-server` as a child process on
+//! 127.0.0.1 with a fresh database and, for each session count, runs that many sessions at
+//! once on the default scene (500 Hz physics, fluoroscopy at 15 pulses/s, 512×512 frames
+//! streamed raw to a client each, state streamed too, the wire being pushed), then reports
+//! missed physics steps and step/frame time percentiles from the server, frame rates as
+//! received, the server's resident memory per session, the command-to-state latency of unary
+//! commands and the round trip of the bidirectional control stream at 1 kHz.
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use cathlab_api::pb;
+use cathlab_api::pb::simulator_client::SimulatorClient;
+use clap::Parser;
+use tonic::Request;
+use tonic::transport::Channel;
+
+#[derive(Debug, Parser)]
+#[command(name = "cathlab-load", about = "cathlab server load benchmark")]
+struct Cli {
+    /// Session counts to run, in order.
+    #[arg(long, value_delimiter = ',', default_value = "1,2,4,5,6")]
+    sessions: Vec<usize>,
+    /// Measured seconds per session count (after a 3 s warm-up).
+    #[arg(long, default_value_t = 10.0)]
+    seconds: f64,
+    /// Latency samples (unary) and control inputs (1 kHz stream).
+    #[arg(long, default_value_t = 2000)]
+    samples: usize,
+    /// The server binary (default: next to this one).
+    #[arg(long)]
+    server: Option<PathBuf>,
+    /// Scene directory.
+    #[arg(long, default_value = "scenes")]
+    scenes: PathBuf,
+    /// Renderer (auto, cpu, gpu).
+    #[arg(long, default_value = "auto")]
+    renderer: String,
+}
+
+struct Server {
+    child: Child,
+    address: String,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn start_server(cli: &Cli, database: &std::path::Path) -> Result<Server> {
+    use std::io::BufRead;
+    let binary = match &cli.server {
+        Some(p) => p.clone(),
+        None => std::env::current_exe()?
+            .parent()
+            .context("no parent directory")?
+            .join("cathlab-server"),
+    };
+    let mut child = Command::new(&binary)
+        .args(["--listen", "127.0.0.1:0", "--renderer", &cli.renderer])
+        .arg("--database")
+        .arg(database)
+        .arg("--scenes")
+        .arg(&cli.scenes)
+        .arg("--exit-on-stdin-eof")
+        .env("CATHLAB_INSTRUCTOR_KEY", "load")
+        .env("RUST_LOG", "warn")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .with_context(|| format!("starting {}", binary.display()))?;
+    let stdout = child.stdout.take().context("no stdout")?;
+    let mut lines = std::io::BufReader::new(stdout).lines();
+    let address = loop {
+        let line = lines.next().context("the server exited")??;
+        if let Some(a) = line.strip_prefix("cathlab-server listening on ") {
+            break a.trim().to_owned();
+        }
+    };
+    std::thread::spawn(move || for _ in lines {});
+    Ok(Server { child, address })
+}
+
+fn rss_mib(pid: u32) -> f64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmRSS:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|kb| kb.parse::<f64>().ok())
+        })
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}
+
+fn authed<T>(message: T, token: &str) -> Request<T> {
+    let mut r = Request::new(message);
+    if let Ok(v) = format!("Bearer {token}").parse() {
+        r.metadata_mut().insert("authorization", v);
+    }
+    r
+}
+
+fn command(kind: pb::command::Kind) -> Option<pb::Command> {
+    Some(pb::Command { kind: Some(kind) })
+}
+
+fn push(mm_s: f64) -> Option<pb::Command> {
+    command(pb::command::Kind::Insertion(pb::Insertion {
+        mode: Some(pb::insertion::Mode::VelocityMmS(mm_s)),
+    }))
+}
+
+async fn send(
+    client: &mut SimulatorClient<Channel>,
+    s: &pb::CreateSessionResponse,
+    seq: u64,
+    c: Option<pb::Command>,
+) -> Result<pb::CommandAck> {
+    Ok(client
+        .send_command(authed(
+            pb::SendCommandRequest {
+                session_id: s.session_id.clone(),
+                seq,
+                command: c,
+            },
+            &s.controller_token,
+        ))
+        .await?
+        .into_inner())
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let i = ((sorted.len() as f64 - 1.0) * p).round() as usize;
+    sorted[i.min(sorted.len() - 1)]
+}
+
+/// A loaded session: frames and state drained by client tasks.
+struct Loaded {
+    session: pb::CreateSessionResponse,
+    frames: std::sync::Arc<std::sync::atomic::AtomicU64>,
+}
+
+async fn load_session(client: &mut SimulatorClient<Channel>) -> Result<Loaded> {
+    load_scene(
+        client,
+        pb::create_session_request::Scene::SceneName("arch_to_cow_lcca".into()),
+    )
+    .await
+}
+
+async fn load_scene(
+    client: &mut SimulatorClient<Channel>,
+    scene: pb::create_session_request::Scene,
+) -> Result<Loaded> {
+    let session = client
+        .create_session(pb::CreateSessionRequest {
+            scene: Some(scene),
+            label: "load".into(),
+        })
+        .await?
+        .into_inner();
+    send(
+        client,
+        &session,
+        1,
+        command(pb::command::Kind::Fluoroscopy(true)),
+    )
+    .await?;
+    // Push slowly in and out so the wire keeps moving through contacts.
+    send(client, &session, 2, push(15.0)).await?;
+    let frames = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let mut stream = client
+        .stream_frames(authed(
+            pb::StreamFramesRequest {
+                session_id: session.session_id.clone(),
+                encoding: pb::FrameEncoding::Raw8 as i32,
+                width: 0,
+                height: 0,
+                jpeg_quality: 0,
+            },
+            &session.observer_token,
+        ))
+        .await?
+        .into_inner();
+    let counter = frames.clone();
+    tokio::spawn(async move {
+        while let Ok(Some(_)) = stream.message().await {
+            counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+    });
+    let mut states = client
+        .stream_state(authed(
+            pb::StreamStateRequest {
+                session_id: session.session_id.clone(),
+                tip_only: false,
+            },
+            &session.observer_token,
+        ))
+        .await?
+        .into_inner();
+    tokio::spawn(async move { while let Ok(Some(_)) = states.message().await {} });
+    Ok(Loaded { session, frames })
+}
+
+async fn close_all(client: &mut SimulatorClient<Channel>, loaded: &mut Vec<Loaded>) -> Result<()> {
+    for l in loaded.drain(..) {
+        client
+            .close_session(authed(
+                pb::CloseSessionRequest {
+                    session_id: l.session.session_id.clone(),
+                },
+                &l.session.controller_token,
+            ))
+            .await?;
+    }
+    Ok(())
+}
+
+/// Unary command → first state that reports it applied.
+async fn unary_latency(
+    client: &mut SimulatorClient<Channel>,
+    s: &pb::CreateSessionResponse,
+    samples: usize,
+) -> Result<Vec<f64>> {
+    let mut states = client
+        .stream_state(authed(
+            pb::StreamStateRequest {
+                session_id: s.session_id.clone(),
+                tip_only: true,
+            },
+            &s.observer_token,
+        ))
+        .await?
+        .into_inner();
+    let mut latencies = Vec::with_capacity(samples);
+    for i in 0..samples as u64 {
+        let seq = 1000 + i;
+        let started = Instant::now();
+        let mut c = client.clone();
+        let session = s.clone();
+        let sender = tokio::spawn(async move {
+            send(
+                &mut c,
+                &session,
+                seq,
+                push(if i % 2 == 0 { 5.0 } else { -5.0 }),
+            )
+            .await
+        });
+        loop {
+            let state = states.message().await?.context("state stream ended")?;
+            if state.last_seq >= seq {
+                latencies.push(started.elapsed().as_secs_f64() * 1e3);
+                break;
+            }
+        }
+        sender.await??;
+        // Spread the samples over the physics period.
+        tokio::time::sleep(Duration::from_micros(700 + (i % 7) * 190)).await;
+    }
+    latencies.sort_by(f64::total_cmp);
+    Ok(latencies)
+}
+
+/// Control stream at 1 kHz: input sent → first output reporting it.
+async fn control_round_trip(
+    client: &mut SimulatorClient<Channel>,
+    s: &pb::CreateSessionResponse,
+    samples: usize,
+) -> Result<Vec<f64>> {
+    let (tx, rx) = tokio::sync::mpsc::channel(64);
+    let mut request = Request::new(tokio_stream::wrappers::ReceiverStream::new(rx));
+    request.metadata_mut().insert(
+        "authorization",
+        format!("Bearer {}", s.controller_token).parse()?,
+    );
+    let sent_at = std::sync::Arc::new(parking_lot::Mutex::new(Vec::<Instant>::with_capacity(
+        samples,
+    )));
+    let id = s.session_id.clone();
+    let times = sent_at.clone();
+    let base_seq = 1_000_000u64;
+    let sender = tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_millis(1));
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
+        for i in 0..samples as u64 {
+            tick.tick().await;
+            times.lock().push(Instant::now());
+            let input = pb::ControlInput {
+                session_id: if i == 0 { id.clone() } else { String::new() },
+                seq: base_seq + i,
+                push_mm_s: if (i / 250) % 2 == 0 { 10.0 } else { -10.0 },
+                twist_deg_s: 0.0,
+            };
+            if tx.send(input).await.is_err() {
+                break;
+            }
+        }
+        tx
+    });
+    let mut outputs = client.control(request).await?.into_inner();
+    let mut acknowledged = 0usize;
+    let mut rtts = Vec::with_capacity(samples);
+    while acknowledged < samples {
+        let out = outputs.message().await?.context("control stream ended")?;
+        let now = Instant::now();
+        let last = out.state.map_or(0, |s| s.last_seq);
+        if last < base_seq {
+            continue;
+        }
+        let upto = ((last - base_seq) as usize + 1).min(samples);
+        let times = sent_at.lock();
+        while acknowledged < upto && acknowledged < times.len() {
+            rtts.push((now - times[acknowledged]).as_secs_f64() * 1e3);
+            acknowledged += 1;
+        }
+    }
+    drop(sender.await?);
+    rtts.sort_by(f64::total_cmp);
+    Ok(rtts)
+}
+
+#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
+async fn main() -> Result<()> {
+    let cli = Cli::parse();
+    let dir = std::env::temp_dir().join(format!("cathlab-load-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let server = start_server(&cli, &dir.join("load.sqlite"))?;
+    let pid = server.child.id();
+    let mut client = SimulatorClient::connect(format!("http://{}", server.address))
+        .await?
+        .max_decoding_message_size(64 << 20);
+    let idle = rss_mib(pid);
+    println!(
+        "cathlab-load: server pid {pid} at {}, idle RSS {idle:.1} MiB",
+        server.address
+    );
+
+    // Memory: one session, then more on the same scene.
+    let mut loaded = Vec::new();
+    let mut rss = Vec::new();
+    for _ in 0..4 {
+        loaded.push(load_session(&mut client).await?);
+        tokio::time::sleep(Duration::from_secs(3)).await;
+        rss.push(rss_mib(pid));
+    }
+    let growth: Vec<f64> = rss.windows(2).map(|w| w[1] - w[0]).collect();
+    println!(
+        "memory: RSS with 1..4 sessions {:?} MiB; growth per extra session {:?} MiB",
+        rss.iter()
+            .map(|v| (v * 10.0).round() / 10.0)
+            .collect::<Vec<_>>(),
+        growth
+            .iter()
+            .map(|v| (v * 10.0).round() / 10.0)
+            .collect::<Vec<_>>()
+    );
+    close_all(&mut client, &mut loaded).await?;
+
+    // Latency on an otherwise idle server (one session, fluoroscopy on), at the default 500 Hz
+    // physics and on the same scene at 1 kHz (the haptic bridge's rate).
+    let default_scene = std::fs::read_to_string(cli.scenes.join("arch_to_cow_lcca.toml"))?;
+    for rate in [500, 1000] {
+        let text = default_scene.replace("step_rate_hz = 500", &format!("step_rate_hz = {rate}"));
+        let probe = load_scene(
+            &mut client,
+            pb::create_session_request::Scene::SceneToml(text),
+        )
+        .await?;
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        let unary = unary_latency(&mut client, &probe.session, cli.samples.min(1000)).await?;
+        let control = control_round_trip(&mut client, &probe.session, cli.samples).await?;
+        println!(
+            "{rate} Hz physics: command → state (unary, {} samples): p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+            unary.len(),
+            percentile(&unary, 0.5),
+            percentile(&unary, 0.99),
+            unary.last().copied().unwrap_or(f64::NAN)
+        );
+        println!(
+            "{rate} Hz physics: control stream at 1 kHz ({} inputs): round trip p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+            control.len(),
+            percentile(&control, 0.5),
+            percentile(&control, 0.99),
+            control.last().copied().unwrap_or(f64::NAN)
+        );
+        let mut probe_list = vec![probe];
+        close_all(&mut client, &mut probe_list).await?;
+    }
+
+    println!();
+    println!(
+        "| sessions | steps | late | missed | step p50 | step p99 | step max | frames/s per session | frame p50 | frame p99 | frame max |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    for &n in &cli.sessions {
+        for _ in 0..n {
+            loaded.push(load_session(&mut client).await?);
+        }
+        tokio::time::sleep(Duration::from_secs(3)).await;
+        let start_frames: Vec<u64> = loaded
+            .iter()
+            .map(|l| l.frames.load(std::sync::atomic::Ordering::Relaxed))
+            .collect();
+        let mut infos0 = Vec::new();
+        for l in &loaded {
+            infos0.push(session_info(&mut client, &l.session).await?);
+        }
+        let started = Instant::now();
+        tokio::time::sleep(Duration::from_secs_f64(cli.seconds)).await;
+        let elapsed = started.elapsed().as_secs_f64();
+        let mut infos = Vec::new();
+        for l in &loaded {
+            infos.push(session_info(&mut client, &l.session).await?);
+        }
+        let fps: Vec<f64> = loaded
+            .iter()
+            .zip(&start_frames)
+            .map(|(l, s)| {
+                (l.frames.load(std::sync::atomic::Ordering::Relaxed) - s) as f64 / elapsed
+            })
+            .collect();
+        let t = |i: &pb::SessionInfo| i.timing.unwrap_or_default();
+        let steps: u64 = infos
+            .iter()
+            .zip(&infos0)
+            .map(|(a, b)| t(a).steps - t(b).steps)
+            .sum();
+        let late: u64 = infos
+            .iter()
+            .zip(&infos0)
+            .map(|(a, b)| t(a).late_steps - t(b).late_steps)
+            .sum();
+        let missed: u64 = infos
+            .iter()
+            .zip(&infos0)
+            .map(|(a, b)| t(a).missed_steps - t(b).missed_steps)
+            .sum();
+        let worst = |f: fn(&pb::Timing) -> f64| infos.iter().map(|i| f(&t(i))).fold(0.0, f64::max);
+        println!(
+            "| {n} | {steps} ({:.0}/s each) | {late} | {missed} | {:.3} ms | {:.3} ms | {:.2} ms | {:.1}–{:.1} | {:.1} ms | {:.1} ms | {:.0} ms |",
+            steps as f64 / elapsed / n as f64,
+            worst(|t| t.step_time_p50_ms),
+            worst(|t| t.step_time_p99_ms),
+            worst(|t| t.step_time_max_ms),
+            fps.iter().copied().fold(f64::INFINITY, f64::min),
+            fps.iter().copied().fold(0.0, f64::max),
+            worst(|t| t.frame_time_p50_ms),
+            worst(|t| t.frame_time_p99_ms),
+            worst(|t| t.frame_time_max_ms),
+        );
+        close_all(&mut client, &mut loaded).await?;
+    }
+    println!(
+        "(late: steps started a whole period behind schedule; missed: periods dropped after falling 25 periods behind; percentiles are the worst session's, over each session's whole life)"
+    );
+    drop(server);
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
+}
+
+async fn session_info(
+    client: &mut SimulatorClient<Channel>,
+    s: &pb::CreateSessionResponse,
+) -> Result<pb::SessionInfo> {
+    Ok(client
+        .get_session(authed(
+            pb::GetSessionRequest {
+                session_id: s.session_id.clone(),
+            },
+            &s.observer_token,
+        ))
+        .await?
+        .into_inner())
+}

@@ -1,0 +1,44 @@
+//! Thread priorities: physics loops keep the default priority; render loops, the rayon pool
+//! and the GPU driver's threads run niced (+10), so that when the cores are busy a frame comes
+//! late rather than a physics step or a command acknowledgement.
+
+/// The nice value of rendering threads.
+pub const RENDER_NICE: i32 = 10;
+
+/// Lowers the calling thread's priority to `nice` (Linux: per thread). Raising it needs
+/// privileges and is not attempted. Returns whether it took effect.
+pub fn lower_current_thread(nice: i32) -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        let tid = rustix::thread::gettid();
+        rustix::process::setpriority_process(Some(tid), nice).is_ok()
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = nice;
+        false
+    }
+}
+
+/// Builds rayon's global pool with niced workers (the CPU renderer, the detector model and
+/// scene loading run there). Returns false if the pool already existed.
+pub fn niced_rayon_pool() -> bool {
+    rayon::ThreadPoolBuilder::new()
+        .thread_name(|i| format!("render-pool-{i}"))
+        .start_handler(|_| {
+            lower_current_thread(RENDER_NICE);
+        })
+        .build_global()
+        .is_ok()
+}
+
+/// Runs `make` on a niced thread and returns its result: threads it starts (a software GPU
+/// driver's workers) inherit the priority.
+pub fn on_niced_thread<T: Send + 'static>(make: impl FnOnce() -> T + Send + 'static) -> T {
+    std::thread::spawn(move || {
+        lower_current_thread(RENDER_NICE);
+        make()
+    })
+    .join()
+    .expect("the niced thread does not panic")
+}
