@@ -37,6 +37,7 @@ pub fn status_of(error: &EngineError) -> Status {
         | EngineError::Physics(_)
         | EngineError::Hemo(_)
         | EngineError::Xray(_)
+        | EngineError::Spawn(_)
         | EngineError::Store(_) => Status::internal(error.to_string()),
     }
 }

@@ -7,7 +7,15 @@ mod common;
 #[test]
 fn the_load_benchmark_runs() {
     let output = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-load"))
-        .args(["--sessions", "1", "--seconds", "2", "--samples", "100", "--server"])
+        .args([
+            "--sessions",
+            "1",
+            "--seconds",
+            "2",
+            "--samples",
+            "100",
+            "--server",
+        ])
         .arg(env!("CARGO_BIN_EXE_cathlab-server"))
         .arg("--scenes")
         .arg(common::repo_root().join("scenes"))
@@ -15,7 +23,11 @@ fn the_load_benchmark_runs() {
         .unwrap();
     let text = String::from_utf8_lossy(&output.stdout);
     println!("{text}");
-    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
     let row = text
         .lines()
         .find(|l| l.starts_with("| 1 |"))
@@ -23,5 +35,8 @@ fn the_load_benchmark_runs() {
     let cells: Vec<&str> = row.split('|').map(str::trim).collect();
     // One session at 500 Hz drops no physics periods.
     assert_eq!(cells[4], "0", "{row}");
-    assert!(text.contains("control stream at 1 kHz (100 inputs)"), "{text}");
+    assert!(
+        text.contains("control stream at 1 kHz (100 inputs)"),
+        "{text}"
+    );
 }

@@ -55,6 +55,9 @@ pub enum EngineError {
     /// Imaging refused something.
     #[error("x-ray: {0}")]
     Xray(#[from] cathlab_xray::XrayError),
+    /// A session thread could not start.
+    #[error("cannot start a thread: {0}")]
+    Spawn(String),
     /// The recording store failed.
     #[error("store: {0}")]
     Store(String),

@@ -182,56 +182,36 @@ impl Session {
             Box::new(context.renderer.clone()),
             fluoroscope_settings(&assets),
         )?;
-        let physics = {
-            let (id, stop, timing, events, recorded, ctx) = (
-                id.clone(),
-                stop.clone(),
-                timing.clone(),
-                events_tx.clone(),
-                recorded.clone(),
-                context.clone(),
-            );
-            std::thread::Builder::new()
-                .name(format!("physics-{}", &id[..8.min(id.len())]))
-                .spawn(move || {
-                    physics_loop(PhysicsLoop {
-                        id,
-                        world,
-                        commands: command_rx,
-                        state: state_tx,
-                        events,
-                        timing,
-                        stop,
-                        recorded,
-                        ctx,
-                    })
-                })
-                .map_err(|e| EngineError::Store(format!("cannot start a thread: {e}")))?
+        let short = &id[..8.min(id.len())];
+        let physics = PhysicsLoop {
+            id: id.clone(),
+            world,
+            commands: command_rx,
+            state: state_tx,
+            events: events_tx.clone(),
+            timing: timing.clone(),
+            stop: stop.clone(),
+            recorded: recorded.clone(),
+            ctx: context.clone(),
         };
-        let render = {
-            let (assets, stop, timing, events, state, ctx) = (
-                assets.clone(),
-                stop.clone(),
-                timing.clone(),
-                events_tx.clone(),
-                state_rx.clone(),
-                context.clone(),
-            );
-            std::thread::Builder::new()
-                .name(format!("render-{}", &id[..8.min(id.len())]))
-                .spawn(move || {
-                    render_loop(RenderLoop {
-                        assets,
-                        fluoroscope,
-                        state,
-                        frames: frame_tx,
-                        events,
-                        timing,
-                        stop,
-                        ctx,
-                    })
-                })
-                .map_err(|e| EngineError::Store(format!("cannot start a thread: {e}")))?
+        let render = RenderLoop {
+            assets: assets.clone(),
+            fluoroscope,
+            state: state_rx.clone(),
+            frames: frame_tx,
+            events: events_tx.clone(),
+            timing: timing.clone(),
+            stop: stop.clone(),
+            ctx: context.clone(),
+        };
+        let physics = spawn(format!("physics-{short}"), move || physics_loop(physics))?;
+        let render = match spawn(format!("render-{short}"), move || render_loop(render)) {
+            Ok(handle) => handle,
+            Err(e) => {
+                stop.store(true, Ordering::SeqCst);
+                let _ = physics.join();
+                return Err(e);
+            }
         };
         context.metrics.sessions.inc();
         let created_unix_s = std::time::SystemTime::now()
@@ -345,6 +325,13 @@ impl Drop for Session {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
     }
+}
+
+fn spawn(name: String, body: impl FnOnce() + Send + 'static) -> Result<JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name(name.clone())
+        .spawn(body)
+        .map_err(|e| EngineError::Spawn(format!("{name}: {e}")))
 }
 
 /// The imaging settings of a scene.
