@@ -54,5 +54,8 @@ async fn tls_from_configuration() {
             .map_err(|e| Box::new(e) as Box<dyn std::error::Error>)?;
         Ok::<_, Box<dyn std::error::Error>>(())
     };
-    assert!(plain.await.is_err(), "plaintext must not work on the TLS port");
+    assert!(
+        plain.await.is_err(),
+        "plaintext must not work on the TLS port"
+    );
 }
