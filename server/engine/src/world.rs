@@ -278,6 +278,11 @@ impl World {
         self.step
     }
 
+    /// The navigated device (read-only: scripted drivers look at it to choose commands).
+    pub fn navigation(&self) -> &Navigation<SharedWall> {
+        &self.nav
+    }
+
     /// Metrics so far.
     pub fn metrics(&self) -> &Metrics {
         &self.metrics

@@ -312,3 +312,72 @@ fn frames_encode_to_every_format_consistently() {
         "{mean16} vs {full_mean}"
     );
 }
+
+#[test]
+fn the_target_metric_agrees_with_an_autopilot_that_reaches_the_lcca() {
+    use cathlab_physics::autopilot::{Autopilot, AutopilotPhase};
+    use cathlab_physics::{Insertion, Twist};
+    let a = assets(&default_text());
+    let mut world = World::new(a.clone()).unwrap();
+    let plan =
+        cathlab_physics::scenarios::ArchToCowPlan::for_target(&a.anatomy.graph, "LCCA").unwrap();
+    let mut pilot = Autopilot::new(
+        &a.anatomy.graph,
+        a.route.clone(),
+        0.0,
+        cathlab_physics::autopilot::AutopilotSettings {
+            reach_m: a.spec.target.reach_mm * 1e-3,
+            ..plan.autopilot
+        },
+    )
+    .unwrap();
+    let start_tip = world.snapshot().tip();
+    let mut seq = 0;
+    let mut pilot_reached = None;
+    for _ in 0..plan.max_steps {
+        let command = pilot.command(world.navigation());
+        if pilot.phase() == AutopilotPhase::Reached {
+            pilot_reached = Some(world.step_index());
+            break;
+        }
+        let Insertion::Velocity(v) = command.insertion else {
+            panic!("the autopilot pushes by speed")
+        };
+        let Twist::Target(t) = command.twist else {
+            panic!("the autopilot twists to targets")
+        };
+        seq += 2;
+        world.apply(seq - 1, &Command::PushVelocity(v)).unwrap();
+        world.apply(seq, &Command::TwistTarget(t)).unwrap();
+        world.step().unwrap();
+    }
+    let reached_step = pilot_reached.expect("the autopilot reaches the LCCA");
+    let at = world
+        .metrics()
+        .target_reached_at_s
+        .expect("the world saw the target reached");
+    let dt = a.spec.time_step_s();
+    // The world checks after each step, the autopilot before the next: the same step.
+    assert!(
+        (at / dt - reached_step as f64).abs() < 1.5,
+        "world {at} s = step {}, autopilot step {reached_step}",
+        at / dt
+    );
+    let events = world.take_events();
+    assert!(events.iter().any(|e| e.kind == EventKind::TargetReached));
+    let m = world.metrics();
+    println!(
+        "LCCA reached at {at:.2} s; tip path {:.0} mm, wall force max {:.3} N mean {:.4} N",
+        m.tip_path_length_m * 1e3,
+        m.max_wall_force_n,
+        m.mean_wall_force_n
+    );
+    // The path is at least the displacement, and the wire rubbed the wall on the way.
+    let displacement = (world.snapshot().tip() - start_tip).norm();
+    assert!(
+        m.tip_path_length_m >= displacement && displacement > 0.1,
+        "path {} m, displacement {displacement} m",
+        m.tip_path_length_m
+    );
+    assert!(m.max_wall_force_n > 0.0 && m.mean_wall_force_n > 0.0);
+}
