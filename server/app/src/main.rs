@@ -103,7 +103,7 @@ fn main() -> anyhow::Result<()> {
         Action::Serve => {
             let runtime = tokio::runtime::Runtime::new().context("starting tokio")?;
             let watch_stdin = cli.options.exit_on_stdin_eof;
-            runtime.block_on(cathlab_app::server::serve(config, async move {
+            let result = runtime.block_on(cathlab_app::server::serve(config, async move {
                 if watch_stdin {
                     tokio::select! {
                         _ = cathlab_app::server::shutdown_signal() => {}
@@ -112,7 +112,11 @@ fn main() -> anyhow::Result<()> {
                 } else {
                     cathlab_app::server::shutdown_signal().await
                 }
-            }))
+            }));
+            // Sessions are closed and the store flushed by now; do not wait for blocking
+            // readers (the stdin watcher) that never return.
+            runtime.shutdown_timeout(std::time::Duration::from_secs(2));
+            result
         }
         Action::Replay { session } => {
             let (engine, store, _) = cathlab_app::server::engine(&config)?;

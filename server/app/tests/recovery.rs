@@ -131,3 +131,53 @@ async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() 
         "{text}"
     );
 }
+
+#[cfg(unix)]
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_shuts_down_gracefully_closing_sessions() {
+    let dir = temp_dir("sigterm");
+    let database = dir.join("cathlab.sqlite");
+    let mut server = ServerProcess::start(&database, &["--renderer", "cpu"]);
+    let mut client = server.client().await;
+    let session = create(&mut client).await;
+    for seq in 1..=3 {
+        send(&mut client, &session, seq, push(10.0 * seq as f64))
+            .await
+            .unwrap();
+    }
+    drop(client);
+    let pid = rustix::process::Pid::from_raw(server.child.id() as i32).unwrap();
+    rustix::process::kill_process(pid, rustix::process::Signal::TERM).unwrap();
+    let started = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = server.child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(20),
+            "no exit after SIGTERM"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    assert!(status.success(), "{status:?}");
+
+    let server = ServerProcess::start(&database, &["--renderer", "cpu"]);
+    let mut client = server.client().await;
+    let listed = client
+        .list_sessions(authed(
+            pb::ListSessionsRequest {
+                include_recorded: true,
+            },
+            INSTRUCTOR_KEY,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let recorded = listed
+        .sessions
+        .iter()
+        .find(|s| s.session_id == session.session_id)
+        .unwrap();
+    assert_eq!(recorded.status, pb::SessionStatus::Closed as i32);
+    assert_eq!(recorded.commands, 3);
+}
