@@ -265,8 +265,10 @@ async fn unary_latency(
             }
         }
         sender.await??;
-        // Spread the samples over the physics period.
-        tokio::time::sleep(Duration::from_micros(700 + (i % 7) * 190)).await;
+        // A pause of random length (OS sleep, not tokio's millisecond timer wheel, whose ticks
+        // would lock the sends to a fixed phase of the physics period).
+        let pause = Duration::from_micros(300 + rand::random_range(0..2000));
+        tokio::task::spawn_blocking(move || std::thread::sleep(pause)).await?;
     }
     latencies.sort_by(f64::total_cmp);
     Ok(latencies)
@@ -290,11 +292,18 @@ async fn control_round_trip(
     let id = s.session_id.clone();
     let times = sent_at.clone();
     let base_seq = 1_000_000u64;
-    let sender = tokio::spawn(async move {
-        let mut tick = tokio::time::interval(Duration::from_millis(1));
-        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
+    // Inputs at 1 kHz from an OS thread with precise sleeps, each at a random point of its
+    // millisecond, so that they fall at every phase of the physics period.
+    let sender = std::thread::spawn(move || {
+        let start = Instant::now();
         for i in 0..samples as u64 {
-            tick.tick().await;
+            let due = start
+                + Duration::from_millis(i)
+                + Duration::from_micros(rand::random_range(0..1000));
+            let now = Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
+            }
             times.lock().push(Instant::now());
             let input = pb::ControlInput {
                 session_id: if i == 0 { id.clone() } else { String::new() },
@@ -302,7 +311,7 @@ async fn control_round_trip(
                 push_mm_s: if (i / 250) % 2 == 0 { 10.0 } else { -10.0 },
                 twist_deg_s: 0.0,
             };
-            if tx.send(input).await.is_err() {
+            if tx.blocking_send(input).is_err() {
                 break;
             }
         }
@@ -325,7 +334,11 @@ async fn control_round_trip(
             acknowledged += 1;
         }
     }
-    drop(sender.await?);
+    drop(
+        sender
+            .join()
+            .map_err(|_| anyhow::anyhow!("the input thread panicked"))?,
+    );
     rtts.sort_by(f64::total_cmp);
     Ok(rtts)
 }
