@@ -104,23 +104,22 @@ impl SimulatorService {
         matches!((token, &self.instructor_key), (Some(t), Some(k)) if t == k)
     }
 
-    /// Checks the caller's token for `session_id`: NOT_FOUND for an unknown session,
+    /// Checks the caller's bearer token for `session_id`: NOT_FOUND for an unknown session,
     /// UNAUTHENTICATED without a valid token, PERMISSION_DENIED when reading is not enough.
-    fn authorize<T>(
+    fn authorize(
         &self,
-        request: &Request<T>,
+        token: Option<&str>,
         session_id: &str,
         control: bool,
     ) -> Result<Role, Status> {
-        let token = bearer(request);
         let known = self.tokens.read().get(session_id).cloned();
-        let role = if self.is_instructor(token.as_deref()) {
+        let role = if self.is_instructor(token) {
             Role::Instructor
         } else {
             let Some(tokens) = known.as_ref() else {
                 return Err(Status::not_found(format!("session {session_id:?}")));
             };
-            match token.as_deref() {
+            match token {
                 Some(t) if t == tokens.controller => Role::Controller,
                 Some(t) if t == tokens.observer => Role::Observer,
                 Some(_) => {
@@ -151,6 +150,12 @@ impl SimulatorService {
         self.engine.get(id).map_err(engine_status)
     }
 
+    /// The running session `id` if the request's token may read it.
+    fn readable<T>(&self, request: &Request<T>, id: &str) -> Result<Arc<Session>, Status> {
+        self.authorize(bearer(request).as_deref(), id, false)?;
+        self.session(id)
+    }
+
     fn info_of(&self, session: &Session) -> pb::SessionInfo {
         let state = session.state().borrow().clone();
         pb::SessionInfo {
@@ -172,8 +177,11 @@ impl SimulatorService {
     }
 
     fn stored_info(&self, s: &StoredSession) -> Result<pb::SessionInfo, Status> {
-        let checkpoints = self.store.checkpoints(&s.id).map_err(store_status)?;
-        let metrics = checkpoints.last().map(|c| metrics_to_wire(&c.metrics));
+        let metrics = self
+            .store
+            .last_checkpoint(&s.id)
+            .map_err(store_status)?
+            .map(|c| metrics_to_wire(&c.metrics));
         Ok(pb::SessionInfo {
             session_id: s.id.clone(),
             scene_name: s.scene_name.clone(),
@@ -339,7 +347,7 @@ impl Simulator for SimulatorService {
     ) -> Result<Response<pb::SessionInfo>, Status> {
         let id = request.get_ref().session_id.clone();
         if let Ok(session) = self.engine.get(&id) {
-            self.authorize(&request, &id, false)?;
+            self.authorize(bearer(&request).as_deref(), &id, false)?;
             return Ok(Response::new(self.info_of(&session)));
         }
         // A recorded session (closed, or from before a restart): instructors only.
@@ -361,7 +369,7 @@ impl Simulator for SimulatorService {
         request: Request<pb::CloseSessionRequest>,
     ) -> Result<Response<pb::CloseSessionResponse>, Status> {
         let id = request.get_ref().session_id.clone();
-        let role = self.authorize(&request, &id, false)?;
+        let role = self.authorize(bearer(&request).as_deref(), &id, false)?;
         if role == Role::Observer {
             return Err(Status::permission_denied(
                 "an observer cannot close a session",
@@ -386,7 +394,7 @@ impl Simulator for SimulatorService {
         request: Request<pb::SendCommandRequest>,
     ) -> Result<Response<pb::CommandAck>, Status> {
         let id = request.get_ref().session_id.clone();
-        self.authorize(&request, &id, true)?;
+        self.authorize(bearer(&request).as_deref(), &id, true)?;
         let r = request.into_inner();
         let command = command_from_wire(r.command.as_ref())?;
         let session = self.session(&id)?;
@@ -413,14 +421,8 @@ impl Simulator for SimulatorService {
             .await?
             .ok_or_else(|| Status::invalid_argument("session_id: the stream sent nothing"))?;
         let id = first.session_id.clone();
-        // Authorize with the token from the stream's metadata.
-        let mut probe = Request::new(());
-        if let Some(t) = &token
-            && let Ok(v) = format!("Bearer {t}").parse()
-        {
-            probe.metadata_mut().insert("authorization", v);
-        }
-        self.authorize(&probe, &id, true)?;
+        // Authorized with the token from the stream's metadata.
+        self.authorize(token.as_deref(), &id, true)?;
         let session = self.session(&id)?;
         let (out_tx, out_rx) = mpsc::channel::<Result<pb::ControlOutput, Status>>(64);
         let (pending_tx, mut pending_rx) = mpsc::channel::<(
@@ -504,10 +506,8 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::StreamStateRequest>,
     ) -> Result<Response<Self::StreamStateStream>, Status> {
-        let id = request.get_ref().session_id.clone();
-        self.authorize(&request, &id, false)?;
+        let session = self.readable(&request, &request.get_ref().session_id)?;
         let tip_only = request.get_ref().tip_only;
-        let session = self.session(&id)?;
         let stream = tokio_stream::wrappers::WatchStream::new(session.state())
             .map(move |s| Ok(state_to_wire(&s, tip_only, unix_us())));
         Ok(Response::new(Box::pin(stream)))
@@ -519,8 +519,7 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::StreamFramesRequest>,
     ) -> Result<Response<Self::StreamFramesStream>, Status> {
-        let id = request.get_ref().session_id.clone();
-        self.authorize(&request, &id, false)?;
+        let session = self.readable(&request, &request.get_ref().session_id)?;
         let r = request.into_inner();
         let encoding = encoding_of(&r)?;
         for (field, v) in [("width", r.width), ("height", r.height)] {
@@ -535,7 +534,6 @@ impl Simulator for SimulatorService {
                 "width, height: give both or neither",
             ));
         }
-        let session = self.session(&id)?;
         let metrics = self.engine.metrics().clone();
         let mut frames = session.frames();
         let (tx, rx) = mpsc::channel::<Result<pb::XrayFrame, Status>>(1);
@@ -596,9 +594,7 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::StreamMetricsRequest>,
     ) -> Result<Response<Self::StreamMetricsStream>, Status> {
-        let id = request.get_ref().session_id.clone();
-        self.authorize(&request, &id, false)?;
-        let session = self.session(&id)?;
+        let session = self.readable(&request, &request.get_ref().session_id)?;
         let mut events = session.events();
         let state = session.state();
         let (tx, rx) = mpsc::channel::<Result<pb::SessionUpdate, Status>>(16);
@@ -636,9 +632,7 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::GetAnatomyRequest>,
     ) -> Result<Response<pb::Anatomy>, Status> {
-        let id = request.get_ref().session_id.clone();
-        self.authorize(&request, &id, false)?;
-        let session = self.session(&id)?;
+        let session = self.readable(&request, &request.get_ref().session_id)?;
         let assets = session.assets();
         let to_lps = |p: &nalgebra::Point3<f64>| {
             let v = assets.to_lps * p.coords;
@@ -679,7 +673,7 @@ impl Simulator for SimulatorService {
     ) -> Result<Response<pb::ReplayResult>, Status> {
         let id = request.get_ref().session_id.clone();
         if self.engine.get(&id).is_ok() {
-            self.authorize(&request, &id, false)?;
+            self.authorize(bearer(&request).as_deref(), &id, false)?;
         } else if !self.is_instructor(bearer(&request).as_deref()) {
             return Err(
                 if self.store.session(&id).map_err(store_status)?.is_some() {

@@ -9,7 +9,7 @@ use std::thread::JoinHandle;
 
 use cathlab_engine::session::Ack;
 use cathlab_engine::{Checkpoint, CommandRecord, EngineError, Event, Metrics, Recorder};
-use rusqlite::{Connection, OptionalExtension, params};
+use rusqlite::{Connection, params};
 
 /// Store errors.
 #[derive(Debug, thiserror::Error)]
@@ -142,11 +142,6 @@ impl Store {
         })
     }
 
-    /// The database file.
-    pub fn file(&self) -> &Path {
-        &self.file
-    }
-
     fn push(&self, write: Write) {
         match self.writes.try_send(write) {
             Ok(()) => {}
@@ -181,11 +176,6 @@ impl Store {
         let _ = rx.recv();
     }
 
-    /// A read connection.
-    fn reader(&self) -> Result<Connection, StoreError> {
-        open(&self.file)
-    }
-
     fn sqlite(&self) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
         |source| StoreError::Sqlite {
             file: self.file.clone(),
@@ -193,68 +183,102 @@ impl Store {
         }
     }
 
-    /// Every stored session, newest first.
-    pub fn sessions(&self) -> Result<Vec<StoredSession>, StoreError> {
-        let conn = self.reader()?;
-        let mut stmt = conn
-            .prepare(
-                "SELECT id, label, scene_name, scene_json, base_dir, created_unix_s, status,
-                 step_rate_hz FROM sessions ORDER BY created_unix_s DESC",
-            )
-            .map_err(self.sqlite())?;
-        let rows = stmt
-            .query_map([], row_to_session)
+    /// The rows of `sql` with `parameters`, mapped by `row`, on a fresh read connection (WAL
+    /// lets reads run beside the writer).
+    fn rows<T>(
+        &self,
+        sql: &str,
+        parameters: impl rusqlite::Params,
+        row: impl FnMut(&rusqlite::Row<'_>) -> rusqlite::Result<T>,
+    ) -> Result<Vec<T>, StoreError> {
+        let conn = open(&self.file)?;
+        let mut stmt = conn.prepare(sql).map_err(self.sqlite())?;
+        stmt.query_map(parameters, row)
             .map_err(self.sqlite())?
             .collect::<Result<Vec<_>, _>>()
-            .map_err(self.sqlite())?;
-        Ok(rows)
+            .map_err(self.sqlite())
+    }
+
+    fn corrupt(&self, what: String, reason: impl std::fmt::Display) -> StoreError {
+        StoreError::Corrupt {
+            file: self.file.clone(),
+            what,
+            reason: reason.to_string(),
+        }
+    }
+
+    /// Every stored session, newest first.
+    pub fn sessions(&self) -> Result<Vec<StoredSession>, StoreError> {
+        self.rows(
+            &format!("{SELECT_SESSION} ORDER BY created_unix_s DESC"),
+            (),
+            row_to_session,
+        )
     }
 
     /// One stored session.
     pub fn session(&self, id: &str) -> Result<Option<StoredSession>, StoreError> {
-        let conn = self.reader()?;
-        conn.query_row(
-            "SELECT id, label, scene_name, scene_json, base_dir, created_unix_s, status,
-             step_rate_hz FROM sessions WHERE id = ?1",
-            [id],
-            row_to_session,
-        )
-        .optional()
-        .map_err(self.sqlite())
+        Ok(self
+            .rows(
+                &format!("{SELECT_SESSION} WHERE id = ?1"),
+                [id],
+                row_to_session,
+            )?
+            .pop())
     }
 
     /// A session's commands in application order.
     pub fn commands(&self, id: &str) -> Result<Vec<CommandRecord>, StoreError> {
-        let conn = self.reader()?;
-        let mut stmt = conn
-            .prepare(
-                "SELECT ordinal, step, seq, command FROM commands WHERE session_id = ?1
-                 ORDER BY ordinal",
-            )
-            .map_err(self.sqlite())?;
-        let rows = stmt
-            .query_map([id], |r| {
+        let rows = self.rows(
+            "SELECT ordinal, step, seq, command FROM commands WHERE session_id = ?1
+             ORDER BY ordinal",
+            [id],
+            |r| {
                 Ok((
                     r.get::<_, i64>(0)?,
                     r.get::<_, i64>(1)?,
                     r.get::<_, i64>(2)?,
                     r.get::<_, String>(3)?,
                 ))
-            })
-            .map_err(self.sqlite())?
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(self.sqlite())?;
+            },
+        )?;
         rows.into_iter()
             .map(|(ordinal, step, seq, json)| {
                 Ok(CommandRecord {
                     ordinal: ordinal as u64,
                     step: step as u64,
                     seq: seq as u64,
-                    command: serde_json::from_str(&json).map_err(|e| StoreError::Corrupt {
-                        file: self.file.clone(),
-                        what: format!("command {ordinal} of session {id}"),
-                        reason: e.to_string(),
+                    command: serde_json::from_str(&json).map_err(|e| {
+                        self.corrupt(format!("command {ordinal} of session {id}"), e)
                     })?,
+                })
+            })
+            .collect()
+    }
+
+    fn checkpoint_rows(&self, id: &str, order_limit: &str) -> Result<Vec<Checkpoint>, StoreError> {
+        let rows = self.rows(
+            &format!(
+                "SELECT step, digest, metrics FROM checkpoints WHERE session_id = ?1 {order_limit}"
+            ),
+            [id],
+            |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, String>(1)?,
+                    r.get::<_, String>(2)?,
+                ))
+            },
+        )?;
+        rows.into_iter()
+            .map(|(step, digest, metrics)| {
+                let what = |what: &str| format!("{what} at step {step} of session {id}");
+                Ok(Checkpoint {
+                    step: step as u64,
+                    digest: u64::from_str_radix(&digest, 16)
+                        .map_err(|e| self.corrupt(what("digest"), e))?,
+                    metrics: serde_json::from_str::<Metrics>(&metrics)
+                        .map_err(|e| self.corrupt(what("metrics"), e))?,
                 })
             })
             .collect()
@@ -262,93 +286,29 @@ impl Store {
 
     /// A session's checkpoints by step.
     pub fn checkpoints(&self, id: &str) -> Result<Vec<Checkpoint>, StoreError> {
-        let conn = self.reader()?;
-        let mut stmt = conn
-            .prepare(
-                "SELECT step, digest, metrics FROM checkpoints WHERE session_id = ?1
-                 ORDER BY step",
-            )
-            .map_err(self.sqlite())?;
-        let rows = stmt
-            .query_map([id], |r| {
-                Ok((
-                    r.get::<_, i64>(0)?,
-                    r.get::<_, String>(1)?,
-                    r.get::<_, String>(2)?,
-                ))
-            })
-            .map_err(self.sqlite())?
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(self.sqlite())?;
-        rows.into_iter()
-            .map(|(step, digest, metrics)| {
-                let corrupt = |what: &str, reason: String| StoreError::Corrupt {
-                    file: self.file.clone(),
-                    what: format!("{what} at step {step} of session {id}"),
-                    reason,
-                };
-                Ok(Checkpoint {
-                    step: step as u64,
-                    digest: u64::from_str_radix(&digest, 16)
-                        .map_err(|e| corrupt("digest", e.to_string()))?,
-                    metrics: serde_json::from_str::<Metrics>(&metrics)
-                        .map_err(|e| corrupt("metrics", e.to_string()))?,
-                })
-            })
-            .collect()
+        self.checkpoint_rows(id, "ORDER BY step")
+    }
+
+    /// A session's latest checkpoint.
+    pub fn last_checkpoint(&self, id: &str) -> Result<Option<Checkpoint>, StoreError> {
+        Ok(self
+            .checkpoint_rows(id, "ORDER BY step DESC LIMIT 1")?
+            .pop())
     }
 
     /// How many commands a session has recorded.
     pub fn command_count(&self, id: &str) -> Result<u64, StoreError> {
-        let conn = self.reader()?;
-        conn.query_row(
+        let counts = self.rows(
             "SELECT COUNT(*) FROM commands WHERE session_id = ?1",
             [id],
             |r| r.get::<_, i64>(0),
-        )
-        .map(|n| n as u64)
-        .map_err(self.sqlite())
-    }
-
-    /// A session's events in order.
-    pub fn events(&self, id: &str) -> Result<Vec<Event>, StoreError> {
-        let conn = self.reader()?;
-        let mut stmt = conn
-            .prepare(
-                "SELECT step, time_s, kind, message FROM events WHERE session_id = ?1
-                 ORDER BY rowid",
-            )
-            .map_err(self.sqlite())?;
-        let rows = stmt
-            .query_map([id], |r| {
-                Ok((
-                    r.get::<_, i64>(0)?,
-                    r.get::<_, f64>(1)?,
-                    r.get::<_, String>(2)?,
-                    r.get::<_, String>(3)?,
-                ))
-            })
-            .map_err(self.sqlite())?
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(self.sqlite())?;
-        rows.into_iter()
-            .map(|(step, time_s, kind, message)| {
-                Ok(Event {
-                    step: step as u64,
-                    time_s,
-                    kind: serde_json::from_value(serde_json::Value::String(kind.clone())).map_err(
-                        |e| StoreError::Corrupt {
-                            file: self.file.clone(),
-                            what: format!("event kind {kind:?}"),
-                            reason: e.to_string(),
-                        },
-                    )?,
-                    message,
-                })
-            })
-            .collect()
+        )?;
+        Ok(counts.first().copied().unwrap_or(0) as u64)
     }
 }
+
+const SELECT_SESSION: &str = "SELECT id, label, scene_name, scene_json, base_dir, \
+    created_unix_s, status, step_rate_hz FROM sessions";
 
 fn row_to_session(r: &rusqlite::Row<'_>) -> rusqlite::Result<StoredSession> {
     Ok(StoredSession {
