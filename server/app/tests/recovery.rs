@@ -54,21 +54,7 @@ async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() 
 
     let server = ServerProcess::start(&database, &[]);
     let mut client = server.client().await;
-    let listed = client
-        .list_sessions(authed(
-            pb::ListSessionsRequest {
-                include_recorded: true,
-            },
-            INSTRUCTOR_KEY,
-        ))
-        .await
-        .unwrap()
-        .into_inner();
-    let recorded = listed
-        .sessions
-        .iter()
-        .find(|s| s.session_id == id)
-        .expect("the session is listed after the restart");
+    let recorded = listed_session(&mut client, &id).await;
     assert_eq!(recorded.status, pb::SessionStatus::Interrupted as i32);
     assert_eq!(recorded.commands, acknowledged.len() as u64);
     let metrics = recorded.metrics.expect("metrics were recorded");
@@ -163,21 +149,7 @@ async fn sigterm_shuts_down_gracefully_closing_sessions() {
 
     let server = ServerProcess::start(&database, &["--renderer", "cpu"]);
     let mut client = server.client().await;
-    let listed = client
-        .list_sessions(authed(
-            pb::ListSessionsRequest {
-                include_recorded: true,
-            },
-            INSTRUCTOR_KEY,
-        ))
-        .await
-        .unwrap()
-        .into_inner();
-    let recorded = listed
-        .sessions
-        .iter()
-        .find(|s| s.session_id == session.session_id)
-        .unwrap();
+    let recorded = listed_session(&mut client, &session.session_id).await;
     assert_eq!(recorded.status, pb::SessionStatus::Closed as i32);
     assert_eq!(recorded.commands, 3);
 }

@@ -22,8 +22,6 @@ pub use imaging::{Encoding, SharedRenderer, encode_frame};
 pub use metrics::{Event, EventKind, Metrics};
 pub use replay::{ReplayOutcome, replay};
 pub use scene::{SceneCatalog, SceneFormat, SceneSpec};
-pub use session::{
-    Checkpoint, CommandRecord, NullRecorder, Recorder, RenderedFrame, Session, SessionSettings,
-};
+pub use session::{Checkpoint, CommandRecord, Recorder, RenderedFrame, Session, SessionSettings};
 pub use telemetry::{EngineMetrics, TimingSummary};
 pub use world::{Command, Mode, Snapshot, World};

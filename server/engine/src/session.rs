@@ -62,20 +62,6 @@ pub trait Recorder: Send + Sync {
     fn event(&self, session: &str, event: &Event);
 }
 
-/// Keeps nothing and acknowledges at once (tests and the load benchmark's in-memory mode).
-#[derive(Debug, Default)]
-pub struct NullRecorder;
-
-impl Recorder for NullRecorder {
-    fn command(&self, _: &str, record: CommandRecord, ack: Option<Ack>) {
-        if let Some(ack) = ack {
-            let _ = ack.send(Ok(record));
-        }
-    }
-    fn checkpoint(&self, _: &str, _: Checkpoint) {}
-    fn event(&self, _: &str, _: &Event) {}
-}
-
 /// A command waiting for the next step boundary.
 #[derive(Debug)]
 pub struct Queued {
@@ -345,6 +331,15 @@ pub fn fluoroscope_settings(assets: &SceneAssets) -> FluoroscopeSettings {
     settings
 }
 
+/// The world's checkpoint now.
+fn checkpoint_of(world: &World) -> Checkpoint {
+    Checkpoint {
+        step: world.step_index(),
+        digest: world.digest(),
+        metrics: *world.metrics(),
+    }
+}
+
 struct PhysicsLoop {
     id: String,
     world: World,
@@ -432,14 +427,7 @@ fn physics_loop(mut p: PhysicsLoop) {
         }
         p.state.send_replace(Arc::new(p.world.snapshot()));
         if p.world.step_index().is_multiple_of(every) {
-            p.ctx.recorder.checkpoint(
-                &p.id,
-                Checkpoint {
-                    step: p.world.step_index(),
-                    digest: p.world.digest(),
-                    metrics: *p.world.metrics(),
-                },
-            );
+            p.ctx.recorder.checkpoint(&p.id, checkpoint_of(&p.world));
         }
         let took = started.elapsed().as_secs_f64();
         p.timing.step(took);
@@ -452,14 +440,7 @@ fn physics_loop(mut p: PhysicsLoop) {
             let _ = ack.send(Err(EngineError::Closed(p.id.clone())));
         }
     }
-    p.ctx.recorder.checkpoint(
-        &p.id,
-        Checkpoint {
-            step: p.world.step_index(),
-            digest: p.world.digest(),
-            metrics: *p.world.metrics(),
-        },
-    );
+    p.ctx.recorder.checkpoint(&p.id, checkpoint_of(&p.world));
     p.ctx.metrics.sessions.dec();
 }
 

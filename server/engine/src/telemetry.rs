@@ -165,14 +165,6 @@ impl SessionTiming {
         self.missed.fetch_add(periods, Ordering::Relaxed);
     }
 
-    /// Forgets everything so far (the load benchmark's warm-up).
-    pub fn clear(&self) {
-        self.steps.lock().reset();
-        self.frames.lock().reset();
-        self.late.store(0, Ordering::Relaxed);
-        self.missed.store(0, Ordering::Relaxed);
-    }
-
     /// Percentiles now.
     pub fn summary(&self) -> TimingSummary {
         let s = self.steps.lock();

@@ -424,7 +424,6 @@ impl World {
         let Some(hemo) = &mut self.hemo else {
             return Ok(());
         };
-        let network = hemo.solver.network().clone();
         let injection = match hemo.injection {
             Some((_, rate)) => {
                 let location = graph.nearest(&tip).ok_or_else(|| {
@@ -440,7 +439,7 @@ impl World {
             None => None,
         };
         let solution = hemo.solver.solve(injection.as_ref())?;
-        hemo.contrast.set_flow(&network, &solution)?;
+        hemo.contrast.set_flow(hemo.solver.network(), &solution)?;
         hemo.active |= injection.is_some();
         Ok(())
     }

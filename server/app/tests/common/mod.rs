@@ -176,3 +176,24 @@ pub async fn state(
         .into_inner();
     stream.message().await.unwrap().expect("a state")
 }
+
+/// A session as the instructor's list (live and recorded) shows it.
+pub async fn listed_session(
+    client: &mut SimulatorClient<Channel>,
+    session_id: &str,
+) -> pb::SessionInfo {
+    client
+        .list_sessions(authed(
+            pb::ListSessionsRequest {
+                include_recorded: true,
+            },
+            INSTRUCTOR_KEY,
+        ))
+        .await
+        .unwrap()
+        .into_inner()
+        .sessions
+        .into_iter()
+        .find(|s| s.session_id == session_id)
+        .expect("the session is listed")
+}
