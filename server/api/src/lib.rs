@@ -265,6 +265,32 @@ mod tests {
     }
 
     #[test]
+    fn control_inputs_are_checked_by_field() {
+        let input = |push_mm_s, twist_deg_s| pb::ControlInput {
+            session_id: String::new(),
+            seq: 1,
+            push_mm_s,
+            twist_deg_s,
+        };
+        for (bad, field) in [
+            (input(f64::NAN, 0.0), "push_mm_s"),
+            (input(1e6, 0.0), "push_mm_s"),
+            (input(0.0, f64::NEG_INFINITY), "twist_deg_s"),
+        ] {
+            let err = control_from_wire(&bad).unwrap_err();
+            assert_eq!(err.code(), tonic::Code::InvalidArgument);
+            assert!(err.message().starts_with(field), "{}", err.message());
+        }
+        assert_eq!(
+            control_from_wire(&input(10.0, 180.0)).unwrap(),
+            Command::Setpoints {
+                push_m_s: 0.01,
+                twist_rad_s: std::f64::consts::PI,
+            }
+        );
+    }
+
+    #[test]
     fn non_finite_and_out_of_range_values_name_their_field() {
         for bad in [f64::NAN, f64::INFINITY, -f64::INFINITY, 1e4] {
             let err = command_from_wire(Some(&push(bad))).unwrap_err();

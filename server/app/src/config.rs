@@ -110,3 +110,35 @@ impl ServerConfig {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_configuration_files_name_the_file_and_the_field() {
+        let dir = std::env::temp_dir().join(format!("cathlab-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("server.toml");
+        for (text, expected) in [
+            ("max_sessions = \"many\"\n", "max_sessions"),
+            ("listen = \"127.0.0.1:1\"\nport = 3\n", "port"),
+            ("renderer = \"quantum\"\n", "renderer"),
+            ("[tls]\ncert = \"a.pem\"\n", "key"),
+        ] {
+            std::fs::write(&file, text).unwrap();
+            let message = ConfigFile::read(&file).unwrap_err().to_string();
+            assert!(message.contains("server.toml"), "{message}");
+            assert!(message.contains(expected), "{expected}: {message}");
+        }
+        let missing = ConfigFile::read(&dir.join("absent.toml")).unwrap_err();
+        assert!(missing.to_string().contains("absent.toml"));
+        std::fs::write(&file, "listen = \"0.0.0.0:50051\"\nmax_sessions = 3\n").unwrap();
+        let config = ServerConfig::from_file(ConfigFile::read(&file).unwrap());
+        assert_eq!(
+            (config.listen.as_str(), config.max_sessions),
+            ("0.0.0.0:50051", 3)
+        );
+        assert_eq!(config.database, ServerConfig::default().database);
+    }
+}

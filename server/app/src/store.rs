@@ -438,3 +438,53 @@ fn write_batch(conn: &mut Connection, batch: &[Write]) -> rusqlite::Result<()> {
     }
     tx.commit()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn corrupt_rows_are_named_not_trusted() {
+        let dir = std::env::temp_dir().join(format!("cathlab-store-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("corrupt.sqlite");
+        let _ = std::fs::remove_file(&file);
+        let store = Store::open(&file).unwrap();
+        store
+            .insert_session(StoredSession {
+                id: "s1".into(),
+                label: String::new(),
+                scene_name: "scene".into(),
+                scene_json: "{}".into(),
+                base_dir: PathBuf::from("."),
+                created_unix_s: 0.0,
+                status: "running".into(),
+                step_rate_hz: 500.0,
+            })
+            .unwrap();
+        let conn = open(&file).unwrap();
+        conn.execute(
+            "INSERT INTO commands VALUES ('s1', 0, 5, 1, '{\"no_such_command\": 1}')",
+            [],
+        )
+        .unwrap();
+        conn.execute(
+            "INSERT INTO checkpoints VALUES ('s1', 500, 'not-hex', '{}')",
+            [],
+        )
+        .unwrap();
+        let command = store.commands("s1").unwrap_err().to_string();
+        assert!(
+            command.contains("corrupt command 0 of session s1"),
+            "{command}"
+        );
+        let checkpoint = store.checkpoints("s1").unwrap_err().to_string();
+        assert!(checkpoint.contains("digest at step 500"), "{checkpoint}");
+        assert_eq!(store.command_count("s1").unwrap(), 1);
+        // A store opened again marks the running session interrupted.
+        drop(store);
+        let store = Store::open(&file).unwrap();
+        assert_eq!(store.session("s1").unwrap().unwrap().status, "interrupted");
+        assert!(store.session("s2").unwrap().is_none());
+    }
+}

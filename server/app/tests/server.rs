@@ -413,6 +413,86 @@ async fn bad_input_gets_named_errors() {
         "{error:?}"
     );
 
+    // Frame requests with bad arguments.
+    for (request, field) in [
+        (
+            pb::StreamFramesRequest {
+                session_id: session.session_id.clone(),
+                encoding: 99,
+                ..Default::default()
+            },
+            "encoding",
+        ),
+        (
+            pb::StreamFramesRequest {
+                session_id: session.session_id.clone(),
+                width: 5,
+                height: 5,
+                ..Default::default()
+            },
+            "width",
+        ),
+        (
+            pb::StreamFramesRequest {
+                session_id: session.session_id.clone(),
+                width: 256,
+                ..Default::default()
+            },
+            "width, height",
+        ),
+        (
+            pb::StreamFramesRequest {
+                session_id: session.session_id.clone(),
+                encoding: pb::FrameEncoding::Jpeg as i32,
+                jpeg_quality: 101,
+                ..Default::default()
+            },
+            "jpeg_quality",
+        ),
+    ] {
+        let Err(error) = client
+            .stream_frames(authed(request, &session.observer_token))
+            .await
+        else {
+            panic!("{field}: a bad frame request was accepted");
+        };
+        assert_eq!(error.code(), tonic::Code::InvalidArgument, "{error:?}");
+        assert!(
+            error.message().starts_with(field),
+            "{field}: {}",
+            error.message()
+        );
+    }
+
+    // A control stream whose input is not finite ends with the field named.
+    let (tx, rx) = tokio::sync::mpsc::channel(2);
+    tx.send(pb::ControlInput {
+        session_id: session.session_id.clone(),
+        seq: 1,
+        push_mm_s: f64::NAN,
+        twist_deg_s: 0.0,
+    })
+    .await
+    .unwrap();
+    let mut request = tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx));
+    request.metadata_mut().insert(
+        "authorization",
+        format!("Bearer {}", session.controller_token)
+            .parse()
+            .unwrap(),
+    );
+    let mut outputs = client.control(request).await.unwrap().into_inner();
+    let error = loop {
+        match outputs.message().await {
+            Ok(Some(_)) => continue,
+            Ok(None) => panic!("the stream ended without an error"),
+            Err(e) => break e,
+        }
+    };
+    assert_eq!(error.code(), tonic::Code::InvalidArgument, "{error:?}");
+    assert!(error.message().contains("push_mm_s"), "{}", error.message());
+    drop(tx);
+
     // The session still runs after all that.
     send(&mut client, &session, 3, push(1.0)).await.unwrap();
 }
