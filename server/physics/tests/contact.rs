@@ -35,6 +35,10 @@ fn tight() -> ContactSettings {
     }
 }
 
+/// Sweeps allowed to either solver in the property test. Ill-conditioned frictionless cases
+/// (several contacts on one element) have needed up to 36,200 sweeps to reach 1e-13.
+const SWEEP_BUDGET: usize = 200_000;
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(40))]
 
@@ -71,9 +75,37 @@ proptest! {
                 }
             })
             .collect();
-        let fast = gauss_seidel(&flexibility, &free, &contacts, &tight(), None).unwrap();
-        let dense = dense_reference(&k.to_dense(), &free, &contacts, &tight()).unwrap();
-        prop_assert!(fast.converged && dense.converged, "iterations {} / {}", fast.iterations, dense.iterations);
+        let settings = ContactSettings { max_iterations: SWEEP_BUDGET, ..tight() };
+        let fast = gauss_seidel(&flexibility, &free, &contacts, &settings, None).unwrap();
+        let dense = dense_reference(&k.to_dense(), &free, &contacts, &settings).unwrap();
+        if with_friction && !dense.converged {
+            // Projected Gauss–Seidel on the Coulomb law is not a contraction: on some frictional
+            // problems it cycles with no fixed point to find (seen in CI on 8 contacts: still
+            // cycling after 2,000,000 sweeps). The O(N) solver must then say so and still
+            // deliver exact non-penetration (its frozen-friction phase).
+            prop_assert!(!fast.converged, "the fast solver claims a fixed point the dense one never reaches");
+            let (w, delta_free) = delassus(&k.to_dense(), &free, &contacts);
+            let lambda = nalgebra::DVector::from_iterator(3 * contacts.len(), fast.local.iter().flat_map(|l| l.iter().copied()));
+            let after = &delta_free + &w * &lambda;
+            let scale = fast.local.iter().map(|l| l.x).fold(1e-12, f64::max);
+            // Gaps to 1e-9 of the problem's displacement scale (a frozen phase stopped by its
+            // force tolerance leaves sub-picometre residuals).
+            let reach = contacts
+                .iter()
+                .enumerate()
+                .map(|(i, c)| c.gap.abs() + delta_free[3 * i].abs())
+                .fold(0.0, f64::max);
+            for (i, (c, l)) in contacts.iter().zip(&fast.local).enumerate() {
+                let gap = c.gap + after[3 * i];
+                prop_assert!(l.x >= 0.0 && l.y.hypot(l.z) <= c.friction * l.x * (1.0 + 1e-9) + 1e-15);
+                prop_assert!(gap >= -1e-9 * reach, "contact {i} penetrates by {gap} m (scale {reach} m)");
+                prop_assert!(l.x <= 1e-9 * scale || gap.abs() <= 1e-9 * reach, "contact {i} pushes ({} N) across a gap of {gap} m", l.x);
+            }
+            return Ok(());
+        }
+        // Otherwise both ran the same iteration: to the same fixed point, or (a frictionless
+        // case too ill-conditioned for the budget) for the same number of sweeps.
+        prop_assert_eq!(fast.converged, dense.converged, "iterations {} / {}", fast.iterations, dense.iterations);
         let scale = dense.local.iter().map(|l| l.norm()).fold(1e-12, f64::max);
         let mut worst: f64 = 0.0;
         for (a, b) in fast.local.iter().zip(&dense.local) {
@@ -81,13 +113,43 @@ proptest! {
         }
         prop_assert!(worst <= 1e-6, "relative force difference {worst}");
         // Without friction the solution is unique: check it against every active set.
-        if !with_friction && contacts.len() <= 10 {
+        if !with_friction && dense.converged && contacts.len() <= 10 {
             let exact = enumerate_frictionless(&k.to_dense(), &free, &contacts);
             for (a, b) in fast.local.iter().zip(&exact) {
                 prop_assert!((a.x - b).abs() <= 1e-6 * scale, "{} vs exact {b}", a.x);
             }
         }
     }
+}
+
+/// The explicit Delassus operator `W = H K⁻¹ Hᵀ` (3M × 3M, rows in each contact's
+/// normal–tangent frame) and the free relative displacement `H u_free` (3M): the gaps after a
+/// solve are `gap + (H u_free + W λ)_normal`.
+fn delassus(
+    k_dense: &nalgebra::DMatrix<f64>,
+    free: &[Vector6<f64>],
+    contacts: &[Contact],
+) -> (nalgebra::DMatrix<f64>, nalgebra::DVector<f64>) {
+    let k_inv = k_dense.clone().try_inverse().unwrap();
+    let n = free.len();
+    let mut h = nalgebra::DMatrix::<f64>::zeros(3 * contacts.len(), 6 * n);
+    for (i, c) in contacts.iter().enumerate() {
+        let frame_t = c.frame().transpose();
+        for (node, weight) in [
+            (c.element.checked_sub(1), 1.0 - c.t),
+            (Some(c.element), c.t),
+        ] {
+            if let Some(node) = node {
+                for r in 0..3 {
+                    for d in 0..3 {
+                        h[(3 * i + r, 6 * node + d)] += weight * frame_t[(r, d)];
+                    }
+                }
+            }
+        }
+    }
+    let u = nalgebra::DVector::from_iterator(6 * n, free.iter().flat_map(|v| v.iter().copied()));
+    (&h * k_inv * h.transpose(), &h * u)
 }
 
 /// Exact frictionless solution by enumerating active sets: for each subset A, solve
@@ -98,25 +160,11 @@ fn enumerate_frictionless(
     free: &[Vector6<f64>],
     contacts: &[Contact],
 ) -> Vec<f64> {
-    let k_inv = k_dense.clone().try_inverse().unwrap();
     let m = contacts.len();
-    let n = free.len();
-    let mut h = nalgebra::DMatrix::<f64>::zeros(m, 6 * n);
-    for (i, c) in contacts.iter().enumerate() {
-        for (node, weight) in [
-            (c.element.checked_sub(1), 1.0 - c.t),
-            (Some(c.element), c.t),
-        ] {
-            if let Some(node) = node {
-                for d in 0..3 {
-                    h[(i, 6 * node + d)] += weight * c.normal[d];
-                }
-            }
-        }
-    }
-    let w = &h * &k_inv * h.transpose();
-    let u = nalgebra::DVector::from_iterator(6 * n, free.iter().flat_map(|v| v.iter().copied()));
-    let q = &h * u + nalgebra::DVector::from_iterator(m, contacts.iter().map(|c| c.gap));
+    let (w3, delta_free) = delassus(k_dense, free, contacts);
+    // The normal rows only.
+    let w = nalgebra::DMatrix::from_fn(m, m, |i, j| w3[(3 * i, 3 * j)]);
+    let q = nalgebra::DVector::from_fn(m, |i, _| delta_free[3 * i] + contacts[i].gap);
     let mut best: Option<(f64, Vec<f64>)> = None;
     for mask in 0u32..(1 << m) {
         let active: Vec<usize> = (0..m).filter(|i| mask & (1 << i) != 0).collect();
