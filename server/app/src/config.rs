@@ -47,6 +47,8 @@ pub struct ConfigFile {
     pub max_sessions: Option<usize>,
     /// Largest request message (bytes).
     pub max_message_bytes: Option<usize>,
+    /// The built web client (`client-web/dist`), served at `/`.
+    pub web_root: Option<PathBuf>,
 }
 
 impl ConfigFile {
@@ -77,6 +79,8 @@ pub struct ServerConfig {
     pub max_sessions: usize,
     /// Largest request message (bytes).
     pub max_message_bytes: usize,
+    /// The built web client, served at `/` (a note page when it is not built).
+    pub web_root: PathBuf,
 }
 
 impl Default for ServerConfig {
@@ -90,6 +94,7 @@ impl Default for ServerConfig {
             renderer: RendererChoice::Auto,
             max_sessions: 16,
             max_message_bytes: 1 << 20,
+            web_root: PathBuf::from("client-web/dist"),
         }
     }
 }
@@ -107,6 +112,7 @@ impl ServerConfig {
             renderer: file.renderer.unwrap_or(d.renderer),
             max_sessions: file.max_sessions.unwrap_or(d.max_sessions),
             max_message_bytes: file.max_message_bytes.unwrap_or(d.max_message_bytes),
+            web_root: file.web_root.unwrap_or(d.web_root),
         }
     }
 }

@@ -29,6 +29,9 @@ struct Options {
     /// Scene directory.
     #[arg(long, global = true)]
     scenes: Option<PathBuf>,
+    /// The built web client directory (default client-web/dist).
+    #[arg(long, global = true)]
+    web_root: Option<PathBuf>,
     /// Renderer.
     #[arg(long, value_enum, global = true)]
     renderer: Option<RendererChoice>,
@@ -70,6 +73,9 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
     }
     if let Some(v) = &options.scenes {
         config.scenes = v.clone();
+    }
+    if let Some(v) = &options.web_root {
+        config.web_root = v.clone();
     }
     if let Some(v) = options.renderer {
         config.renderer = v;

@@ -1,6 +1,7 @@
 //! Putting the server together: the engine with the shared renderer and the store, the
 //! Simulator service with health and reflection, gRPC-Web and CORS for browsers, the
-//! Prometheus `/metrics` route on the same port, TLS when configured, and graceful shutdown.
+//! Prometheus `/metrics` route and the built web client on the same port, TLS when
+//! configured, and graceful shutdown.
 
 use std::future::Future;
 use std::sync::Arc;
@@ -118,6 +119,27 @@ pub async fn serve(
                 }
             }),
         );
+    let web_client = config.web_root.join("index.html").is_file();
+    let router = if web_client {
+        router.fallback_service(
+            tower_http::services::ServeDir::new(&config.web_root)
+                .append_index_html_on_directories(true),
+        )
+    } else {
+        tracing::warn!(
+            web_root = %config.web_root.display(),
+            "web client not built (scripts/run.sh builds it); serving the API only"
+        );
+        let note = format!(
+            "cathlab-server: the web client is not built in {} (scripts/run.sh builds it, or \
+             `npm ci && npm run build` in client-web)\n",
+            config.web_root.display()
+        );
+        router.fallback(move || {
+            let note = note.clone();
+            async move { (axum::http::StatusCode::NOT_FOUND, note) }
+        })
+    };
     let cors = CorsLayer::new()
         .allow_origin(AllowOrigin::mirror_request())
         .allow_methods([
@@ -143,6 +165,21 @@ pub async fn serve(
         .with_context(|| format!("binding {}", config.listen))?;
     let address = listener.local_addr()?;
     println!("cathlab-server listening on {address}");
+    if web_client {
+        let scheme = if config.tls.is_some() {
+            "https"
+        } else {
+            "http"
+        };
+        let host = if address.ip().is_unspecified() {
+            std::net::SocketAddr::new(std::net::Ipv4Addr::LOCALHOST.into(), address.port())
+        } else {
+            address
+        };
+        println!(
+            "cathlab web client: {scheme}://{host}/ (trainee), {scheme}://{host}/dashboard.html (instructor)"
+        );
+    }
     let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
     let result = builder
         .layer(cors)

@@ -597,7 +597,28 @@ impl Simulator for SimulatorService {
         let session = self.readable(&request, &request.get_ref().session_id)?;
         let mut events = session.events();
         let state = session.state();
-        let (tx, rx) = mpsc::channel::<Result<pb::SessionUpdate, Status>>(16);
+        // The timeline so far (subscribed first, so nothing falls between the two); live
+        // events the store already held are not sent twice.
+        let session_id = request.get_ref().session_id.clone();
+        let store = self.store.clone();
+        let history = tokio::task::spawn_blocking(move || store.events(&session_id))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?
+            .map_err(|e| Status::internal(e.to_string()))?;
+        let (tx, rx) = mpsc::channel::<Result<pb::SessionUpdate, Status>>(16 + history.len());
+        let mut sent = std::collections::HashSet::new();
+        for (step, time_s, kind, message) in history {
+            let event = pb::Event {
+                step,
+                time_s,
+                kind,
+                message,
+            };
+            sent.insert((event.step, event.kind.clone(), event.message.clone()));
+            let update = pb::session_update::Kind::Event(event);
+            // The channel holds the whole history: this cannot wait.
+            let _ = tx.try_send(Ok(pb::SessionUpdate { kind: Some(update) }));
+        }
         tokio::spawn(async move {
             let mut tick = tokio::time::interval(Duration::from_secs(1));
             loop {
@@ -605,7 +626,13 @@ impl Simulator for SimulatorService {
                     _ = tick.tick() => pb::session_update::Kind::Metrics(
                         metrics_to_wire(&state.borrow().metrics)),
                     event = events.recv() => match event {
-                        Ok(e) => pb::session_update::Kind::Event(event_to_wire(&e)),
+                        Ok(e) => {
+                            let event = event_to_wire(&e);
+                            if sent.remove(&(event.step, event.kind.clone(), event.message.clone())) {
+                                continue;
+                            }
+                            pb::session_update::Kind::Event(event)
+                        }
                         Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
                             pb::session_update::Kind::Event(pb::Event {
                                 kind: "lagged".into(),

@@ -227,6 +227,23 @@ impl Store {
             .pop())
     }
 
+    /// A session's recorded events in order: (step, simulated time s, kind, message).
+    pub fn events(&self, id: &str) -> Result<Vec<(u64, f64, String, String)>, StoreError> {
+        self.rows(
+            "SELECT step, time_s, kind, message FROM events WHERE session_id = ?1
+             ORDER BY rowid",
+            [id],
+            |r| {
+                Ok((
+                    r.get::<_, i64>(0)?.max(0) as u64,
+                    r.get(1)?,
+                    r.get(2)?,
+                    r.get(3)?,
+                ))
+            },
+        )
+    }
+
     /// A session's commands in application order.
     pub fn commands(&self, id: &str) -> Result<Vec<CommandRecord>, StoreError> {
         let rows = self.rows(

@@ -1,0 +1,56 @@
+import { describe, expect, it } from "vitest";
+import { DEAD_ZONE, DriveCommands, PUSH_MM_S, TWIST_DEG_S, combine, deadZone, gamepadDemand, keyboardDemand } from "./controls.js";
+
+describe("keyboard", () => {
+  it("maps the arrows to push/pull and twist, opposite keys cancelling", () => {
+    expect(keyboardDemand(new Set(["ArrowUp"]))).toEqual({ push: 1, twist: 0 });
+    expect(keyboardDemand(new Set(["ArrowDown", "ArrowLeft"]))).toEqual({ push: -1, twist: -1 });
+    expect(keyboardDemand(new Set(["ArrowUp", "ArrowDown", "ArrowRight"]))).toEqual({ push: 0, twist: 1 });
+    expect(keyboardDemand(new Set(["a", "F"]))).toEqual({ push: 0, twist: 0 });
+  });
+});
+
+describe("gamepad", () => {
+  it("ignores the dead zone and reaches full scale at full deflection", () => {
+    expect(deadZone(DEAD_ZONE * 0.99)).toBe(0);
+    expect(deadZone(-DEAD_ZONE)).toBe(0);
+    expect(deadZone(1)).toBe(1);
+    expect(deadZone(-1)).toBe(-1);
+    expect(deadZone(1.3)).toBe(1);
+    expect(deadZone(Number.NaN)).toBe(0);
+    // Continuous at the edge of the zone and linear beyond it.
+    expect(deadZone(DEAD_ZONE + 1e-9)).toBeCloseTo(0, 6);
+    expect(deadZone((1 + DEAD_ZONE) / 2)).toBeCloseTo(0.5, 12);
+  });
+  it("pushes on the left stick up (axis 1 negative) and twists on the right stick and D-pad", () => {
+    const none = Array(16).fill(false);
+    expect(gamepadDemand([0, -1, 0, 0], none)).toEqual({ push: 1, twist: 0 });
+    expect(gamepadDemand([0, 1, 1, 0], none)).toEqual({ push: -1, twist: 1 });
+    const dpad = none.slice();
+    dpad[12] = true; // up
+    dpad[14] = true; // left
+    expect(gamepadDemand([0, 0, 0, 0], dpad)).toEqual({ push: 1, twist: -1 });
+    expect(gamepadDemand([], [])).toEqual({ push: 0, twist: 0 });
+  });
+  it("combines sources with each axis clamped", () => {
+    expect(combine({ push: 1, twist: 0.5 }, { push: 1, twist: -0.25 })).toEqual({ push: 1, twist: 0.25 });
+  });
+});
+
+describe("drive commands", () => {
+  it("sends an insertion speed or twist rate only when it changes, scaled to mm/s and deg/s", () => {
+    const drive = new DriveCommands();
+    const [push] = drive.next({ push: 1, twist: 0 });
+    expect(push.kind.case).toBe("insertion");
+    expect(push.kind.case === "insertion" && push.kind.value.mode).toEqual({ case: "velocityMmS", value: PUSH_MM_S });
+    expect(drive.next({ push: 1, twist: 0 })).toHaveLength(0);
+    const both = drive.next({ push: 0, twist: -1 });
+    expect(both.map((c) => c.kind.case)).toEqual(["insertion", "twist"]);
+    const twist = both[1];
+    expect(twist.kind.case === "twist" && twist.kind.value.mode).toEqual({ case: "rateDegS", value: -TWIST_DEG_S });
+    // Letting go stops the device: a zero speed is sent, not silence.
+    const stop = drive.next({ push: 0, twist: 0 });
+    expect(stop).toHaveLength(1);
+    expect(stop[0].kind.case === "twist" && stop[0].kind.value.mode).toEqual({ case: "rateDegS", value: 0 });
+  });
+});

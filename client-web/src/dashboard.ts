@@ -1,0 +1,188 @@
+//! The instructor dashboard: every live session with a live thumbnail and metrics, a link to
+//! open it read-only, and its event timeline.
+import { Code, ConnectError } from "@connectrpc/connect";
+import { type SimulatorClient, serverUrl, simulatorClient } from "./api.js";
+import { type Event, FrameEncoding, type Metrics, type SessionInfo, SessionStatus } from "./gen/cathlab/v1/simulator_pb.js";
+import { metricRows } from "./hud.js";
+import { Backoff, keepOpen } from "./reconnect.js";
+
+const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
+const params = new URLSearchParams(location.search);
+const base = serverUrl(location);
+const KEY = "cathlab.instructor.key";
+const POLL_MS = 2000;
+
+/** One session's card and its streams. */
+interface Card {
+  element: HTMLElement;
+  events: Event[];
+  stop: AbortController;
+}
+
+const cards = new Map<string, Card>();
+let selected = "";
+let instructorKey = params.get("key") ?? localStorage.getItem(KEY) ?? "";
+
+function describe(e: unknown): string {
+  if (e instanceof ConnectError) return `${Code[e.code]}: ${e.rawMessage}`;
+  return e instanceof Error ? e.message : String(e);
+}
+
+function renderMetrics(element: HTMLElement, m: Metrics | undefined) {
+  const dl = element.querySelector("dl")!;
+  dl.replaceChildren(
+    ...metricRows(m).flatMap(([k, v]) => {
+      const dt = document.createElement("dt");
+      dt.textContent = k;
+      const dd = document.createElement("dd");
+      dd.textContent = v;
+      return [dt, dd];
+    }),
+  );
+}
+
+function renderTimeline() {
+  const card = cards.get(selected);
+  $("timeline-session").textContent = card ? selected.slice(0, 8) : "(choose a session)";
+  $("timeline").replaceChildren(
+    ...(card?.events ?? []).map((e) => {
+      const li = document.createElement("li");
+      li.className = e.kind;
+      const time = document.createElement("time");
+      time.textContent = `${e.timeS.toFixed(2)} s`;
+      const kind = document.createElement("span");
+      kind.className = "kind";
+      kind.textContent = e.kind.replace("_", " ");
+      li.append(time, kind, e.message);
+      return li;
+    }),
+  );
+}
+
+function select(id: string) {
+  selected = id;
+  for (const [cardId, card] of cards) card.element.classList.toggle("selected", cardId === id);
+  renderTimeline();
+}
+
+function addCard(client: SimulatorClient, info: SessionInfo): Card {
+  const element = document.createElement("article");
+  element.className = "card";
+  element.dataset.session = info.sessionId;
+  const title = document.createElement("h3");
+  title.textContent = `${info.label || "session"} · ${info.sceneName}`;
+  const image = document.createElement("img");
+  image.alt = `X-ray of session ${info.sessionId}`;
+  const actions = document.createElement("div");
+  actions.className = "actions";
+  const open = document.createElement("a");
+  open.textContent = "Open read-only";
+  open.target = "_blank";
+  open.href = `/?${new URLSearchParams({ session: info.sessionId, token: instructorKey, role: "observer" })}`;
+  const timeline = document.createElement("button");
+  timeline.textContent = "Timeline";
+  timeline.addEventListener("click", () => select(info.sessionId));
+  actions.append(open, timeline);
+  element.append(title, image, document.createElement("dl"), actions);
+  $("sessions").append(element);
+  const card: Card = { element, events: [], stop: new AbortController() };
+  renderMetrics(element, info.metrics);
+  let shownUrl = "";
+  void keepOpen(
+    async (received, signal) => {
+      const frames = client.streamFrames(
+        { sessionId: info.sessionId, encoding: FrameEncoding.JPEG, width: 192, height: 192, jpegQuality: 70 },
+        { signal },
+      );
+      for await (const frame of frames) {
+        received();
+        const url = URL.createObjectURL(new Blob([frame.data as Uint8Array<ArrayBuffer>], { type: "image/jpeg" }));
+        image.src = url;
+        if (shownUrl) URL.revokeObjectURL(shownUrl);
+        shownUrl = url;
+        image.dataset.frame = String(frame.index);
+      }
+    },
+    () => {},
+    card.stop.signal,
+  );
+  void keepOpen(
+    async (received, signal) => {
+      // The stream starts with the whole timeline so far: rebuild it on every (re)connect.
+      card.events = [];
+      for await (const update of client.streamMetrics({ sessionId: info.sessionId }, { signal })) {
+        received();
+        if (update.kind.case === "metrics") renderMetrics(element, update.kind.value);
+        else if (update.kind.case === "event") {
+          card.events.push(update.kind.value);
+          if (selected === info.sessionId) renderTimeline();
+        }
+      }
+    },
+    () => {},
+    card.stop.signal,
+  );
+  return card;
+}
+
+function showStatus(status: string, detail = "") {
+  const el = $("connection");
+  el.dataset.status = status;
+  el.textContent = status;
+  el.title = detail;
+}
+
+async function poll(signal: AbortSignal) {
+  const client = simulatorClient(base, instructorKey);
+  const backoff = new Backoff(500, 5000);
+  while (!signal.aborted) {
+    let wait = POLL_MS;
+    try {
+      const { sessions } = await client.listSessions({ includeRecorded: false }, { signal });
+      showStatus("connected");
+      $("message").textContent = "";
+      backoff.reset();
+      const live = sessions.filter((s) => s.status === SessionStatus.RUNNING);
+      const ids = new Set(live.map((s) => s.sessionId));
+      for (const [id, card] of cards) {
+        if (!ids.has(id)) {
+          card.stop.abort();
+          card.element.remove();
+          cards.delete(id);
+        }
+      }
+      for (const info of live) if (!cards.has(info.sessionId)) cards.set(info.sessionId, addCard(client, info));
+      $("count").textContent = `(${cards.size})`;
+      if (!cards.has(selected) && cards.size > 0) select(cards.keys().next().value!);
+      else renderTimeline();
+    } catch (e) {
+      if (signal.aborted) return;
+      if (e instanceof ConnectError && (e.code === Code.Unauthenticated || e.code === Code.PermissionDenied)) {
+        showStatus("connecting", "instructor key needed");
+        $("message").textContent = "Enter the instructor key (CATHLAB_INSTRUCTOR_KEY on the server).";
+        return;
+      }
+      showStatus("reconnecting", describe(e));
+      $("message").textContent = `Server unreachable: ${describe(e)}`;
+      wait = backoff.next();
+    }
+    await new Promise((r) => setTimeout(r, wait));
+  }
+}
+
+let polling = new AbortController();
+$<HTMLInputElement>("key").value = instructorKey;
+$("key-form").addEventListener("submit", (e) => {
+  e.preventDefault();
+  instructorKey = $<HTMLInputElement>("key").value;
+  localStorage.setItem(KEY, instructorKey);
+  polling.abort();
+  for (const card of cards.values()) {
+    card.stop.abort();
+    card.element.remove();
+  }
+  cards.clear();
+  polling = new AbortController();
+  void poll(polling.signal);
+});
+void poll(polling.signal);

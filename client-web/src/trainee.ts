@@ -1,0 +1,321 @@
+//! The trainee view: the live X-ray image, the controls and the HUD of one session.
+import { type MessageInitShape, create } from "@bufbuild/protobuf";
+import { Code, ConnectError } from "@connectrpc/connect";
+import { type SimulatorClient, serverUrl, simulatorClient } from "./api.js";
+import { DriveCommands, combine, gamepadDemand, keyboardDemand } from "./controls.js";
+import {
+  type Command,
+  CommandSchema,
+  type DeviceState,
+  FrameEncoding,
+  ImagingMode,
+  type Metrics,
+  PulseRate,
+} from "./gen/cathlab/v1/simulator_pb.js";
+import { hudLines } from "./hud.js";
+import { type ConnectionStatus, keepOpen } from "./reconnect.js";
+
+const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
+const params = new URLSearchParams(location.search);
+const base = serverUrl(location);
+const STORAGE = "cathlab.trainee.session";
+
+interface Joined {
+  id: string;
+  token: string;
+  readOnly: boolean;
+}
+
+/** The session to show: from the URL, from this tab's last session, or a new one. */
+async function join(): Promise<Joined> {
+  const id = params.get("session");
+  const token = params.get("token");
+  if (id && token) return { id, token, readOnly: params.get("role") === "observer" };
+  const saved = sessionStorage.getItem(STORAGE);
+  if (saved) {
+    const { id, token } = JSON.parse(saved) as { id: string; token: string };
+    try {
+      await simulatorClient(base, token).getSession({ sessionId: id });
+      return remember({ id, token, readOnly: false });
+    } catch {
+      sessionStorage.removeItem(STORAGE);
+    }
+  }
+  const anonymous = simulatorClient(base);
+  const { scenes } = await anonymous.listScenes({});
+  const scene = params.get("scene") ?? scenes[0]?.name;
+  if (!scene) throw new Error("the server lists no scenes");
+  const created = await anonymous.createSession({
+    scene: { case: "sceneName", value: scene },
+    label: params.get("label") ?? "trainee",
+  });
+  return remember({ id: created.sessionId, token: created.controllerToken, readOnly: false });
+}
+
+function remember(joined: Joined): Joined {
+  sessionStorage.setItem(STORAGE, JSON.stringify({ id: joined.id, token: joined.token }));
+  const url = new URL(location.href);
+  url.searchParams.set("session", joined.id);
+  url.searchParams.set("token", joined.token);
+  history.replaceState(null, "", url);
+  return joined;
+}
+
+function showStatus(status: ConnectionStatus, detail?: string) {
+  const el = $("connection");
+  el.dataset.status = status;
+  el.textContent = status;
+  el.title = detail ?? "";
+}
+
+function say(text: string) {
+  $("message").textContent = text;
+}
+
+function describe(e: unknown): string {
+  if (e instanceof ConnectError) return `${Code[e.code]}: ${e.rawMessage}`;
+  return e instanceof Error ? e.message : String(e);
+}
+
+async function main() {
+  let joined: Joined;
+  try {
+    joined = await join();
+  } catch (e) {
+    showStatus("reconnecting", describe(e));
+    say(`Cannot start a session: ${describe(e)}`);
+    return;
+  }
+  const client = simulatorClient(base, joined.token);
+  document.body.dataset.session = joined.id;
+  $("role").textContent = joined.readOnly ? "observer (read-only)" : "";
+  const info = await client.getSession({ sessionId: joined.id });
+  const scene = (await client.listScenes({})).scenes.find((s) => s.name === info.sceneName);
+  $("scene").textContent = `${info.label || "session"} · ${info.sceneName}`;
+  const device = $<HTMLSelectElement>("device");
+  for (const [i, name] of (scene?.devices ?? []).entries()) device.add(new Option(name, String(i)));
+  device.value = String(info.activeDevice);
+  const target = scene?.target ?? "";
+
+  let state: DeviceState | undefined;
+  let metrics: Metrics | undefined;
+  const stop = new AbortController();
+  window.addEventListener("pagehide", () => stop.abort());
+
+  // The HUD, redrawn at most once per animation frame.
+  let hudPending = false;
+  const redraw = () => {
+    if (hudPending) return;
+    hudPending = true;
+    requestAnimationFrame(() => {
+      hudPending = false;
+      const lines = hudLines(state, metrics, target);
+      $("hud-inserted").textContent = lines.inserted;
+      $("hud-fluoro").textContent = lines.fluoroscopy;
+      $("hud-contrast").textContent = lines.contrast;
+      $("hud-force").textContent = lines.wallForce;
+      $("hud-force-box").classList.toggle("warning", lines.warning);
+      $("hud-target").textContent = lines.target;
+    });
+  };
+
+  void keepOpen(
+    async (received, signal) => {
+      for await (const s of client.streamState({ sessionId: joined.id, tipOnly: true }, { signal })) {
+        state = s;
+        received();
+        redraw();
+      }
+    },
+    showStatus,
+    stop.signal,
+  );
+  void keepOpen(
+    async (received, signal) => {
+      for await (const u of client.streamMetrics({ sessionId: joined.id }, { signal })) {
+        received();
+        if (u.kind.case === "metrics") {
+          metrics = u.kind.value;
+          redraw();
+        } else if (u.kind.case === "event" && u.kind.value.kind !== "imaging") {
+          say(`${u.kind.value.kind.replace("_", " ")}: ${u.kind.value.message}`);
+        }
+      }
+    },
+    () => {},
+    stop.signal,
+  );
+  const image = $<HTMLImageElement>("xray");
+  let shownUrl = "";
+  void keepOpen(
+    async (received, signal) => {
+      const frames = client.streamFrames(
+        { sessionId: joined.id, encoding: FrameEncoding.JPEG, width: 512, height: 512, jpegQuality: 85 },
+        { signal },
+      );
+      for await (const frame of frames) {
+        received();
+        const url = URL.createObjectURL(new Blob([frame.data as Uint8Array<ArrayBuffer>], { type: "image/jpeg" }));
+        image.src = url;
+        if (shownUrl) URL.revokeObjectURL(shownUrl);
+        shownUrl = url;
+        image.dataset.frame = String(frame.index);
+        const mode =
+          frame.mode === ImagingMode.SUBTRACTION ? "DSA" : frame.mode === ImagingMode.ROADMAP ? "ROADMAP" : "FLUORO";
+        $("mode").textContent = frame.held ? `${mode} · last image hold` : mode;
+        $("frame-info").textContent = `frame ${frame.index} · t ${frame.timeS.toFixed(2)} s`;
+      }
+    },
+    () => {},
+    stop.signal,
+  );
+
+  if (joined.readOnly) {
+    for (const el of $("controls").querySelectorAll<HTMLButtonElement | HTMLInputElement | HTMLSelectElement>(
+      "button, input, select",
+    )) {
+      el.disabled = true;
+    }
+    return;
+  }
+  controls(client, joined.id);
+}
+
+/** Wires the keyboard, buttons, gamepad and forms to commands. */
+function controls(client: SimulatorClient, sessionId: string) {
+  let seq = 0n;
+  const send = async (command: Command) => {
+    seq += 1n;
+    try {
+      await client.sendCommand({ sessionId, seq, command });
+    } catch (e) {
+      if (e instanceof ConnectError && e.code === Code.PermissionDenied) say("This view is read-only.");
+      else if (e instanceof ConnectError && e.code === Code.FailedPrecondition) say(e.rawMessage);
+      else say(`Command failed: ${describe(e)}`);
+    }
+  };
+  const command = (kind: MessageInitShape<typeof CommandSchema>["kind"]) => send(create(CommandSchema, { kind }));
+
+  // Push/pull and twist: keys and on-screen buttons held, plus the gamepad.
+  const held = new Set<string>();
+  const drive = new DriveCommands();
+  let pad = { push: 0, twist: 0 };
+  const update = () => {
+    for (const c of drive.next(combine(keyboardDemand(held), pad))) void send(c);
+  };
+  const HOLD_KEYS: Record<string, string> = { push: "ArrowUp", pull: "ArrowDown", ccw: "ArrowLeft", cw: "ArrowRight" };
+  let pedal = false;
+  const setPedal = (down: boolean) => {
+    if (down === pedal) return;
+    pedal = down;
+    $("pedal").classList.toggle("held", down);
+    void command({ case: "fluoroscopy", value: down });
+  };
+  const typing = (e: Event) => e.target instanceof HTMLInputElement || e.target instanceof HTMLSelectElement;
+  window.addEventListener("keydown", (e) => {
+    if (typing(e)) return;
+    if (e.key === "f" || e.key === "F") {
+      setPedal(true);
+      e.preventDefault();
+    } else if (Object.values(HOLD_KEYS).includes(e.key)) {
+      e.preventDefault();
+      if (!held.has(e.key)) {
+        held.add(e.key);
+        update();
+      }
+    }
+  });
+  window.addEventListener("keyup", (e) => {
+    if (e.key === "f" || e.key === "F") setPedal(false);
+    else if (held.delete(e.key)) update();
+  });
+  // Losing focus lets go of everything: a device must never run on unattended.
+  window.addEventListener("blur", () => {
+    held.clear();
+    update();
+    setPedal(false);
+  });
+  for (const button of document.querySelectorAll<HTMLButtonElement>("button[data-hold]")) {
+    const what = button.dataset.hold!;
+    const down = (e: PointerEvent) => {
+      e.preventDefault();
+      button.setPointerCapture(e.pointerId);
+      button.classList.add("held");
+      if (what === "pedal") setPedal(true);
+      else {
+        held.add(HOLD_KEYS[what]);
+        update();
+      }
+    };
+    const up = () => {
+      button.classList.remove("held");
+      if (what === "pedal") setPedal(false);
+      else if (held.delete(HOLD_KEYS[what])) update();
+    };
+    button.addEventListener("pointerdown", down);
+    button.addEventListener("pointerup", up);
+    button.addEventListener("pointercancel", up);
+    button.addEventListener("lostpointercapture", up);
+  }
+  let padPedal = false;
+  const pollGamepad = () => {
+    const gamepad = navigator.getGamepads?.().find((g) => g?.connected);
+    const next = gamepad ? gamepadDemand(gamepad.axes, gamepad.buttons.map((b) => b.pressed)) : { push: 0, twist: 0 };
+    if (next.push !== pad.push || next.twist !== pad.twist) {
+      pad = next;
+      update();
+    }
+    const a = gamepad?.buttons[0]?.pressed ?? false;
+    if (a !== padPedal) {
+      padPedal = a;
+      setPedal(a);
+    }
+    requestAnimationFrame(pollGamepad);
+  };
+  requestAnimationFrame(pollGamepad);
+
+  $<HTMLSelectElement>("device").addEventListener("change", (e) =>
+    command({ case: "selectDevice", value: Number((e.target as HTMLSelectElement).value) }),
+  );
+  $("reset").addEventListener("click", () => command({ case: "reset", value: true }));
+  $<HTMLSelectElement>("pulse").addEventListener("change", (e) =>
+    command({ case: "pulseRate", value: Number((e.target as HTMLSelectElement).value) as PulseRate }),
+  );
+  const dsa = $("dsa");
+  dsa.addEventListener("click", () => {
+    const on = dsa.getAttribute("aria-pressed") !== "true";
+    dsa.setAttribute("aria-pressed", String(on));
+    void command({ case: "dsa", value: on });
+  });
+  const roadmap = $("roadmap");
+  roadmap.addEventListener("click", async () => {
+    const on = roadmap.getAttribute("aria-pressed") !== "true";
+    seq += 1n;
+    try {
+      await client.sendCommand({ sessionId, seq, command: create(CommandSchema, { kind: { case: "roadmap", value: on } }) });
+      roadmap.setAttribute("aria-pressed", String(on));
+    } catch (e) {
+      say(e instanceof ConnectError ? e.rawMessage : describe(e));
+    }
+  });
+  $("inject").addEventListener("click", () => {
+    const volumeMl = Number($<HTMLInputElement>("volume").value);
+    const rateMlS = Number($<HTMLInputElement>("rate").value);
+    void command({ case: "inject", value: { volumeMl, rateMlS } });
+  });
+  const primary = $<HTMLInputElement>("primary");
+  const secondary = $<HTMLInputElement>("secondary");
+  const angle = (v: number, plus: string, minus: string) => (v === 0 ? "0°" : `${v > 0 ? plus : minus} ${Math.abs(v)}°`);
+  const carm = () => {
+    $("primary-out").textContent = angle(Number(primary.value), "LAO", "RAO");
+    $("secondary-out").textContent = angle(Number(secondary.value), "CRA", "CAU");
+    void command({ case: "carm", value: { primaryDeg: Number(primary.value), secondaryDeg: Number(secondary.value) } });
+  };
+  primary.addEventListener("change", carm);
+  secondary.addEventListener("change", carm);
+  $<HTMLSelectElement>("zoom").addEventListener("change", (e) => {
+    $("xray").style.transform = `scale(${(e.target as HTMLSelectElement).value})`;
+  });
+}
+
+void main();
