@@ -10,12 +10,11 @@ const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as 
 const params = new URLSearchParams(location.search);
 const base = serverUrl(location);
 const KEY = "cathlab.instructor.key";
-const POLL_MS = 2000;
+const POLL_MS = 1000;
 
 /** One session's card and its streams. */
 interface Card {
   element: HTMLElement;
-  events: Event[];
   stop: AbortController;
 }
 
@@ -41,11 +40,10 @@ function renderMetrics(element: HTMLElement, m: Metrics | undefined) {
   );
 }
 
-function renderTimeline() {
-  const card = cards.get(selected);
-  $("timeline-session").textContent = card ? selected.slice(0, 8) : "(choose a session)";
+function renderTimeline(events: Event[]) {
+  $("timeline-session").textContent = selected ? selected.slice(0, 8) : "(choose a session)";
   $("timeline").replaceChildren(
-    ...(card?.events ?? []).map((e) => {
+    ...events.map((e) => {
       const li = document.createElement("li");
       li.className = e.kind;
       const time = document.createElement("time");
@@ -59,10 +57,33 @@ function renderTimeline() {
   );
 }
 
-function select(id: string) {
+/** Shows one session's timeline: its event stream (which starts with every event so far)
+ *  runs only while it is selected, so the dashboard holds one stream per thumbnail plus one.
+ *  Over plain HTTP/1.1 a browser opens at most six connections to a server. */
+let timelineStop = new AbortController();
+function select(client: SimulatorClient, id: string) {
+  if (id === selected) return;
   selected = id;
+  timelineStop.abort();
+  timelineStop = new AbortController();
   for (const [cardId, card] of cards) card.element.classList.toggle("selected", cardId === id);
-  renderTimeline();
+  renderTimeline([]);
+  if (!id) return;
+  let events: Event[] = [];
+  void keepOpen(
+    async (received, signal) => {
+      events = [];
+      for await (const update of client.streamMetrics({ sessionId: id }, { signal })) {
+        received();
+        if (update.kind.case === "event") {
+          events.push(update.kind.value);
+          renderTimeline(events);
+        }
+      }
+    },
+    () => {},
+    timelineStop.signal,
+  );
 }
 
 function addCard(client: SimulatorClient, info: SessionInfo): Card {
@@ -81,11 +102,11 @@ function addCard(client: SimulatorClient, info: SessionInfo): Card {
   open.href = `/?${new URLSearchParams({ session: info.sessionId, token: instructorKey, role: "observer" })}`;
   const timeline = document.createElement("button");
   timeline.textContent = "Timeline";
-  timeline.addEventListener("click", () => select(info.sessionId));
+  timeline.addEventListener("click", () => select(client, info.sessionId));
   actions.append(open, timeline);
   element.append(title, image, document.createElement("dl"), actions);
   $("sessions").append(element);
-  const card: Card = { element, events: [], stop: new AbortController() };
+  const card: Card = { element, stop: new AbortController() };
   renderMetrics(element, info.metrics);
   let shownUrl = "";
   void keepOpen(
@@ -101,22 +122,6 @@ function addCard(client: SimulatorClient, info: SessionInfo): Card {
         if (shownUrl) URL.revokeObjectURL(shownUrl);
         shownUrl = url;
         image.dataset.frame = String(frame.index);
-      }
-    },
-    () => {},
-    card.stop.signal,
-  );
-  void keepOpen(
-    async (received, signal) => {
-      // The stream starts with the whole timeline so far: rebuild it on every (re)connect.
-      card.events = [];
-      for await (const update of client.streamMetrics({ sessionId: info.sessionId }, { signal })) {
-        received();
-        if (update.kind.case === "metrics") renderMetrics(element, update.kind.value);
-        else if (update.kind.case === "event") {
-          card.events.push(update.kind.value);
-          if (selected === info.sessionId) renderTimeline();
-        }
       }
     },
     () => {},
@@ -151,10 +156,13 @@ async function poll(signal: AbortSignal) {
           cards.delete(id);
         }
       }
-      for (const info of live) if (!cards.has(info.sessionId)) cards.set(info.sessionId, addCard(client, info));
+      for (const info of live) {
+        const card = cards.get(info.sessionId) ?? addCard(client, info);
+        cards.set(info.sessionId, card);
+        renderMetrics(card.element, info.metrics);
+      }
       $("count").textContent = `(${cards.size})`;
-      if (!cards.has(selected) && cards.size > 0) select(cards.keys().next().value!);
-      else renderTimeline();
+      if (!cards.has(selected)) select(client, cards.keys().next().value ?? "");
     } catch (e) {
       if (signal.aborted) return;
       if (e instanceof ConnectError && (e.code === Code.Unauthenticated || e.code === Code.PermissionDenied)) {
@@ -182,6 +190,8 @@ $("key-form").addEventListener("submit", (e) => {
     card.element.remove();
   }
   cards.clear();
+  selected = "";
+  timelineStop.abort();
   polling = new AbortController();
   void poll(polling.signal);
 });

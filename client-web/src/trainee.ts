@@ -102,12 +102,13 @@ async function main() {
   const stop = new AbortController();
   window.addEventListener("pagehide", () => stop.abort());
 
-  // The HUD, redrawn at most once per animation frame.
+  // The HUD, redrawn at most every 50 ms (a timer, not an animation frame: an observer's
+  // page in the background keeps its figures current).
   let hudPending = false;
   const redraw = () => {
     if (hudPending) return;
     hudPending = true;
-    requestAnimationFrame(() => {
+    setTimeout(() => {
       hudPending = false;
       const lines = hudLines(state, metrics, target);
       $("hud-inserted").textContent = lines.inserted;
@@ -116,7 +117,7 @@ async function main() {
       $("hud-force").textContent = lines.wallForce;
       $("hud-force-box").classList.toggle("warning", lines.warning);
       $("hud-target").textContent = lines.target;
-    });
+    }, 50);
   };
 
   void keepOpen(
@@ -130,21 +131,28 @@ async function main() {
     showStatus,
     stop.signal,
   );
-  void keepOpen(
-    async (received, signal) => {
-      for await (const u of client.streamMetrics({ sessionId: joined.id }, { signal })) {
-        received();
-        if (u.kind.case === "metrics") {
-          metrics = u.kind.value;
-          redraw();
-        } else if (u.kind.case === "event" && u.kind.value.kind !== "imaging") {
-          say(`${u.kind.value.kind.replace("_", " ")}: ${u.kind.value.message}`);
+  // Metrics by a 1 Hz poll, not a stream: over plain HTTP/1.1 a browser holds at most six
+  // connections to a server, and the two streams here (state, frames) are enough.
+  void (async () => {
+    let resets = 0;
+    let reached = false;
+    while (!stop.signal.aborted) {
+      try {
+        const now = await client.getSession({ sessionId: joined.id }, { signal: stop.signal });
+        metrics = now.metrics;
+        if (metrics && metrics.divergenceResets > resets) {
+          say("The simulation diverged and the device was put back at its start.");
         }
+        if (metrics?.targetReached && !reached) say(`Target ${target} reached.`);
+        resets = metrics?.divergenceResets ?? 0;
+        reached = metrics?.targetReached ?? false;
+        redraw();
+      } catch {
+        // The state stream reports the connection.
       }
-    },
-    () => {},
-    stop.signal,
-  );
+      await new Promise((r) => setTimeout(r, 1000));
+    }
+  })();
   const image = $<HTMLImageElement>("xray");
   let shownUrl = "";
   void keepOpen(

@@ -181,12 +181,20 @@ pub async fn serve(
         );
     }
     let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
+    // On shutdown, close the sessions first: that ends their streams, which the server's
+    // graceful drain would otherwise wait on for ever.
+    let closing = service.clone();
+    let shutdown = async move {
+        shutdown.await;
+        tracing::info!("shutting down: closing sessions, flushing the store");
+        let _ = tokio::task::spawn_blocking(move || closing.shutdown()).await;
+    };
     let result = builder
         .layer(cors)
         .add_routes(Routes::from(router))
         .serve_with_incoming_shutdown(incoming, shutdown)
         .await;
-    tracing::info!("shutting down: closing sessions, flushing the store");
+    // Also after a serve error (nothing to close after a clean shutdown).
     let closing = service.clone();
     tokio::task::spawn_blocking(move || closing.shutdown()).await?;
     result?;

@@ -52,8 +52,10 @@ pub enum EventKind {
     Divergence,
     /// The tip reached the target.
     TargetReached,
-    /// Imaging changed (mode, pose, pulse rate) or could not.
+    /// Imaging changed (pedal, DSA run, roadmap) or could not.
     Imaging,
+    /// Contrast agent was injected.
+    Contrast,
     /// The device was changed.
     Device,
     /// The trainee reset the scene.
@@ -69,6 +71,7 @@ impl EventKind {
             EventKind::Divergence => "divergence",
             EventKind::TargetReached => "target_reached",
             EventKind::Imaging => "imaging",
+            EventKind::Contrast => "contrast",
             EventKind::Device => "device",
             EventKind::Reset => "reset",
             EventKind::Closed => "closed",

@@ -334,7 +334,15 @@ impl World {
                     format!("device {index} ({name}) inserted"),
                 );
             }
-            Command::Fluoroscopy(on) => self.imaging.pedal = on,
+            Command::Fluoroscopy(on) => {
+                if on != self.imaging.pedal {
+                    self.imaging.pedal = on;
+                    self.event(
+                        EventKind::Imaging,
+                        if on { "fluoroscopy on" } else { "fluoroscopy off" },
+                    );
+                }
+            }
             Command::PulseRate(rate) => self.imaging.pulse_rate = rate,
             Command::Dsa(start) => {
                 if start {
@@ -343,8 +351,11 @@ impl World {
                     self.imaging.dsa_pose =
                         Some((self.imaging.primary_deg, self.imaging.secondary_deg));
                     self.metrics.dsa_runs += 1;
+                    let run = self.imaging.dsa_run;
+                    self.event(EventKind::Imaging, format!("DSA run {run} started"));
                 } else if self.imaging.mode == Mode::Subtraction {
                     self.imaging.mode = Mode::Fluoroscopy;
+                    self.event(EventKind::Imaging, "DSA run ended");
                 }
             }
             Command::Roadmap(on) => {
@@ -356,8 +367,10 @@ impl World {
                         ));
                     }
                     self.imaging.mode = Mode::Roadmap;
+                    self.event(EventKind::Imaging, "roadmap on");
                 } else if self.imaging.mode == Mode::Roadmap {
                     self.imaging.mode = Mode::Fluoroscopy;
+                    self.event(EventKind::Imaging, "roadmap off");
                 }
             }
             Command::CArm {
@@ -384,6 +397,10 @@ impl World {
                 };
                 hemo.injection = Some((volume_ml * 1e-6, rate_ml_s * 1e-6));
                 self.update_injection()?;
+                self.event(
+                    EventKind::Contrast,
+                    format!("{volume_ml:.1} mL of contrast at {rate_ml_s:.1} mL/s"),
+                );
             }
             Command::Reset => {
                 self.restart_device(self.active_device)?;

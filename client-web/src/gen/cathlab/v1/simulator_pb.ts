@@ -1103,7 +1103,7 @@ export type Event = Message<"cathlab.v1.Event"> & {
   timeS: number;
 
   /**
-   * "divergence", "target_reached", "imaging", "device", "reset", "closed".
+   * "divergence", "target_reached", "imaging", "contrast", "device", "reset", "closed".
    *
    * @generated from field: string kind = 3;
    */
@@ -1544,7 +1544,8 @@ export const Simulator: GenService<{
     output: typeof XrayFrameSchema;
   },
   /**
-   * Metrics (about once a second) and events as they happen.
+   * The session's events so far, then metrics (about once a second) and events as they
+   * happen.
    *
    * @generated from rpc cathlab.v1.Simulator.StreamMetrics
    */

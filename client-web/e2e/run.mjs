@@ -1,0 +1,257 @@
+// End-to-end tests of the web client in headless Chromium (playwright-core driving Debian's
+// chromium) against a real cathlab-server serving the built client (dist/). Prints one
+// `test result:` line like cargo's, saves screenshots to test-results/, exits 1 on failure.
+//
+//   node e2e/run.mjs [--server PATH] [--chromium PATH]
+//
+// The server defaults to ../target/debug/cathlab-server (built by `cargo test`).
+import { spawn } from "node:child_process";
+import { mkdirSync, mkdtempSync, rmSync } from "node:fs";
+import { tmpdir } from "node:os";
+import { join, resolve } from "node:path";
+import { createInterface } from "node:readline";
+import { chromium } from "playwright-core";
+
+const here = new URL("..", import.meta.url).pathname;
+const repo = resolve(here, "..");
+const arg = (name, fallback) => {
+  const i = process.argv.indexOf(name);
+  return i >= 0 ? process.argv[i + 1] : fallback;
+};
+const serverBinary = resolve(arg("--server", process.env.CATHLAB_SERVER ?? join(repo, "target/debug/cathlab-server")));
+const chromiumPath = arg("--chromium", process.env.CHROMIUM ?? "/usr/bin/chromium");
+const artifacts = join(here, "test-results");
+mkdirSync(artifacts, { recursive: true });
+const KEY = "e2e-instructor-key";
+
+/** Starts the server on a free port; resolves with its base URL once it listens. */
+function startServer(dir) {
+  const child = spawn(
+    serverBinary,
+    [
+      "--listen", "127.0.0.1:0",
+      "--database", join(dir, "e2e.sqlite"),
+      "--scenes", join(repo, "scenes"),
+      "--web-root", join(here, "dist"),
+      "--exit-on-stdin-eof",
+    ],
+    { env: { ...process.env, CATHLAB_INSTRUCTOR_KEY: KEY, RUST_LOG: "warn" }, stdio: ["pipe", "pipe", "inherit"] },
+  );
+  return new Promise((resolvePromise, reject) => {
+    const timer = setTimeout(() => reject(new Error("server did not start in 60 s")), 60_000);
+    child.on("exit", (code) => reject(new Error(`server exited with ${code} before listening`)));
+    createInterface({ input: child.stdout }).on("line", (line) => {
+      const m = /listening on (\S+)/.exec(line);
+      if (m) {
+        clearTimeout(timer);
+        resolvePromise({ child, url: `http://${m[1]}` });
+      }
+    });
+  });
+}
+
+const assert = (condition, message) => {
+  if (!condition) throw new Error(message);
+};
+const millimetres = (text) => Number.parseFloat(text);
+
+/** A frame's pixels averaged over 8×8 blocks (quantum noise averages out, a moved wire not). */
+async function blocks(page, selector) {
+  return page.$eval(selector, (img) => {
+    const canvas = document.createElement("canvas");
+    canvas.width = img.naturalWidth;
+    canvas.height = img.naturalHeight;
+    const g = canvas.getContext("2d");
+    g.drawImage(img, 0, 0);
+    const { data, width, height } = g.getImageData(0, 0, canvas.width, canvas.height);
+    const out = [];
+    for (let by = 0; by + 8 <= height; by += 8)
+      for (let bx = 0; bx + 8 <= width; bx += 8) {
+        let sum = 0;
+        for (let y = by; y < by + 8; y++) for (let x = bx; x < bx + 8; x++) sum += data[4 * (y * width + x)];
+        out.push(sum / 64);
+      }
+    return out;
+  });
+}
+const largestChange = (a, b) => a.reduce((m, v, i) => Math.max(m, Math.abs(v - b[i])), 0);
+async function nextFrame(page, selector = "#xray") {
+  const now = await page.$eval(selector, (img) => Number(img.dataset.frame ?? -1));
+  await page.waitForFunction(
+    ([s, n]) => {
+      const img = document.querySelector(s);
+      return Number(img?.dataset.frame ?? -1) > n && img.complete && img.naturalWidth > 0;
+    },
+    [selector, now],
+    { timeout: 15_000 },
+  );
+}
+
+const results = [];
+async function test(name, body) {
+  const started = Date.now();
+  try {
+    await body();
+    results.push({ name, ok: true });
+    console.log(`test ${name} ... ok (${((Date.now() - started) / 1000).toFixed(1)} s)`);
+  } catch (e) {
+    results.push({ name, ok: false });
+    console.log(`test ${name} ... FAILED\n  ${e.stack ?? e}`);
+  }
+}
+
+const dir = mkdtempSync(join(tmpdir(), "cathlab-e2e-"));
+const { child: server, url } = await startServer(dir);
+const browser = await chromium.launch({
+  executablePath: chromiumPath,
+  args: [
+    "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+  ],
+});
+// The trainee and the instructor are different people on different machines: separate
+// browser contexts (separate connection pools, storage and focus).
+const context = await browser.newContext({ viewport: { width: 1280, height: 860 } });
+const instructor = await browser.newContext({ viewport: { width: 1280, height: 860 } });
+const pageErrors = [];
+const trainee = await context.newPage();
+trainee.on("pageerror", (e) => pageErrors.push(`trainee: ${e.message}`));
+if (process.env.E2E_DEBUG) {
+  trainee.on("console", (m) => console.log(`  [trainee console] ${m.text()}`));
+  trainee.on("response", (r) => console.log(`  [trainee] ${r.status()} ${r.url()}`));
+}
+let sessionId = "";
+
+try {
+  await test("trainee_page_loads_and_connects", async () => {
+    await trainee.goto(`${url}/?label=e2e-trainee`);
+    await trainee.waitForSelector('#connection[data-status="connected"]', { timeout: 30_000 });
+    sessionId = await trainee.$eval("body", (b) => b.dataset.session ?? "");
+    assert(/^[0-9a-f-]{8,}$/.test(sessionId), `session id on the page: ${sessionId}`);
+    assert((await trainee.textContent("#scene")).includes("arch_to_cow_lcca"), "scene name shown");
+    assert((await trainee.$$eval("#device option", (o) => o.length)) === 3, "the scene's three devices listed");
+    assert(new URL(trainee.url()).searchParams.get("session") === sessionId, "session kept in the URL for reloads");
+  });
+
+  await test("fluoroscopy_frames_render_and_change_after_a_push", async () => {
+    await trainee.bringToFront();
+    await trainee.click("#xray"); // focus the page, not a form field
+    await trainee.keyboard.down("f");
+    await nextFrame(trainee);
+    await nextFrame(trainee);
+    const a = await blocks(trainee, "#xray");
+    await nextFrame(trainee);
+    const b = await blocks(trainee, "#xray");
+    const noise = largestChange(a, b);
+    const before = millimetres(await trainee.textContent("#hud-inserted"));
+    await trainee.keyboard.down("ArrowUp");
+    await trainee.waitForTimeout(2000);
+    await trainee.keyboard.up("ArrowUp");
+    await trainee.waitForTimeout(300);
+    await nextFrame(trainee);
+    await nextFrame(trainee);
+    const c = await blocks(trainee, "#xray");
+    const moved = largestChange(b, c);
+    const after = millimetres(await trainee.textContent("#hud-inserted"));
+    console.log(`  inserted ${before} → ${after} mm; largest 8×8-block change ${moved.toFixed(1)} grey levels (frame-to-frame noise ${noise.toFixed(1)})`);
+    assert(after - before > 20 && after - before < 60, `↑ held 2 s at 20 mm/s advanced ${after - before} mm`);
+    assert(moved > 3 * noise && moved > 10, `the image changed after the push: ${moved} vs noise ${noise}`);
+    assert((await trainee.textContent("#mode")).startsWith("FLUORO"), "fluoroscopy mode shown");
+    await trainee.screenshot({ path: join(artifacts, "trainee.png") });
+    await trainee.keyboard.up("f");
+  });
+
+  await test("on_screen_buttons_pull_back", async () => {
+    const before = millimetres(await trainee.textContent("#hud-inserted"));
+    const button = await trainee.$('button[data-hold="pull"]');
+    const box = await button.boundingBox();
+    await trainee.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+    await trainee.mouse.down();
+    await trainee.waitForTimeout(1000);
+    await trainee.mouse.up();
+    await trainee.waitForTimeout(300);
+    const after = millimetres(await trainee.textContent("#hud-inserted"));
+    assert(before - after > 10, `the pull button withdrew ${before - after} mm`);
+  });
+
+  let observer;
+  await test("dashboard_lists_the_session_with_thumbnail_metrics_and_timeline", async () => {
+    const dashboard = await instructor.newPage();
+    dashboard.on("pageerror", (e) => pageErrors.push(`dashboard: ${e.message}`));
+    await dashboard.goto(`${url}/dashboard.html?key=${KEY}`);
+    const card = `.card[data-session="${sessionId}"]`;
+    await dashboard.waitForSelector(card, { timeout: 15_000 });
+    assert((await dashboard.textContent(`${card} h3`)).includes("e2e-trainee"), "the trainee's label");
+    // A live thumbnail: fluoroscopy on again, frames arrive on the card.
+    await trainee.bringToFront();
+    await trainee.keyboard.down("f");
+    await dashboard.bringToFront();
+    await nextFrame(dashboard, `${card} img`);
+    await dashboard.waitForFunction((c) => document.querySelector(`${c} dl`)?.textContent?.includes("Fluoro"), card);
+    await dashboard.click(`${card} button`);
+    await dashboard.waitForFunction(
+      () => [...document.querySelectorAll("#timeline li.imaging")].some((li) => li.textContent.includes("fluoroscopy on")),
+      null,
+      { timeout: 10_000 },
+    );
+    await dashboard.screenshot({ path: join(artifacts, "dashboard.png") });
+    const href = await dashboard.$eval(`${card} a`, (a) => a.href);
+    observer = await instructor.newPage();
+    observer.on("pageerror", (e) => pageErrors.push(`observer: ${e.message}`));
+    await observer.goto(href);
+    await trainee.bringToFront();
+    await trainee.keyboard.up("f");
+  });
+
+  await test("the_observer_view_cannot_command", async () => {
+    assert(observer, "opened from the dashboard");
+    await observer.bringToFront();
+    await observer.waitForSelector('#connection[data-status="connected"]', { timeout: 15_000 });
+    assert((await observer.textContent("#role")).includes("read-only"), "marked read-only");
+    const enabled = await observer.$$eval("#controls button, #controls input, #controls select", (els) =>
+      els.filter((e) => !e.disabled).length,
+    );
+    assert(enabled === 0, `${enabled} controls enabled in the observer view`);
+    const before = millimetres(await observer.textContent("#hud-inserted"));
+    await observer.click("#xray");
+    await observer.keyboard.down("ArrowUp");
+    await observer.waitForTimeout(1500);
+    await observer.keyboard.up("ArrowUp");
+    await observer.waitForTimeout(300);
+    const after = millimetres(await observer.textContent("#hud-inserted"));
+    assert(Number.isFinite(before) && Math.abs(after - before) < 0.01, `observer keys moved the device ${before} → ${after}`);
+    // The same keys in the trainee view still work (the session is live, not frozen).
+    await trainee.bringToFront();
+    await trainee.keyboard.down("ArrowUp");
+    await trainee.waitForTimeout(1000);
+    await trainee.keyboard.up("ArrowUp");
+    await trainee.waitForTimeout(300);
+    const pushed = millimetres(await trainee.textContent("#hud-inserted"));
+    await observer.bringToFront();
+    await observer.waitForTimeout(500);
+    const moved = millimetres(await observer.textContent("#hud-inserted"));
+    console.log(`  trainee pushed to ${pushed} mm; the observer shows ${moved} mm`);
+    assert(moved - after > 10, `the observer sees the trainee's push: ${after} → ${moved}`);
+  });
+
+  await test("the_page_shows_reconnecting_when_the_server_goes", async () => {
+    await trainee.waitForSelector('#connection[data-status="connected"]', { timeout: 5_000 });
+    server.stdin.end();
+    await trainee.waitForSelector('#connection[data-status="reconnecting"]', { timeout: 15_000 });
+    // The server shut down cleanly although browsers held streams open.
+    const code = await new Promise((r) => (server.exitCode !== null ? r(server.exitCode) : server.on("exit", r)));
+    assert(code === 0, `server exit status ${code}`);
+  });
+
+  await test("no_script_errors_on_any_page", async () => {
+    assert(pageErrors.length === 0, pageErrors.join("\n"));
+  });
+} finally {
+  await browser.close();
+  server.stdin.end();
+  server.kill();
+  rmSync(dir, { recursive: true, force: true });
+}
+const failed = results.filter((r) => !r.ok).length;
+console.log(`test result: ${failed ? "FAILED" : "ok"}. ${results.length - failed} passed; ${failed} failed; screenshots in ${artifacts}`);
+process.exit(failed ? 1 : 0);
