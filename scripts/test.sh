@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# Every test: formatting, lints, and the whole workspace's tests including the benchmarks'
-# smoke runs (optimised test profile). Ends with a one-line total.
+# Every test: formatting, lints, the whole workspace's tests including the benchmarks' smoke
+# runs (optimised test profile), the web client's generated-code check, type check and unit
+# tests, and its browser tests in headless Chromium (run by cargo test, against the real
+# server). Ends with a one-line total.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
@@ -10,8 +12,20 @@ echo "== cargo fmt --check"
 cargo fmt --all --check
 echo "== cargo clippy"
 cargo clippy --locked --workspace --all-targets -- -D warnings
-echo "== cargo test (lib, bins, tests, benches in test mode)"
 log=$(mktemp)
 trap 'rm -f "$log"' EXIT
-cargo test --locked --workspace --all-targets 2>&1 | tee "$log"
+echo "== web client: install, generated code current, build, unit tests"
+build_web_client
+install_chromium
+(
+  cd client-web
+  npm run --silent check-generated
+  npx vitest run --reporter=default --reporter=json --outputFile=test-results/vitest.json
+  node -e 'const r = require("./test-results/vitest.json");
+    console.log(`test result: ${r.success ? "ok" : "FAILED"}. ${r.numPassedTests} passed; ${r.numFailedTests} failed (vitest)`);
+    process.exit(r.success ? 0 : 1)'
+) 2>&1 | tee -a "$log"
+echo "== cargo test (lib, bins, tests, benches in test mode; the browser tests among them)"
+export CATHLAB_REQUIRE_BROWSER=1
+cargo test --locked --workspace --all-targets 2>&1 | tee -a "$log"
 awk '/^test result:/ { p += $4; f += $6 } END { printf "cathlab: %d passed, %d failed\n", p, f }' "$log"

@@ -339,7 +339,11 @@ impl World {
                     self.imaging.pedal = on;
                     self.event(
                         EventKind::Imaging,
-                        if on { "fluoroscopy on" } else { "fluoroscopy off" },
+                        if on {
+                            "fluoroscopy on"
+                        } else {
+                            "fluoroscopy off"
+                        },
                     );
                 }
             }
