@@ -197,6 +197,8 @@ pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::D
         proximal_torque_nmm: Some(vec3(p[3] * 1e3, p[4] * 1e3, p[5] * 1e3)),
         active_device: s.active_device,
         server_unix_us,
+        axial_force_n: s.axial_reaction().0,
+        axial_torque_nmm: s.axial_reaction().1 * 1e3,
     }
 }
 

@@ -138,6 +138,23 @@ impl Snapshot {
     pub fn tip(&self) -> Vector3<f64> {
         self.nodes.last().copied().unwrap_or_else(Vector3::zeros)
     }
+
+    /// The proximal reaction along the device axis at the entry (the first element's
+    /// direction): the force resisting a push (N, positive when the device pushes back on
+    /// the hand) and the torque about the axis (N·m).
+    pub fn axial_reaction(&self) -> (f64, f64) {
+        let axis = match self.nodes.as_slice() {
+            [a, b, ..] => (b - a).try_normalize(1e-12),
+            _ => None,
+        };
+        let Some(axis) = axis else {
+            return (0.0, 0.0);
+        };
+        let p = &self.proximal;
+        let force = Vector3::new(p[0], p[1], p[2]).dot(&axis);
+        let torque = Vector3::new(p[3], p[4], p[5]).dot(&axis);
+        (force, torque)
+    }
 }
 
 /// Flow and contrast of a scene that has them.

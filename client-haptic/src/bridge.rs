@@ -1,0 +1,580 @@
+//! The bridge: a UDP receiver for the device, a gRPC task holding the session's control
+//! stream (reconnecting, and recreating its session after a server restart), and the 1 kHz
+//! loop between them that runs the coupling law and reports timing statistics.
+
+use std::collections::VecDeque;
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use cathlab_api::pb;
+use cathlab_api::pb::simulator_client::SimulatorClient;
+use hdrhistogram::Histogram;
+use parking_lot::Mutex;
+use serde::Serialize;
+use tokio::sync::mpsc;
+use tonic::Request;
+use tonic::transport::{Channel, Endpoint};
+
+use crate::coupling::{Coupling, CouplingSettings, ServerSample};
+use crate::protocol::{DATAGRAM_BYTES, DeviceSample, Feedback, lost_between};
+
+/// Which session to drive.
+#[derive(Debug, Clone)]
+pub enum SessionChoice {
+    /// An existing session, with its controller token.
+    Attach {
+        /// Session id.
+        id: String,
+        /// Controller token.
+        token: String,
+    },
+    /// A session of its own, created (again after a server restart) from a listed scene
+    /// name or an inline scene text (TOML).
+    Create {
+        /// Scene name or TOML text.
+        scene: SceneSource,
+        /// Dashboard label.
+        label: String,
+    },
+}
+
+/// A scene to create a session from.
+#[derive(Debug, Clone)]
+pub enum SceneSource {
+    /// A scene the server lists.
+    Name(String),
+    /// A scene text (TOML).
+    Toml(String),
+}
+
+/// The bridge's settings.
+#[derive(Debug, Clone)]
+pub struct BridgeConfig {
+    /// Server URL (`http://127.0.0.1:50051`).
+    pub server: String,
+    /// The session.
+    pub session: SessionChoice,
+    /// UDP address to listen on for the device.
+    pub udp: SocketAddr,
+    /// Loop rate (Hz).
+    pub rate_hz: f64,
+    /// The coupling law.
+    pub coupling: CouplingSettings,
+    /// Report period (s).
+    pub report_every_s: f64,
+    /// A device silent for longer than this is treated as gone (s).
+    pub device_timeout_s: f64,
+}
+
+/// Statistics, reported periodically (cumulative since the start).
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct Report {
+    /// Time since the start (s).
+    pub t_s: f64,
+    /// Loop ticks run.
+    pub ticks: u64,
+    /// Loop period percentiles (µs) and ticks that started more than a period late.
+    pub period_p50_us: u64,
+    /// 99th percentile (µs).
+    pub period_p99_us: u64,
+    /// Largest (µs).
+    pub period_max_us: u64,
+    /// Ticks late by a whole period or more.
+    pub overruns: u64,
+    /// Setpoint → state carrying it, round trip (ms).
+    pub round_trip_p50_ms: f64,
+    /// 99th percentile (ms).
+    pub round_trip_p99_ms: f64,
+    /// Round trips measured.
+    pub round_trips: u64,
+    /// Server states received.
+    pub server_updates: u64,
+    /// Server state age when used, 99th percentile (ms).
+    pub state_age_p99_ms: f64,
+    /// Connected to a session now.
+    pub connected: bool,
+    /// Session driven now (empty when none).
+    pub session: String,
+    /// Control streams opened after the first.
+    pub reconnects: u64,
+    /// Sessions created.
+    pub sessions_created: u64,
+    /// Device datagrams accepted, lost (sequence gaps) and rejected (malformed).
+    pub device_packets: u64,
+    /// Lost in transit.
+    pub device_lost: u64,
+    /// Malformed.
+    pub device_rejected: u64,
+    /// Last rendered force (N) and torque (N·mm).
+    pub force_n: f64,
+    /// Torque (N·mm).
+    pub torque_nmm: f64,
+    /// Last server inserted length (mm) and axial reaction (N).
+    pub inserted_mm: f64,
+    /// Axial reaction (N).
+    pub server_force_n: f64,
+    /// Last error from the server side, if any.
+    pub last_error: String,
+}
+
+#[derive(Default)]
+struct DeviceLink {
+    latest: Option<(DeviceSample, Instant)>,
+    from: Option<SocketAddr>,
+    last_seq: Option<u32>,
+    packets: u64,
+    lost: u64,
+    rejected: u64,
+}
+
+#[derive(Default)]
+struct ServerLink {
+    latest: Option<(pb::DeviceState, Instant)>,
+    inputs: Option<mpsc::Sender<pb::ControlInput>>,
+    commands: Option<mpsc::UnboundedSender<pb::Command>>,
+    session: String,
+    generation: u64,
+    updates: u64,
+    reconnects: u64,
+    created: u64,
+    pending: VecDeque<(u64, Instant)>,
+    round_trip_us: Option<Histogram<u64>>,
+    last_error: String,
+}
+
+struct Shared {
+    device: Mutex<DeviceLink>,
+    server: Mutex<ServerLink>,
+    stop: Arc<AtomicBool>,
+}
+
+/// Runs the bridge until `stop` is set; `listening` is called with the bound UDP address,
+/// `report` every report period. Returns the final report.
+pub fn run(
+    config: BridgeConfig,
+    stop: Arc<AtomicBool>,
+    listening: impl FnOnce(SocketAddr),
+    mut report: impl FnMut(&Report),
+) -> anyhow::Result<Report> {
+    let socket = UdpSocket::bind(config.udp).with_context(|| format!("binding {}", config.udp))?;
+    socket.set_read_timeout(Some(Duration::from_millis(50)))?;
+    listening(socket.local_addr()?);
+    let shared = Arc::new(Shared {
+        device: Mutex::new(DeviceLink::default()),
+        server: Mutex::new(ServerLink {
+            round_trip_us: Some(Histogram::new_with_bounds(1, 60_000_000, 3)?),
+            ..ServerLink::default()
+        }),
+        stop: stop.clone(),
+    });
+    let receiver = {
+        let shared = shared.clone();
+        let socket = socket.try_clone()?;
+        std::thread::Builder::new()
+            .name("haptic-udp".into())
+            .spawn(move || receive(&socket, &shared))?
+    };
+    let grpc = {
+        let shared = shared.clone();
+        let config = config.clone();
+        std::thread::Builder::new()
+            .name("haptic-grpc".into())
+            .spawn(move || -> anyhow::Result<()> {
+                tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build()?
+                    .block_on(hold_session(&config, &shared));
+                Ok(())
+            })?
+    };
+    let last = control_loop(&config, &shared, &socket, &mut report);
+    stop.store(true, Ordering::SeqCst);
+    let _ = receiver.join();
+    let _ = grpc.join();
+    last
+}
+
+fn receive(socket: &UdpSocket, shared: &Shared) {
+    let mut buffer = [0u8; 256];
+    while !shared.stop.load(Ordering::Relaxed) {
+        let Ok((n, from)) = socket.recv_from(&mut buffer) else {
+            continue;
+        };
+        let mut link = shared.device.lock();
+        match DeviceSample::decode(&buffer[..n.min(buffer.len())]) {
+            Ok(sample) => {
+                if let Some(previous) = link.last_seq {
+                    link.lost += u64::from(lost_between(previous, sample.seq));
+                    if sample.seq.wrapping_sub(previous) > u32::MAX / 2 || sample.seq == previous {
+                        continue; // late or repeated: keep the newer one
+                    }
+                }
+                link.last_seq = Some(sample.seq);
+                link.packets += 1;
+                link.from = Some(from);
+                link.latest = Some((sample, Instant::now()));
+            }
+            Err(_) => link.rejected += 1,
+        }
+    }
+}
+
+/// Keeps a control stream open: connect, create or attach the session, stream; on any
+/// failure wait (capped exponential back-off) and start again.
+async fn hold_session(config: &BridgeConfig, shared: &Shared) {
+    let mut backoff = Duration::from_millis(100);
+    let mut own: Option<(String, String)> = None;
+    let mut opened = 0u64;
+    while !shared.stop.load(Ordering::Relaxed) {
+        let result = stream_once(config, shared, &mut own, &mut opened).await;
+        {
+            let mut link = shared.server.lock();
+            link.inputs = None;
+            link.commands = None;
+            link.latest = None;
+            link.pending.clear();
+            if let Err(e) = &result {
+                link.last_error = format!("{e:#}");
+            }
+        }
+        if shared.stop.load(Ordering::Relaxed) {
+            break;
+        }
+        if result.is_ok() {
+            backoff = Duration::from_millis(100);
+        }
+        tokio::time::sleep(backoff).await;
+        backoff = (backoff * 2).min(Duration::from_secs(2));
+    }
+}
+
+fn authed<T>(message: T, token: &str) -> anyhow::Result<Request<T>> {
+    let mut request = Request::new(message);
+    request
+        .metadata_mut()
+        .insert("authorization", format!("Bearer {token}").parse()?);
+    Ok(request)
+}
+
+async fn stream_once(
+    config: &BridgeConfig,
+    shared: &Shared,
+    own: &mut Option<(String, String)>,
+    opened: &mut u64,
+) -> anyhow::Result<()> {
+    let channel: Channel = Endpoint::from_shared(config.server.clone())?
+        .connect_timeout(Duration::from_secs(1))
+        .tcp_nodelay(true)
+        .connect()
+        .await
+        .with_context(|| format!("connecting to {}", config.server))?;
+    let mut client = SimulatorClient::new(channel);
+    let (id, token) = match &config.session {
+        SessionChoice::Attach { id, token } => (id.clone(), token.clone()),
+        SessionChoice::Create { scene, label } => {
+            if let Some(existing) = own.clone() {
+                existing
+            } else {
+                let scene = match scene {
+                    SceneSource::Name(n) => pb::create_session_request::Scene::SceneName(n.clone()),
+                    SceneSource::Toml(t) => pb::create_session_request::Scene::SceneToml(t.clone()),
+                };
+                let created = client
+                    .create_session(pb::CreateSessionRequest {
+                        scene: Some(scene),
+                        label: label.clone(),
+                    })
+                    .await
+                    .context("creating a session")?
+                    .into_inner();
+                shared.server.lock().created += 1;
+                let pair = (created.session_id, created.controller_token);
+                *own = Some(pair.clone());
+                pair
+            }
+        }
+    };
+    let (input_tx, input_rx) = mpsc::channel::<pb::ControlInput>(256);
+    input_tx
+        .send(pb::ControlInput {
+            session_id: id.clone(),
+            seq: 0,
+            push_mm_s: 0.0,
+            twist_deg_s: 0.0,
+        })
+        .await?;
+    let response = client
+        .control(authed(
+            tokio_stream::wrappers::ReceiverStream::new(input_rx),
+            &token,
+        )?)
+        .await;
+    let mut outputs = match response {
+        Ok(r) => r.into_inner(),
+        Err(status) => {
+            if status.code() == tonic::Code::NotFound {
+                *own = None; // the server restarted: make a new session next time
+            }
+            return Err(anyhow::anyhow!("{}: {}", status.code(), status.message()));
+        }
+    };
+    let (command_tx, mut command_rx) = mpsc::unbounded_channel::<pb::Command>();
+    {
+        let mut link = shared.server.lock();
+        link.inputs = Some(input_tx);
+        link.commands = Some(command_tx);
+        link.session = id.clone();
+        link.generation += 1;
+        if *opened > 0 {
+            link.reconnects += 1;
+        }
+        link.last_error.clear();
+    }
+    *opened += 1;
+    let mut command_seq = 1u64 << 48;
+    loop {
+        tokio::select! {
+            message = outputs.message() => {
+                let state = match message {
+                    Ok(Some(out)) => out.state.unwrap_or_default(),
+                    Ok(None) => return Err(anyhow::anyhow!("the server ended the control stream")),
+                    Err(status) => {
+                        if status.code() == tonic::Code::NotFound {
+                            *own = None;
+                        }
+                        return Err(anyhow::anyhow!("{}: {}", status.code(), status.message()));
+                    }
+                };
+                let now = Instant::now();
+                let mut link = shared.server.lock();
+                link.updates += 1;
+                let mut newest = None;
+                while link.pending.front().is_some_and(|(seq, _)| *seq <= state.last_seq) {
+                    newest = link.pending.pop_front();
+                }
+                if let Some((_, sent)) = newest {
+                    let us = now.duration_since(sent).as_micros() as u64;
+                    if let Some(h) = link.round_trip_us.as_mut() {
+                        let _ = h.record(us.max(1));
+                    }
+                }
+                link.latest = Some((state, now));
+            }
+            Some(command) = command_rx.recv() => {
+                command_seq += 1;
+                // Buttons: a failure is reported, the stream goes on.
+                if let Err(status) = client
+                    .send_command(authed(pb::SendCommandRequest {
+                        session_id: id.clone(),
+                        seq: command_seq,
+                        command: Some(command),
+                    }, &token)?)
+                    .await
+                {
+                    shared.server.lock().last_error = format!("{}: {}", status.code(), status.message());
+                }
+            }
+            _ = tokio::time::sleep(Duration::from_millis(100)) => {
+                if shared.stop.load(Ordering::Relaxed) {
+                    return Ok(());
+                }
+            }
+        }
+    }
+}
+
+fn control_loop(
+    config: &BridgeConfig,
+    shared: &Shared,
+    socket: &UdpSocket,
+    report: &mut impl FnMut(&Report),
+) -> anyhow::Result<Report> {
+    let period = Duration::from_secs_f64(1.0 / config.rate_hz);
+    let dt = period.as_secs_f64();
+    let mut coupling = Coupling::new(config.coupling);
+    let mut periods = Histogram::<u64>::new_with_bounds(1, 10_000_000, 3)?;
+    let mut ages = Histogram::<u64>::new_with_bounds(1, 60_000_000, 3)?;
+    let start = Instant::now();
+    let (mut next, mut previous_tick) = (start, start);
+    let mut last = Report::default();
+    let (mut ticks, mut overruns) = (0u64, 0u64);
+    let mut next_report = config.report_every_s;
+    let mut generation = 0;
+    let mut input_seq = 0u64;
+    let mut sent: Option<(f64, f64, Instant)> = None;
+    let mut buttons = (false, false);
+    while !shared.stop.load(Ordering::Relaxed) {
+        let now = Instant::now();
+        if ticks > 0 {
+            let _ = periods.record((now.duration_since(previous_tick).as_micros() as u64).max(1));
+        }
+        previous_tick = now;
+        ticks += 1;
+        let (device, from) = {
+            let link = shared.device.lock();
+            let fresh = link
+                .latest
+                .filter(|(_, at)| now.duration_since(*at).as_secs_f64() <= config.device_timeout_s);
+            (fresh.map(|(s, _)| s), link.from)
+        };
+        let (server, inputs, commands, connected) = {
+            let link = shared.server.lock();
+            if link.generation != generation {
+                generation = link.generation;
+                coupling.disengage();
+                sent = None;
+            }
+            let server = link.latest.as_ref().map(|(s, at)| {
+                let age = now.saturating_duration_since(*at).as_secs_f64();
+                (
+                    ServerSample {
+                        inserted_mm: s.inserted_mm,
+                        twist_deg: s.twist_deg,
+                        axial_force_n: s.axial_force_n,
+                        axial_torque_nmm: s.axial_torque_nmm,
+                        age_s: age,
+                    },
+                    age,
+                )
+            });
+            (
+                server,
+                link.inputs.clone(),
+                link.commands.clone(),
+                link.inputs.is_some(),
+            )
+        };
+        if let Some((_, age)) = server {
+            let _ = ages.record(((age * 1e6) as u64).max(1));
+        }
+        let output = match device {
+            Some(d) => coupling.update(dt, d.insertion_mm, d.rotation_deg, server.map(|(s, _)| s)),
+            // No device: stop the simulated one, render nothing, re-engage on return.
+            None => {
+                coupling.disengage();
+                Default::default()
+            }
+        };
+        // Setpoints: on change, and at least every 20 ms as a keep-alive.
+        if let Some(inputs) = &inputs {
+            let due = sent.is_none_or(|(p, t, at)| {
+                (p - output.push_mm_s).abs() > 0.01
+                    || (t - output.twist_deg_s).abs() > 0.01
+                    || now.duration_since(at) >= Duration::from_millis(20)
+            });
+            if due {
+                input_seq += 1;
+                let input = pb::ControlInput {
+                    session_id: String::new(),
+                    seq: input_seq,
+                    push_mm_s: output.push_mm_s,
+                    twist_deg_s: output.twist_deg_s,
+                };
+                if inputs.try_send(input).is_ok() {
+                    shared.server.lock().pending.push_back((input_seq, now));
+                    sent = Some((output.push_mm_s, output.twist_deg_s, now));
+                }
+            }
+        }
+        if let (Some(d), Some(commands)) = (device, &commands) {
+            if d.pedal != buttons.0 {
+                let _ = commands.send(pb::Command {
+                    kind: Some(pb::command::Kind::Fluoroscopy(d.pedal)),
+                });
+            }
+            if d.reset && !buttons.1 {
+                let _ = commands.send(pb::Command {
+                    kind: Some(pb::command::Kind::Reset(true)),
+                });
+            }
+            buttons = (d.pedal, d.reset);
+        }
+        if let (Some(d), Some(to)) = (device, from) {
+            let feedback = Feedback {
+                seq: d.seq,
+                device_time_us: d.device_time_us,
+                state_age_us: server
+                    .map(|(_, age)| (age * 1e6).min(u32::MAX as f64) as u32)
+                    .unwrap_or(u32::MAX),
+                connected,
+                live: output.live,
+                force_n: output.force_n,
+                torque_nmm: output.torque_nmm,
+            };
+            let datagram: [u8; DATAGRAM_BYTES] = feedback.encode();
+            let _ = socket.send_to(&datagram, to);
+        }
+        let t = start.elapsed().as_secs_f64();
+        last = snapshot(
+            t,
+            ticks,
+            overruns,
+            &periods,
+            &ages,
+            shared,
+            &output,
+            server.map(|(s, _)| s),
+        );
+        if t >= next_report {
+            report(&last);
+            next_report += config.report_every_s;
+        }
+        next += period;
+        let after = Instant::now();
+        if next > after {
+            std::thread::sleep(next - after);
+        } else if after.duration_since(next) >= period {
+            overruns += 1;
+            next = after;
+        }
+    }
+    Ok(last)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn snapshot(
+    t_s: f64,
+    ticks: u64,
+    overruns: u64,
+    periods: &Histogram<u64>,
+    ages: &Histogram<u64>,
+    shared: &Shared,
+    output: &crate::coupling::Output,
+    server: Option<ServerSample>,
+) -> Report {
+    let device = shared.device.lock();
+    let link = shared.server.lock();
+    let trips = link.round_trip_us.as_ref();
+    Report {
+        t_s,
+        ticks,
+        period_p50_us: periods.value_at_quantile(0.5),
+        period_p99_us: periods.value_at_quantile(0.99),
+        period_max_us: periods.max(),
+        overruns,
+        round_trip_p50_ms: trips.map_or(0.0, |h| h.value_at_quantile(0.5) as f64 / 1e3),
+        round_trip_p99_ms: trips.map_or(0.0, |h| h.value_at_quantile(0.99) as f64 / 1e3),
+        round_trips: trips.map_or(0, |h| h.len()),
+        server_updates: link.updates,
+        state_age_p99_ms: ages.value_at_quantile(0.99) as f64 / 1e3,
+        connected: link.inputs.is_some(),
+        session: if link.inputs.is_some() {
+            link.session.clone()
+        } else {
+            String::new()
+        },
+        reconnects: link.reconnects,
+        sessions_created: link.created,
+        device_packets: device.packets,
+        device_lost: device.lost,
+        device_rejected: device.rejected,
+        force_n: output.force_n,
+        torque_nmm: output.torque_nmm,
+        inserted_mm: server.map_or(0.0, |s| s.inserted_mm),
+        server_force_n: server.map_or(0.0, |s| s.axial_force_n),
+        last_error: link.last_error.clone(),
+    }
+}
