@@ -206,6 +206,15 @@ fn receive(socket: &UdpSocket, shared: &Shared) {
         let mut link = shared.device.lock();
         match DeviceSample::decode(&buffer[..n.min(buffer.len())]) {
             Ok(sample) => {
+                // A device that restarted (new address, or silent past the timeout) starts
+                // its sequence afresh.
+                let restarted = link.from != Some(from)
+                    || link
+                        .latest
+                        .is_none_or(|(_, at)| at.elapsed() > Duration::from_millis(500));
+                if restarted {
+                    link.last_seq = None;
+                }
                 if let Some(previous) = link.last_seq {
                     link.lost += u64::from(lost_between(previous, sample.seq));
                     if sample.seq.wrapping_sub(previous) > u32::MAX / 2 || sample.seq == previous {
@@ -458,12 +467,14 @@ fn control_loop(
                 Default::default()
             }
         };
-        // Setpoints: on change, and at least every 20 ms as a keep-alive.
+        // Setpoints: on change but no faster than the server's physics (every 2 ms: each one
+        // is a recorded command), and at least every 20 ms as a keep-alive.
         if let Some(inputs) = &inputs {
             let due = sent.is_none_or(|(p, t, at)| {
-                (p - output.push_mm_s).abs() > 0.01
-                    || (t - output.twist_deg_s).abs() > 0.01
-                    || now.duration_since(at) >= Duration::from_millis(20)
+                let since = now.duration_since(at);
+                let changed =
+                    (p - output.push_mm_s).abs() > 0.01 || (t - output.twist_deg_s).abs() > 0.01;
+                (changed && since >= Duration::from_millis(2)) || since >= Duration::from_millis(20)
             });
             if due {
                 input_seq += 1;
