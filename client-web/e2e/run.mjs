@@ -145,7 +145,12 @@ try {
     const noise = largestChange(a, b);
     const before = millimetres(await trainee.textContent("#hud-inserted"));
     await trainee.keyboard.down("ArrowUp");
-    await trainee.waitForTimeout(2000);
+    // The HUD's wall force while the shaped tip rides along the aortic wall.
+    let wallForce = 0;
+    for (let i = 0; i < 20; i++) {
+      await trainee.waitForTimeout(100);
+      wallForce = Math.max(wallForce, Number.parseFloat(await trainee.textContent("#hud-force")));
+    }
     await trainee.keyboard.up("ArrowUp");
     await trainee.waitForTimeout(300);
     await nextFrame(trainee);
@@ -155,6 +160,8 @@ try {
     const after = millimetres(await trainee.textContent("#hud-inserted"));
     console.log(`  inserted ${before} → ${after} mm; largest 8×8-block change ${moved.toFixed(1)} grey levels (frame-to-frame noise ${noise.toFixed(1)})`);
     assert(after - before > 20 && after - before < 60, `↑ held 2 s at 20 mm/s advanced ${after - before} mm`);
+    console.log(`  largest wall force on the HUD during the push: ${wallForce} mN`);
+    assert(wallForce > 0, "the HUD shows the wall contact force");
     assert(moved > 3 * noise && moved > 10, `the image changed after the push: ${moved} vs noise ${noise}`);
     assert((await trainee.textContent("#mode")).startsWith("FLUORO"), "fluoroscopy mode shown");
     await trainee.screenshot({ path: join(artifacts, "trainee.png") });

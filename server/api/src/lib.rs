@@ -159,7 +159,7 @@ fn vec3(x: f64, y: f64, z: f64) -> pb::Vec3 {
     pb::Vec3 { x, y, z }
 }
 
-/// A snapshot on the wire (mm, N, N·mm); `tip_only` leaves out the nodes and contacts.
+/// A snapshot on the wire (mm, N, N·mm); `tip_only` leaves out the nodes.
 pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::DeviceState {
     let p = &s.proximal;
     pb::DeviceState {
@@ -182,17 +182,15 @@ pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::D
         )),
         inserted_mm: s.inserted_m * 1e3,
         twist_deg: s.twist_rad.to_degrees(),
-        contacts: if tip_only {
-            Vec::new()
-        } else {
-            s.contacts
-                .iter()
-                .map(|c| pb::WallContact {
-                    position: Some(vec3_mm(&c.position)),
-                    force: Some(vec3(c.force.x, c.force.y, c.force.z)),
-                })
-                .collect()
-        },
+        // Contacts stay with tip_only: they are few, and the HUD's wall-force warning needs them.
+        contacts: s
+            .contacts
+            .iter()
+            .map(|c| pb::WallContact {
+                position: Some(vec3_mm(&c.position)),
+                force: Some(vec3(c.force.x, c.force.y, c.force.z)),
+            })
+            .collect(),
         proximal_force_n: Some(vec3(p[0], p[1], p[2])),
         proximal_torque_nmm: Some(vec3(p[3] * 1e3, p[4] * 1e3, p[5] * 1e3)),
         active_device: s.active_device,

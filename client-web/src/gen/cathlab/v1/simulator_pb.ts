@@ -806,7 +806,8 @@ export type StreamStateRequest = Message<"cathlab.v1.StreamStateRequest"> & {
   sessionId: string;
 
   /**
-   * Leave out node positions (haptic and dashboard clients that need the tip only).
+   * Leave out node positions (haptic and dashboard clients that need the tip only); the
+   * wall contacts are still sent.
    *
    * @generated from field: bool tip_only = 2;
    */
