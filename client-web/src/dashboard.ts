@@ -2,7 +2,8 @@
 //! open it read-only, and its event timeline.
 import { Code, ConnectError } from "@connectrpc/connect";
 import { type SimulatorClient, serverUrl, simulatorClient } from "./api.js";
-import { type Event, FrameEncoding, type Metrics, type SessionInfo, SessionStatus } from "./gen/cathlab/v1/simulator_pb.js";
+import { type Event, type Metrics, type SessionInfo, SessionStatus } from "./gen/cathlab/v1/simulator_pb.js";
+import { showFrames } from "./frames.js";
 import { metricRows } from "./hud.js";
 import { Backoff, keepOpen } from "./reconnect.js";
 
@@ -108,25 +109,7 @@ function addCard(client: SimulatorClient, info: SessionInfo): Card {
   $("sessions").append(element);
   const card: Card = { element, stop: new AbortController() };
   renderMetrics(element, info.metrics);
-  let shownUrl = "";
-  void keepOpen(
-    async (received, signal) => {
-      const frames = client.streamFrames(
-        { sessionId: info.sessionId, encoding: FrameEncoding.JPEG, width: 192, height: 192, jpegQuality: 70 },
-        { signal },
-      );
-      for await (const frame of frames) {
-        received();
-        const url = URL.createObjectURL(new Blob([frame.data as Uint8Array<ArrayBuffer>], { type: "image/jpeg" }));
-        image.src = url;
-        if (shownUrl) URL.revokeObjectURL(shownUrl);
-        shownUrl = url;
-        image.dataset.frame = String(frame.index);
-      }
-    },
-    () => {},
-    card.stop.signal,
-  );
+  void showFrames(client, info.sessionId, image, { size: 192, quality: 70, signal: card.stop.signal });
   return card;
 }
 

@@ -7,11 +7,11 @@ import {
   type Command,
   CommandSchema,
   type DeviceState,
-  FrameEncoding,
   ImagingMode,
   type Metrics,
   PulseRate,
 } from "./gen/cathlab/v1/simulator_pb.js";
+import { showFrames } from "./frames.js";
 import { hudLines } from "./hud.js";
 import { type ConnectionStatus, keepOpen } from "./reconnect.js";
 
@@ -153,30 +153,17 @@ async function main() {
       await new Promise((r) => setTimeout(r, 1000));
     }
   })();
-  const image = $<HTMLImageElement>("xray");
-  let shownUrl = "";
-  void keepOpen(
-    async (received, signal) => {
-      const frames = client.streamFrames(
-        { sessionId: joined.id, encoding: FrameEncoding.JPEG, width: 512, height: 512, jpegQuality: 85 },
-        { signal },
-      );
-      for await (const frame of frames) {
-        received();
-        const url = URL.createObjectURL(new Blob([frame.data as Uint8Array<ArrayBuffer>], { type: "image/jpeg" }));
-        image.src = url;
-        if (shownUrl) URL.revokeObjectURL(shownUrl);
-        shownUrl = url;
-        image.dataset.frame = String(frame.index);
-        const mode =
-          frame.mode === ImagingMode.SUBTRACTION ? "DSA" : frame.mode === ImagingMode.ROADMAP ? "ROADMAP" : "FLUORO";
-        $("mode").textContent = frame.held ? `${mode} · last image hold` : mode;
-        $("frame-info").textContent = `frame ${frame.index} · t ${frame.timeS.toFixed(2)} s`;
-      }
+  void showFrames(client, joined.id, $<HTMLImageElement>("xray"), {
+    size: 512,
+    quality: 85,
+    signal: stop.signal,
+    shown: (frame) => {
+      const mode =
+        frame.mode === ImagingMode.SUBTRACTION ? "DSA" : frame.mode === ImagingMode.ROADMAP ? "ROADMAP" : "FLUORO";
+      $("mode").textContent = frame.held ? `${mode} · last image hold` : mode;
+      $("frame-info").textContent = `frame ${frame.index} · t ${frame.timeS.toFixed(2)} s`;
     },
-    () => {},
-    stop.signal,
-  );
+  });
 
   if (joined.readOnly) {
     for (const el of $("controls").querySelectorAll<HTMLButtonElement | HTMLInputElement | HTMLSelectElement>(
