@@ -40,13 +40,16 @@ if ! command -v npm >/dev/null 2>&1; then
   $SUDO apt-get install -y -qq --no-install-recommends nodejs npm >/dev/null
 fi
 
-# Builds the web client into client-web/dist (npm ci from the lockfile when node_modules is
-# missing or older than the lockfile). cathlab-server serves it.
+# Builds the web client into client-web/dist (installs the lockfile's versions when
+# node_modules is missing or older than the lockfile). cathlab-server serves it. Not `npm ci`:
+# npm leaves @bufbuild/buf's other-platform binaries out of the lockfile, and `npm ci` then
+# refuses it as out of sync; `npm install --no-save` installs the same locked versions and
+# never rewrites the lockfile.
 build_web_client() {
   (
     cd client-web
     if [ ! -d node_modules ] || [ package-lock.json -nt node_modules/.package-lock.json ]; then
-      npm ci --no-audit --no-fund --loglevel=error
+      npm install --no-save --no-audit --no-fund --loglevel=error
     fi
     npm run --silent build
   )
