@@ -9,13 +9,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use cathlab_api::pb;
 use cathlab_api::pb::simulator_client::SimulatorClient;
+use cathlab_api::{authorized, pb};
 use hdrhistogram::Histogram;
 use parking_lot::Mutex;
 use serde::Serialize;
 use tokio::sync::mpsc;
-use tonic::Request;
 use tonic::transport::{Channel, Endpoint};
 
 use crate::coupling::{Coupling, CouplingSettings, ServerSample};
@@ -260,14 +259,6 @@ async fn hold_session(config: &BridgeConfig, shared: &Shared) {
     }
 }
 
-fn authed<T>(message: T, token: &str) -> anyhow::Result<Request<T>> {
-    let mut request = Request::new(message);
-    request
-        .metadata_mut()
-        .insert("authorization", format!("Bearer {token}").parse()?);
-    Ok(request)
-}
-
 async fn stream_once(
     config: &BridgeConfig,
     shared: &Shared,
@@ -316,10 +307,10 @@ async fn stream_once(
         })
         .await?;
     let response = client
-        .control(authed(
+        .control(authorized(
             tokio_stream::wrappers::ReceiverStream::new(input_rx),
             &token,
-        )?)
+        ))
         .await;
     let mut outputs = match response {
         Ok(r) => r.into_inner(),
@@ -376,11 +367,11 @@ async fn stream_once(
                 command_seq += 1;
                 // Buttons: a failure is reported, the stream goes on.
                 if let Err(status) = client
-                    .send_command(authed(pb::SendCommandRequest {
+                    .send_command(authorized(pb::SendCommandRequest {
                         session_id: id.clone(),
                         seq: command_seq,
                         command: Some(command),
-                    }, &token)?)
+                    }, &token))
                     .await
                 {
                     shared.server.lock().last_error = format!("{}: {}", status.code(), status.message());

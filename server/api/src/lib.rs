@@ -22,6 +22,16 @@ pub const MAX_PUSH_MM_S: f64 = 500.0;
 /// Largest twist rate (deg/s).
 pub const MAX_TWIST_DEG_S: f64 = 3600.0;
 
+/// A request carrying `authorization: Bearer <token>`, as every call on a session needs. A
+/// token that cannot be a header value is left out, and the server answers UNAUTHENTICATED.
+pub fn authorized<T>(message: T, token: &str) -> tonic::Request<T> {
+    let mut request = tonic::Request::new(message);
+    if let Ok(value) = format!("Bearer {token}").parse() {
+        request.metadata_mut().insert("authorization", value);
+    }
+    request
+}
+
 /// The gRPC status for an engine error.
 pub fn status_of(error: &EngineError) -> Status {
     match error {
@@ -162,6 +172,7 @@ fn vec3(x: f64, y: f64, z: f64) -> pb::Vec3 {
 /// A snapshot on the wire (mm, N, N·mm); `tip_only` leaves out the nodes.
 pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::DeviceState {
     let p = &s.proximal;
+    let (axial_force_n, axial_torque_nm) = s.axial_reaction();
     pb::DeviceState {
         step: s.step,
         time_s: s.time_s,
@@ -195,8 +206,8 @@ pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::D
         proximal_torque_nmm: Some(vec3(p[3] * 1e3, p[4] * 1e3, p[5] * 1e3)),
         active_device: s.active_device,
         server_unix_us,
-        axial_force_n: s.axial_reaction().0,
-        axial_torque_nmm: s.axial_reaction().1 * 1e3,
+        axial_force_n,
+        axial_torque_nmm: axial_torque_nm * 1e3,
     }
 }
 

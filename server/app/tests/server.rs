@@ -474,12 +474,9 @@ async fn bad_input_gets_named_errors() {
     })
     .await
     .unwrap();
-    let mut request = tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx));
-    request.metadata_mut().insert(
-        "authorization",
-        format!("Bearer {}", session.controller_token)
-            .parse()
-            .unwrap(),
+    let request = authed(
+        tokio_stream::wrappers::ReceiverStream::new(rx),
+        &session.controller_token,
     );
     let mut outputs = client.control(request).await.unwrap().into_inner();
     let error = loop {
@@ -503,12 +500,9 @@ async fn the_control_stream_applies_setpoints_and_returns_forces() {
     let mut client = server.client().await;
     let session = create(&mut client).await;
     let (tx, rx) = tokio::sync::mpsc::channel(16);
-    let mut request = tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx));
-    request.metadata_mut().insert(
-        "authorization",
-        format!("Bearer {}", session.controller_token)
-            .parse()
-            .unwrap(),
+    let request = authed(
+        tokio_stream::wrappers::ReceiverStream::new(rx),
+        &session.controller_token,
     );
     let id = session.session_id.clone();
     let sender = tokio::spawn(async move {
@@ -560,12 +554,9 @@ async fn the_control_stream_applies_setpoints_and_returns_forces() {
     })
     .await
     .unwrap();
-    let mut request = tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx2));
-    request.metadata_mut().insert(
-        "authorization",
-        format!("Bearer {}", session.observer_token)
-            .parse()
-            .unwrap(),
+    let request = authed(
+        tokio_stream::wrappers::ReceiverStream::new(rx2),
+        &session.observer_token,
     );
     let refused = client.control(request).await.unwrap_err();
     assert_eq!(refused.code(), tonic::Code::PermissionDenied);

@@ -11,10 +11,10 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
+use cathlab_api::authorized as authed;
 use cathlab_api::pb;
 use cathlab_api::pb::simulator_client::SimulatorClient;
 use clap::Parser;
-use tonic::Request;
 use tonic::transport::Channel;
 
 #[derive(Debug, Parser)]
@@ -97,14 +97,6 @@ fn rss_mib(pid: u32) -> f64 {
                 .and_then(|kb| kb.parse::<f64>().ok())
         })
         .map_or(f64::NAN, |kb| kb / 1024.0)
-}
-
-fn authed<T>(message: T, token: &str) -> Request<T> {
-    let mut r = Request::new(message);
-    if let Ok(v) = format!("Bearer {token}").parse() {
-        r.metadata_mut().insert("authorization", v);
-    }
-    r
 }
 
 fn command(kind: pb::command::Kind) -> Option<pb::Command> {
@@ -281,10 +273,9 @@ async fn control_round_trip(
     samples: usize,
 ) -> Result<Vec<f64>> {
     let (tx, rx) = tokio::sync::mpsc::channel(64);
-    let mut request = Request::new(tokio_stream::wrappers::ReceiverStream::new(rx));
-    request.metadata_mut().insert(
-        "authorization",
-        format!("Bearer {}", s.controller_token).parse()?,
+    let request = authed(
+        tokio_stream::wrappers::ReceiverStream::new(rx),
+        &s.controller_token,
     );
     let sent_at = std::sync::Arc::new(parking_lot::Mutex::new(Vec::<Instant>::with_capacity(
         samples,

@@ -10,7 +10,6 @@ use std::time::Duration;
 
 use cathlab_api::pb;
 use cathlab_api::pb::simulator_client::SimulatorClient;
-use tonic::Request;
 use tonic::transport::Channel;
 
 /// The instructor key the test servers run with.
@@ -106,13 +105,7 @@ impl Drop for ServerProcess {
     }
 }
 
-/// A request carrying `Bearer token`.
-pub fn authed<T>(message: T, token: &str) -> Request<T> {
-    let mut r = Request::new(message);
-    r.metadata_mut()
-        .insert("authorization", format!("Bearer {token}").parse().unwrap());
-    r
-}
+pub use cathlab_api::authorized as authed;
 
 /// Creates a session on the default scene.
 pub async fn create(client: &mut SimulatorClient<Channel>) -> pb::CreateSessionResponse {
