@@ -399,7 +399,8 @@ fn control_loop(
     let mut ages = Histogram::<u64>::new_with_bounds(1, 60_000_000, 3)?;
     let start = Instant::now();
     let (mut next, mut previous_tick) = (start, start);
-    let mut last = Report::default();
+    // The last tick's output and server state, for the reports.
+    let mut last: (crate::coupling::Output, Option<ServerSample>) = Default::default();
     let (mut ticks, mut overruns) = (0u64, 0u64);
     let mut next_report = config.report_every_s;
     let mut generation = 0;
@@ -509,19 +510,13 @@ fn control_loop(
             let datagram: [u8; DATAGRAM_BYTES] = feedback.encode();
             let _ = socket.send_to(&datagram, to);
         }
+        last = (output, server.map(|(s, _)| s));
+        // Reports (locks, quantiles, string copies) only when due, not every tick.
         let t = start.elapsed().as_secs_f64();
-        last = snapshot(
-            t,
-            ticks,
-            overruns,
-            &periods,
-            &ages,
-            shared,
-            &output,
-            server.map(|(s, _)| s),
-        );
         if t >= next_report {
-            report(&last);
+            report(&snapshot(
+                t, ticks, overruns, &periods, &ages, shared, &last.0, last.1,
+            ));
             next_report += config.report_every_s;
         }
         next += period;
@@ -533,7 +528,10 @@ fn control_loop(
             next = after;
         }
     }
-    Ok(last)
+    let t = start.elapsed().as_secs_f64();
+    Ok(snapshot(
+        t, ticks, overruns, &periods, &ages, shared, &last.0, last.1,
+    ))
 }
 
 #[allow(clippy::too_many_arguments)]
