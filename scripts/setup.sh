@@ -15,14 +15,18 @@ if command -v rustup >/dev/null 2>&1; then
   rustup component list --installed 2>/dev/null | grep -q '^rustfmt' || rustup component add rustfmt
   rustup component list --installed 2>/dev/null | grep -q '^clippy' || rustup component add clippy
 fi
-# Software Vulkan (lavapipe) for the wgpu renderer: Debian's mesa-vulkan-drivers and the
-# Vulkan loader. Installed once; needs root (CI runs as root) or passwordless sudo.
-if [ ! -f /usr/share/vulkan/icd.d/lvp_icd.x86_64.json ]; then
-  SUDO=""
-  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+# Installs Debian packages; needs root (CI runs as root) or passwordless sudo.
+apt_install() {
+  local sudo=""
+  [ "$(id -u)" -ne 0 ] && sudo="sudo"
   export DEBIAN_FRONTEND=noninteractive
-  $SUDO apt-get update -qq
-  $SUDO apt-get install -y -qq --no-install-recommends mesa-vulkan-drivers libvulkan1 >/dev/null
+  $sudo apt-get update -qq
+  $sudo apt-get install -y -qq --no-install-recommends "$@" >/dev/null
+}
+# Software Vulkan (lavapipe) for the wgpu renderer: Debian's mesa-vulkan-drivers and the
+# Vulkan loader. Installed once.
+if [ ! -f /usr/share/vulkan/icd.d/lvp_icd.x86_64.json ]; then
+  apt_install mesa-vulkan-drivers libvulkan1
 fi
 # Pin wgpu to lavapipe (NOTES.md): one adapter, the same everywhere.
 export VK_DRIVER_FILES=/usr/share/vulkan/icd.d/lvp_icd.x86_64.json
@@ -33,11 +37,7 @@ if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
 fi
 # Node.js and npm for the web client (the machine's own, else Debian's).
 if ! command -v npm >/dev/null 2>&1; then
-  SUDO=""
-  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-  export DEBIAN_FRONTEND=noninteractive
-  $SUDO apt-get update -qq
-  $SUDO apt-get install -y -qq --no-install-recommends nodejs npm >/dev/null
+  apt_install nodejs npm
 fi
 
 # Builds the web client into client-web/dist (installs the lockfile's versions when
@@ -58,10 +58,6 @@ build_web_client() {
 # Debian's Chromium for the browser tests (test command only).
 install_chromium() {
   if [ ! -x /usr/bin/chromium ]; then
-    SUDO=""
-    [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-    export DEBIAN_FRONTEND=noninteractive
-    $SUDO apt-get update -qq
-    $SUDO apt-get install -y -qq --no-install-recommends chromium fonts-dejavu-core >/dev/null
+    apt_install chromium fonts-dejavu-core
   fi
 }

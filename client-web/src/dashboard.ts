@@ -108,7 +108,6 @@ function addCard(client: SimulatorClient, info: SessionInfo): Card {
   element.append(title, image, document.createElement("dl"), actions);
   $("sessions").append(element);
   const card: Card = { element, stop: new AbortController() };
-  renderMetrics(element, info.metrics);
   void showFrames(client, info.sessionId, image, { size: 192, quality: 70, signal: card.stop.signal });
   return card;
 }

@@ -179,14 +179,17 @@ async function main() {
 /** Wires the keyboard, buttons, gamepad and forms to commands. */
 function controls(client: SimulatorClient, sessionId: string) {
   let seq = 0n;
-  const send = async (command: Command) => {
+  /** Sends one command; says why when the server refuses it. Resolves to whether it applied. */
+  const send = async (command: Command): Promise<boolean> => {
     seq += 1n;
     try {
       await client.sendCommand({ sessionId, seq, command });
+      return true;
     } catch (e) {
       if (e instanceof ConnectError && e.code === Code.PermissionDenied) say("This view is read-only.");
       else if (e instanceof ConnectError && e.code === Code.FailedPrecondition) say(e.rawMessage);
       else say(`Command failed: ${describe(e)}`);
+      return false;
     }
   };
   const command = (kind: MessageInitShape<typeof CommandSchema>["kind"]) => send(create(CommandSchema, { kind }));
@@ -285,13 +288,7 @@ function controls(client: SimulatorClient, sessionId: string) {
   const roadmap = $("roadmap");
   roadmap.addEventListener("click", async () => {
     const on = roadmap.getAttribute("aria-pressed") !== "true";
-    seq += 1n;
-    try {
-      await client.sendCommand({ sessionId, seq, command: create(CommandSchema, { kind: { case: "roadmap", value: on } }) });
-      roadmap.setAttribute("aria-pressed", String(on));
-    } catch (e) {
-      say(e instanceof ConnectError ? e.rawMessage : describe(e));
-    }
+    if (await command({ case: "roadmap", value: on })) roadmap.setAttribute("aria-pressed", String(on));
   });
   $("inject").addEventListener("click", () => {
     const volumeMl = Number($<HTMLInputElement>("volume").value);
