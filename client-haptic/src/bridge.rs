@@ -335,6 +335,9 @@ async fn stream_once(
     }
     *opened += 1;
     let mut command_seq = 1u64 << 48;
+    // An interval, not a sleep re-armed on every pass: states arrive every 2 ms, and a fresh
+    // 100 ms sleep each time would never fire, so the stop flag would never be seen.
+    let mut stop_check = tokio::time::interval(Duration::from_millis(100));
     loop {
         tokio::select! {
             message = outputs.message() => {
@@ -377,7 +380,7 @@ async fn stream_once(
                     shared.server.lock().last_error = format!("{}: {}", status.code(), status.message());
                 }
             }
-            _ = tokio::time::sleep(Duration::from_millis(100)) => {
+            _ = stop_check.tick() => {
                 if shared.stop.load(Ordering::Relaxed) {
                     return Ok(());
                 }

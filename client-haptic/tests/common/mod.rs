@@ -1,0 +1,166 @@
+//! Shared by the bridge's end-to-end test and its latency benchmark: a real cathlab server in
+//! this process, the bridge and virtual-device processes, their JSON lines, the wall scene.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use cathlab_app::config::{RendererChoice, ServerConfig};
+use serde_json::Value;
+
+pub fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The default scene with a 0.014" microwire started 46 mm before the end of the LCCA route
+/// (416 mm long), where the lumen is capped.
+pub fn wall_scene() -> String {
+    let text = std::fs::read_to_string(repo().join("scenes/arch_to_cow_lcca.toml")).unwrap();
+    let start = text.find("[[devices]]").unwrap();
+    let end = text.find("[start]").unwrap();
+    let text = format!(
+        "{}[[devices]]\npreset = \"microwire_014\"\n\n{}",
+        &text[..start],
+        &text[end..]
+    );
+    text.replace("along_route_mm = 0.0", "along_route_mm = 360.0")
+}
+
+pub struct Server {
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Server {
+    pub fn start(port: u16, database: &Path) -> Self {
+        let config = ServerConfig {
+            listen: format!("127.0.0.1:{port}"),
+            database: database.to_path_buf(),
+            scenes: repo().join("scenes"),
+            renderer: RendererChoice::Cpu,
+            web_root: repo().join("no-web-client"),
+            ..ServerConfig::default()
+        };
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let thread = std::thread::spawn(move || {
+            tokio::runtime::Runtime::new()
+                .unwrap()
+                .block_on(cathlab_app::server::serve(config, async {
+                    let _ = stopped.await;
+                }))
+                .unwrap();
+        });
+        // Wait until it accepts connections.
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+            assert!(Instant::now() < deadline, "server did not start");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        Self {
+            stop: Some(stop),
+            thread: Some(thread),
+        }
+    }
+
+    pub fn stop(mut self) {
+        let _ = self.stop.take().unwrap().send(());
+        self.thread.take().unwrap().join().unwrap();
+    }
+}
+
+/// A child printing JSON lines, read on a thread.
+pub struct Lines {
+    pub child: Child,
+    pub lines: mpsc::Receiver<Value>,
+}
+
+impl Lines {
+    pub fn spawn(args: &[&str]) -> Self {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_cathlab-haptic-bridge"))
+            .args(args)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let stdout = child.stdout.take().unwrap();
+        let (tx, lines) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if let Ok(v) = serde_json::from_str::<Value>(&line) {
+                    let _ = tx.send(v);
+                }
+            }
+        });
+        Self { child, lines }
+    }
+
+    pub fn next(&self, what: &str) -> Value {
+        self.lines
+            .recv_timeout(Duration::from_secs(60))
+            .unwrap_or_else(|_| panic!("no {what} within 60 s"))
+    }
+
+    /// The newest report (the bridge reports every 0.2 s; older lines are skipped).
+    pub fn latest(&self) -> Value {
+        std::thread::sleep(Duration::from_millis(300));
+        let mut last = None;
+        while let Ok(v) = self.lines.try_recv() {
+            if v["event"] == "report" {
+                last = Some(v["report"].clone());
+            }
+        }
+        last.expect("a report in the last 0.3 s")
+    }
+
+    /// Reports until one satisfies `done` (or panics after `seconds`).
+    pub fn until(&self, seconds: f64, what: &str, done: impl Fn(&Value) -> bool) -> Value {
+        let deadline = Instant::now() + Duration::from_secs_f64(seconds);
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(v) if done(&v) => return v,
+                Ok(v) if std::env::var("HAPTIC_DEBUG").is_ok() => println!("{v}"),
+                Ok(_) => {}
+                Err(_) => panic!("no {what} within {seconds} s"),
+            }
+        }
+    }
+}
+
+/// Runs a virtual device to the end of its script; returns its samples.
+pub fn device(bridge: &str, script: &str, loss: f64) -> Vec<Value> {
+    let run = Lines::spawn(&[
+        "virtual-device",
+        "--bridge",
+        bridge,
+        "--script",
+        script,
+        "--loss",
+        &loss.to_string(),
+        "--report-s",
+        "0.05",
+    ]);
+    let mut samples = Vec::new();
+    loop {
+        let v = run.next("device sample");
+        let done = v["event"] == "done";
+        samples.push(v["sample"].clone());
+        if done {
+            break;
+        }
+    }
+    samples
+}
+
+pub fn mean_force(samples: &[Value], from_s: f64, to_s: f64) -> f64 {
+    let picked: Vec<f64> = samples
+        .iter()
+        .filter(|s| (from_s..to_s).contains(&s["t_s"].as_f64().unwrap()))
+        .map(|s| s["force_n"].as_f64().unwrap())
+        .collect();
+    assert!(!picked.is_empty(), "no samples in {from_s}..{to_s} s");
+    picked.iter().sum::<f64>() / picked.len() as f64
+}
