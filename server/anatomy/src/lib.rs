@@ -16,9 +16,12 @@ pub mod lumen;
 pub mod mesh;
 pub mod phantom;
 pub mod real;
+pub mod segment;
 pub mod surface;
+pub mod volume;
 
 pub use error::{AnatomyError, Result};
 pub use graph::{Branch, BranchSpec, GraphLocation, Side, VesselGraph, VesselKind, VesselPath};
 pub use lumen::{Lumen, WallQuery};
 pub use mesh::{MeshTopology, TriangleMesh};
+pub use volume::ScalarVolume;

@@ -3,8 +3,9 @@
 //! and NIfTI-1 (`.nii`, `.nii.gz`) readers; trilinear sampling and ray-marched line
 //! integrals.
 
-use std::io::Read;
 use std::path::{Path, PathBuf};
+
+use cathlab_anatomy::ScalarVolume;
 
 use nalgebra::{Matrix3, Point3, Vector3};
 
@@ -401,383 +402,52 @@ fn to_hu(value: f64) -> i16 {
         .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
 }
 
-fn bad(file: &Path, reason: impl Into<String>) -> XrayError {
-    XrayError::BadVolume {
-        file: file.to_owned(),
-        reason: reason.into(),
+/// The X-ray error for a volume the anatomy readers rejected (same file, same words).
+fn from_anatomy(e: cathlab_anatomy::AnatomyError) -> XrayError {
+    use cathlab_anatomy::AnatomyError as A;
+    match e {
+        A::Io { file, source } => XrayError::Io { file, source },
+        A::BadVolume { file, reason } => XrayError::BadVolume { file, reason },
+        A::UnsupportedVolume { file, what } => XrayError::Unsupported { file, what },
+        other => XrayError::BadVolume {
+            file: PathBuf::new(),
+            reason: other.to_string(),
+        },
     }
 }
 
-fn read_file(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).map_err(|source| XrayError::Io {
-        file: path.to_owned(),
-        source,
-    })
-}
-
-/// Element types of MetaImage and NIfTI voxels.
-#[derive(Debug, Clone, Copy)]
-enum Element {
-    U8,
-    I8,
-    U16,
-    I16,
-    U32,
-    I32,
-    F32,
-    F64,
-}
-
-impl Element {
-    fn size(self) -> usize {
-        match self {
-            Element::U8 | Element::I8 => 1,
-            Element::U16 | Element::I16 => 2,
-            Element::U32 | Element::I32 | Element::F32 => 4,
-            Element::F64 => 8,
-        }
-    }
-
-    fn decode(self, bytes: &[u8], big_endian: bool) -> f64 {
-        macro_rules! num {
-            ($t:ty, $n:expr) => {{
-                let mut a = [0u8; $n];
-                a.copy_from_slice(bytes);
-                if big_endian {
-                    <$t>::from_be_bytes(a) as f64
+impl Volume {
+    /// Converts a scalar volume (values in HU) to 16-bit HU; NaN voxels become air.
+    pub fn from_scalar(scalar: ScalarVolume) -> Result<Self> {
+        let hu = scalar
+            .values
+            .iter()
+            .map(|&v| {
+                if v.is_finite() {
+                    to_hu(f64::from(v))
                 } else {
-                    <$t>::from_le_bytes(a) as f64
+                    AIR_HU as i16
                 }
-            }};
-        }
-        match self {
-            Element::U8 => f64::from(bytes[0]),
-            Element::I8 => f64::from(bytes[0] as i8),
-            Element::U16 => num!(u16, 2),
-            Element::I16 => num!(i16, 2),
-            Element::U32 => num!(u32, 4),
-            Element::I32 => num!(i32, 4),
-            Element::F32 => num!(f32, 4),
-            Element::F64 => num!(f64, 8),
-        }
+            })
+            .collect();
+        Volume::new(
+            scalar.dims,
+            scalar.spacing_m,
+            scalar.origin_m,
+            scalar.direction,
+            hu,
+        )
     }
-}
-
-/// Decodes `count` voxels as HU (`slope`·value + `intercept`); NaN voxels become air.
-fn decode_voxels(
-    file: &Path,
-    data: &[u8],
-    count: usize,
-    element: Element,
-    big_endian: bool,
-    slope: f64,
-    intercept: f64,
-) -> Result<Vec<i16>> {
-    let size = element.size();
-    if data.len() < count * size {
-        return Err(bad(
-            file,
-            format!(
-                "truncated voxel data: {} bytes for {count} voxels of {size} bytes",
-                data.len()
-            ),
-        ));
-    }
-    Ok(data[..count * size]
-        .chunks_exact(size)
-        .map(|b| {
-            let v = slope * element.decode(b, big_endian) + intercept;
-            if v.is_finite() {
-                to_hu(v)
-            } else {
-                AIR_HU as i16
-            }
-        })
-        .collect())
 }
 
 /// Reads a MetaImage volume (`.mha` with the data inline, or `.mhd` with a separate data
-/// file), raw or zlib-compressed, in mm, converted to m.
+/// file), raw or zlib-compressed, in mm, converted to m (see [`cathlab_anatomy::volume`]).
 pub fn read_metaimage(path: &Path) -> Result<Volume> {
-    let bytes = read_file(path)?;
-    let mut fields: Vec<(String, String)> = Vec::new();
-    let mut offset = 0;
-    loop {
-        let Some(end) = bytes[offset..].iter().position(|&b| b == b'\n') else {
-            return Err(bad(path, "header ends before ElementDataFile"));
-        };
-        let line = String::from_utf8_lossy(&bytes[offset..offset + end])
-            .trim()
-            .to_owned();
-        offset += end + 1;
-        if line.is_empty() {
-            continue;
-        }
-        let Some((key, value)) = line.split_once('=') else {
-            return Err(bad(path, format!("header line without '=': {line:?}")));
-        };
-        let (key, value) = (key.trim().to_owned(), value.trim().to_owned());
-        let done = key == "ElementDataFile";
-        fields.push((key, value));
-        if done {
-            break;
-        }
-        if offset >= bytes.len() {
-            return Err(bad(path, "header ends before ElementDataFile"));
-        }
-    }
-    let get = |key: &str| {
-        fields
-            .iter()
-            .find(|(k, _)| k == key)
-            .map(|(_, v)| v.as_str())
-    };
-    let numbers = |key: &str, n: usize| -> Result<Vec<f64>> {
-        let value = get(key).ok_or_else(|| bad(path, format!("missing {key}")))?;
-        let v: Vec<f64> = value
-            .split_whitespace()
-            .map(str::parse::<f64>)
-            .collect::<std::result::Result<_, _>>()
-            .map_err(|_| bad(path, format!("{key}: expected {n} numbers, got {value:?}")))?;
-        if v.len() != n || v.iter().any(|x| !x.is_finite()) {
-            return Err(bad(
-                path,
-                format!("{key}: expected {n} finite numbers, got {value:?}"),
-            ));
-        }
-        Ok(v)
-    };
-    if get("NDims") != Some("3") {
-        return Err(XrayError::Unsupported {
-            file: path.to_owned(),
-            what: format!(
-                "NDims {:?} (only 3-D volumes)",
-                get("NDims").unwrap_or("missing")
-            ),
-        });
-    }
-    let dims = numbers("DimSize", 3)?;
-    if dims.iter().any(|&d| !(d >= 1.0 && d.fract() == 0.0)) {
-        return Err(bad(path, "DimSize: expected 3 positive integers"));
-    }
-    let dims = [dims[0] as usize, dims[1] as usize, dims[2] as usize];
-    // The first of several synonymous header keys that is present.
-    let first_of = |keys: &[&'static str]| keys.iter().copied().find(|k| get(k).is_some());
-    let spacing = match first_of(&["ElementSpacing", "ElementSize"]) {
-        Some(key) => numbers(key, 3)?,
-        None => vec![1.0; 3],
-    };
-    if let Some(axis) = spacing.iter().position(|&s| s <= 0.0) {
-        return Err(bad(
-            path,
-            format!(
-                "ElementSpacing: axis {axis} is {} (must be > 0)",
-                spacing[axis]
-            ),
-        ));
-    }
-    let origin = match first_of(&["Offset", "Origin", "Position"]) {
-        Some(key) => numbers(key, 3)?,
-        None => vec![0.0; 3],
-    };
-    let direction = match first_of(&["TransformMatrix", "Rotation", "Orientation"]) {
-        // MetaImage stores the direction cosines column by column.
-        Some(key) => Matrix3::from_column_slice(&numbers(key, 9)?),
-        None => Matrix3::identity(),
-    };
-    let element = match get("ElementType") {
-        Some("MET_UCHAR") => Element::U8,
-        Some("MET_CHAR") => Element::I8,
-        Some("MET_USHORT") => Element::U16,
-        Some("MET_SHORT") => Element::I16,
-        Some("MET_UINT") => Element::U32,
-        Some("MET_INT") => Element::I32,
-        Some("MET_FLOAT") => Element::F32,
-        Some("MET_DOUBLE") => Element::F64,
-        other => {
-            return Err(XrayError::Unsupported {
-                file: path.to_owned(),
-                what: format!("ElementType {}", other.unwrap_or("(missing)")),
-            });
-        }
-    };
-    if get("ElementNumberOfChannels").is_some_and(|c| c != "1") {
-        return Err(XrayError::Unsupported {
-            file: path.to_owned(),
-            what: "multi-channel voxels".into(),
-        });
-    }
-    let big_endian = matches!(
-        get("BinaryDataByteOrderMSB").or(get("ElementByteOrderMSB")),
-        Some("True") | Some("true")
-    );
-    let compressed = matches!(get("CompressedData"), Some("True") | Some("true"));
-    let data_file = get("ElementDataFile").unwrap_or("LOCAL");
-    let (raw, source): (Vec<u8>, PathBuf) = if data_file == "LOCAL" {
-        (bytes[offset..].to_vec(), path.to_owned())
-    } else {
-        let other = path.parent().unwrap_or(Path::new(".")).join(data_file);
-        (read_file(&other)?, other)
-    };
-    let count = dims[0] * dims[1] * dims[2];
-    let data = if compressed {
-        let mut out = Vec::with_capacity(count * element.size());
-        flate2::read::ZlibDecoder::new(raw.as_slice())
-            .read_to_end(&mut out)
-            .map_err(|e| bad(&source, format!("zlib data: {e}")))?;
-        out
-    } else {
-        raw
-    };
-    let hu = decode_voxels(&source, &data, count, element, big_endian, 1.0, 0.0)?;
-    Volume::new(
-        dims,
-        Vector3::new(spacing[0], spacing[1], spacing[2]) * 1e-3,
-        Vector3::new(origin[0], origin[1], origin[2]) * 1e-3,
-        direction,
-        hu,
-    )
-    .map_err(|e| bad(path, e.to_string()))
+    Volume::from_scalar(cathlab_anatomy::volume::read_metaimage(path).map_err(from_anatomy)?)
 }
 
-/// Reads a NIfTI-1 volume (`.nii`, or gzip-compressed `.nii.gz`), either byte order, with
-/// the sform (or qform) affine; NIfTI's RAS+ world is turned into DICOM LPS.
+/// Reads a NIfTI-1 volume (`.nii`, or gzip-compressed `.nii.gz`), RAS+ turned into LPS
+/// (see [`cathlab_anatomy::volume`]).
 pub fn read_nifti(path: &Path) -> Result<Volume> {
-    let file_bytes = read_file(path)?;
-    let bytes = if file_bytes.starts_with(&[0x1f, 0x8b]) {
-        let mut out = Vec::new();
-        flate2::read::GzDecoder::new(file_bytes.as_slice())
-            .read_to_end(&mut out)
-            .map_err(|e| bad(path, format!("gzip data: {e}")))?;
-        out
-    } else {
-        file_bytes
-    };
-    if bytes.len() < 348 {
-        return Err(bad(
-            path,
-            format!(
-                "{} bytes, shorter than the 348-byte NIfTI-1 header",
-                bytes.len()
-            ),
-        ));
-    }
-    let big_endian = match (
-        i32::from_le_bytes(bytes[0..4].try_into().unwrap_or_default()),
-        i32::from_be_bytes(bytes[0..4].try_into().unwrap_or_default()),
-    ) {
-        (348, _) => false,
-        (_, 348) => true,
-        _ => return Err(bad(path, "sizeof_hdr is not 348: not a NIfTI-1 file")),
-    };
-    let i16_at = |o: usize| {
-        let a = [bytes[o], bytes[o + 1]];
-        if big_endian {
-            i16::from_be_bytes(a)
-        } else {
-            i16::from_le_bytes(a)
-        }
-    };
-    let f32_at = |o: usize| {
-        let a = [bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]];
-        f64::from(if big_endian {
-            f32::from_be_bytes(a)
-        } else {
-            f32::from_le_bytes(a)
-        })
-    };
-    let magic = &bytes[344..348];
-    if magic != b"n+1\0" {
-        return Err(XrayError::Unsupported {
-            file: path.to_owned(),
-            what: "NIfTI magic (only single-file n+1 is read)".into(),
-        });
-    }
-    let ndim = i16_at(40);
-    if !(3..=4).contains(&ndim) || (ndim == 4 && i16_at(48) > 1) {
-        return Err(XrayError::Unsupported {
-            file: path.to_owned(),
-            what: format!("dimensionality {ndim} (only 3-D volumes)"),
-        });
-    }
-    let dims = [i16_at(42), i16_at(44), i16_at(46)];
-    if let Some(axis) = dims.iter().position(|&d| d < 1) {
-        return Err(bad(
-            path,
-            format!("dim[{}] is {} (must be ≥ 1)", axis + 1, dims[axis]),
-        ));
-    }
-    let dims = dims.map(|d| d as usize);
-    let element = match i16_at(70) {
-        2 => Element::U8,
-        4 => Element::I16,
-        8 => Element::I32,
-        16 => Element::F32,
-        64 => Element::F64,
-        256 => Element::I8,
-        512 => Element::U16,
-        768 => Element::U32,
-        other => {
-            return Err(XrayError::Unsupported {
-                file: path.to_owned(),
-                what: format!("datatype code {other}"),
-            });
-        }
-    };
-    let pixdim = [f32_at(80), f32_at(84), f32_at(88)];
-    if let Some(axis) = pixdim.iter().position(|&s| !(s > 0.0 && s.is_finite())) {
-        return Err(bad(
-            path,
-            format!("pixdim[{}] is {} (must be > 0)", axis + 1, pixdim[axis]),
-        ));
-    }
-    let unit_m = match bytes[123] & 0x07 {
-        1 => 1.0,
-        3 => 1e-6,
-        _ => 1e-3,
-    };
-    let vox_offset = f32_at(108);
-    if vox_offset.is_nan() || vox_offset < 348.0 {
-        return Err(bad(
-            path,
-            format!("vox_offset {vox_offset} (must be ≥ 348)"),
-        ));
-    }
-    let (slope, intercept) = match (f32_at(112), f32_at(116)) {
-        (s, i) if s != 0.0 && s.is_finite() && i.is_finite() => (s, i),
-        _ => (1.0, 0.0),
-    };
-    // Affine from voxel index to RAS (mm): sform if set, else the pixdim scaling.
-    let affine = if i16_at(254) > 0 {
-        let row = |o: usize| [f32_at(o), f32_at(o + 4), f32_at(o + 8), f32_at(o + 12)];
-        [row(280), row(296), row(312)]
-    } else {
-        [
-            [pixdim[0], 0.0, 0.0, 0.0],
-            [0.0, pixdim[1], 0.0, 0.0],
-            [0.0, 0.0, pixdim[2], 0.0],
-        ]
-    };
-    let ras_to_lps = Matrix3::from_diagonal(&Vector3::new(-1.0, -1.0, 1.0));
-    let columns = ras_to_lps * Matrix3::from_fn(|r, c| affine[r][c]);
-    let spacing = Vector3::new(
-        columns.column(0).norm(),
-        columns.column(1).norm(),
-        columns.column(2).norm(),
-    );
-    if spacing.iter().any(|&s| s.is_nan() || s <= 0.0) {
-        return Err(bad(path, "sform has a zero column (zero voxel spacing)"));
-    }
-    let direction = Matrix3::from_columns(&[
-        columns.column(0) / spacing.x,
-        columns.column(1) / spacing.y,
-        columns.column(2) / spacing.z,
-    ]);
-    let origin = ras_to_lps * Vector3::new(affine[0][3], affine[1][3], affine[2][3]);
-    let count = dims[0] * dims[1] * dims[2];
-    let start = vox_offset as usize;
-    let data = bytes.get(start..).unwrap_or(&[]);
-    let hu = decode_voxels(path, data, count, element, big_endian, slope, intercept)?;
-    Volume::new(dims, spacing * unit_m, origin * unit_m, direction, hu)
-        .map_err(|e| bad(path, e.to_string()))
+    Volume::from_scalar(cathlab_anatomy::volume::read_nifti(path).map_err(from_anatomy)?)
 }

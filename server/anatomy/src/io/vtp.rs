@@ -301,3 +301,84 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
 pub fn load(path: &Path, unit: LengthUnit) -> Result<PolyData> {
     parse(&read_bytes(path)?, unit, &path.display().to_string())
 }
+
+/// VTK XML PolyData text (ASCII arrays, coordinates in `unit`) holding `surface`'s triangles
+/// as polygons and each of `lines` as a polyline with a `Radius` point array (in `unit`;
+/// written only when there is no surface, whose points have no radius). The inverse of
+/// [`parse`].
+pub fn to_string(surface: Option<&TriangleMesh>, lines: &[Centerline], unit: LengthUnit) -> String {
+    use std::fmt::Write as _;
+    let scale = 1.0 / unit.metres();
+    let surface_points = surface.map_or(0, |m| m.vertices.len());
+    let line_points: usize = lines.iter().map(|l| l.points.len()).sum();
+    let triangles = surface.map_or(0, |m| m.triangles.len());
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"PolyData\" version=\"0.1\" byte_order=\"LittleEndian\">\n<PolyData>\n<Piece NumberOfPoints=\"{}\" NumberOfVerts=\"0\" NumberOfLines=\"{}\" NumberOfStrips=\"0\" NumberOfPolys=\"{}\">",
+        surface_points + line_points,
+        lines.len(),
+        triangles
+    );
+    if surface.is_none() {
+        out.push_str("<PointData Scalars=\"Radius\">\n<DataArray type=\"Float64\" Name=\"Radius\" format=\"ascii\">\n");
+        for l in lines {
+            for r in &l.radii {
+                let _ = write!(out, "{} ", r * scale);
+            }
+        }
+        out.push_str("\n</DataArray>\n</PointData>\n");
+    }
+    out.push_str(
+        "<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n",
+    );
+    let mut point = |p: &Point3<f64>| {
+        let _ = writeln!(out, "{} {} {}", p.x * scale, p.y * scale, p.z * scale);
+    };
+    if let Some(m) = surface {
+        m.vertices.iter().for_each(&mut point);
+    }
+    for l in lines {
+        l.points.iter().for_each(&mut point);
+    }
+    out.push_str("</DataArray>\n</Points>\n");
+    let cells = |out: &mut String, tag: &str, groups: Vec<Vec<usize>>| {
+        let _ = writeln!(
+            out,
+            "<{tag}>\n<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">"
+        );
+        for g in &groups {
+            for i in g {
+                let _ = write!(out, "{i} ");
+            }
+        }
+        out.push_str(
+            "\n</DataArray>\n<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">\n",
+        );
+        let mut end = 0;
+        for g in &groups {
+            end += g.len();
+            let _ = write!(out, "{end} ");
+        }
+        let _ = writeln!(out, "\n</DataArray>\n</{tag}>");
+    };
+    let mut first = surface_points;
+    let line_groups = lines
+        .iter()
+        .map(|l| {
+            let g: Vec<usize> = (first..first + l.points.len()).collect();
+            first += l.points.len();
+            g
+        })
+        .collect();
+    cells(&mut out, "Lines", line_groups);
+    let polys = surface.map_or_else(Vec::new, |m| {
+        m.triangles
+            .iter()
+            .map(|t| t.iter().map(|&i| i as usize).collect())
+            .collect()
+    });
+    cells(&mut out, "Polys", polys);
+    out.push_str("</Piece>\n</PolyData>\n</VTKFile>\n");
+    out
+}
