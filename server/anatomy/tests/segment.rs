@@ -7,84 +7,15 @@
 use std::path::{Path, PathBuf};
 
 use cathlab_anatomy::io::{LengthUnit, obj, stl, vtp};
-use cathlab_anatomy::segment::phantom::{SyntheticCt, synthetic_cta};
+use cathlab_anatomy::segment::phantom::{SyntheticCt, reference_tree, synthetic_cta};
 use cathlab_anatomy::segment::{Seed, SegmentSettings, Segmentation, segment};
-use cathlab_anatomy::{AnatomyError, BranchSpec, ScalarVolume, Side, VesselGraph, VesselKind};
+use cathlab_anatomy::{AnatomyError, ScalarVolume, VesselGraph};
 use nalgebra::{Point3, Vector3};
 
 const MM: f64 = 1e-3;
 
-/// A quadratic Bézier from `a` to `b` bowed by `bow` (mm), radius from `ra` to `rb` (mm).
-fn curve(name: &str, a: [f64; 3], b: [f64; 3], bow: [f64; 3], ra: f64, rb: f64) -> BranchSpec {
-    let (a, b) = (Vector3::from(a), Vector3::from(b));
-    let c = (a + b) * 0.5 + Vector3::from(bow);
-    let n = 60;
-    let mut points = Vec::new();
-    let mut radii = Vec::new();
-    for i in 0..=n {
-        let t = i as f64 / n as f64;
-        let p = a * (1.0 - t).powi(2) + c * 2.0 * t * (1.0 - t) + b * t * t;
-        points.push(Point3::from(p * MM));
-        radii.push((ra + (rb - ra) * t) * MM);
-    }
-    BranchSpec {
-        name: name.into(),
-        kind: VesselKind::Other,
-        side: Side::Midline,
-        points,
-        radii,
-    }
-}
-
-/// A trunk with a side branch and a bifurcation, in a 60 mm cube: radii 4 mm down to
-/// 1.4 mm; the trunk enters through the bottom face and the daughters leave through the top.
 fn truth() -> VesselGraph {
-    let mut g = VesselGraph::new();
-    for spec in [
-        curve(
-            "trunk_lower",
-            [30.0, 30.0, -3.0],
-            [31.0, 29.0, 20.0],
-            [3.0, 0.0, 0.0],
-            4.0,
-            3.7,
-        ),
-        curve(
-            "trunk_upper",
-            [31.0, 29.0, 20.0],
-            [30.0, 30.0, 35.0],
-            [-2.0, 1.0, 0.0],
-            3.7,
-            3.5,
-        ),
-        curve(
-            "daughter_a",
-            [30.0, 30.0, 35.0],
-            [12.0, 36.0, 63.0],
-            [-2.0, 0.0, 6.0],
-            3.0,
-            2.5,
-        ),
-        curve(
-            "daughter_b",
-            [30.0, 30.0, 35.0],
-            [50.0, 24.0, 63.0],
-            [3.0, 0.0, 5.0],
-            2.6,
-            2.0,
-        ),
-        curve(
-            "side",
-            [31.0, 29.0, 20.0],
-            [52.0, 44.0, 15.0],
-            [0.0, 3.0, 4.0],
-            1.6,
-            1.4,
-        ),
-    ] {
-        g.add_branch(spec).unwrap();
-    }
-    g
+    reference_tree(1.0).unwrap()
 }
 
 const SPACING: f64 = 0.5 * MM;

@@ -144,6 +144,13 @@ impl AssetCache {
             AnatomySpec::NeuroPhantom { seed, tortuosity } => {
                 (format!("neuro:{seed}:{tortuosity}"), Matrix3::identity())
             }
+            AnatomySpec::CtSegmentation { volume, seed_voxel } => (
+                format!(
+                    "segmentation:{}:{seed_voxel:?}",
+                    resolve(base, volume).display()
+                ),
+                Matrix3::identity(),
+            ),
         };
         if let Some(found) = self.anatomies.lock().get(&key) {
             return Ok((found.clone(), to_lps));
@@ -163,6 +170,28 @@ impl AssetCache {
                 let mesh = lumen_surface(&graph, &SurfaceSettings::default())?;
                 let lumen = Lumen::new(mesh, "neuro phantom")?;
                 Anatomy { graph, lumen }
+            }
+            AnatomySpec::CtSegmentation { volume, seed_voxel } => {
+                use cathlab_anatomy::segment::{Seed, SegmentSettings, segment};
+                let path = resolve(base, volume);
+                let ct = cathlab_anatomy::ScalarVolume::load(&path)
+                    .map_err(|e| scene_error("anatomy.volume", e))?;
+                let result = segment(&ct, &Seed::Voxel(*seed_voxel), &SegmentSettings::default())
+                    .map_err(|e| scene_error("anatomy.seed_voxel", e))?;
+                // A segmented surface is finely meshed over a large box: the default grid
+                // (a quarter of the median edge) would take gigabytes; 1 mm cells suffice.
+                let lumen = Lumen::with_grid_settings(
+                    result.surface,
+                    &path.display().to_string(),
+                    cathlab_anatomy::lumen::GridSettings {
+                        cell_size: Some(1e-3),
+                        band: 3e-3,
+                    },
+                )?;
+                Anatomy {
+                    graph: result.graph,
+                    lumen,
+                }
             }
         };
         let anatomy = Arc::new(anatomy);

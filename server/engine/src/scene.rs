@@ -54,6 +54,16 @@ pub enum AnatomySpec {
         /// The directory (relative to the scene file).
         dir: PathBuf,
     },
+    /// Vessels segmented from a CT angiography volume at load (`cathlab segment`'s
+    /// pipeline with its default settings): the vessel tree that holds the seed, its
+    /// centerlines and lumen surface; the access point is the tree's end farthest from the
+    /// seed, branches are named `vessel_00`, `vessel_01`, … breadth-first from there.
+    CtSegmentation {
+        /// The volume (MetaImage or NIfTI, relative to the scene file).
+        volume: PathBuf,
+        /// A voxel (i, j, k) inside a contrast-filled vessel.
+        seed_voxel: [usize; 3],
+    },
     /// The seeded neuro phantom (aortic arch to circle of Willis), meshed into a lumen
     /// surface at load.
     NeuroPhantom {

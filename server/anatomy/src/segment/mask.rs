@@ -17,7 +17,7 @@ pub fn otsu_threshold(values: &[f32]) -> Option<f64> {
         .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
             (lo.min(v), hi.max(v))
         });
-    if !(hi > lo) {
+    if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
         return None;
     }
     const BINS: usize = 256;
@@ -32,9 +32,9 @@ pub fn otsu_threshold(values: &[f32]) -> Option<f64> {
     let sum_all: f64 = (0..BINS).map(|b| histogram[b] as f64 * centre(b)).sum();
     let (mut weight_low, mut sum_low) = (0.0, 0.0);
     let mut best = (f64::NEG_INFINITY, None);
-    for b in 0..BINS - 1 {
-        weight_low += histogram[b] as f64;
-        sum_low += histogram[b] as f64 * centre(b);
+    for (b, &count) in histogram.iter().enumerate().take(BINS - 1) {
+        weight_low += count as f64;
+        sum_low += count as f64 * centre(b);
         let weight_high = total as f64 - weight_low;
         if weight_low == 0.0 || weight_high == 0.0 {
             continue;
@@ -176,7 +176,16 @@ mod tests {
     fn erosion_and_dilation_of_a_ball_are_balls() {
         let dims = [31, 31, 31];
         let b = ball(dims, [15.0; 3], 10.0);
-        assert_eq!(erode(&b, dims, [1.0; 3], 3.0), ball(dims, [15.0; 3], 7.0));
+        // Erosion by 3 keeps every voxel of the ball of 7 (minus rounding) and none beyond 7 + √3/2.
+        let e = erode(&b, dims, [1.0; 3], 3.0);
+        let (inner, outer) = (
+            ball(dims, [15.0; 3], 6.99),
+            ball(dims, [15.0; 3], 7.0 + 0.87),
+        );
+        for n in 0..e.len() {
+            assert!(!inner[n] || e[n], "voxel {n} eroded away");
+            assert!(!e[n] || outer[n], "voxel {n} kept");
+        }
         // Dilation of a digital ball by 3 contains the ball of 13 and stays inside 13 + √3/2.
         let d = dilate(&b, dims, [1.0; 3], 3.0);
         let inner = ball(dims, [15.0; 3], 13.0);
@@ -211,9 +220,9 @@ mod tests {
                 (j as f64 - 6.0).powi(2) + (k as f64 - 6.0).powi(2) <= 9.0
             })
             .collect();
-        for n in 0..rod.len() {
+        for (n, voxel) in rod.iter_mut().enumerate() {
             if n % 40 == 20 {
-                rod[n] = false;
+                *voxel = false;
             }
         }
         let closed = close(&rod, dims, [1.0; 3], 1.5);

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use super::filter::gaussian_blur;
 use crate::error::Result;
-use crate::graph::VesselGraph;
+use crate::graph::{BranchSpec, Side, VesselGraph, VesselKind};
 use crate::volume::ScalarVolume;
 
 /// How the synthetic CT looks.
@@ -133,4 +133,86 @@ pub fn synthetic_cta(
         nalgebra::Matrix3::identity(),
         values,
     )
+}
+
+/// A quadratic Bézier branch from `a` to `b` bowed by `bow` (mm), radius from `ra` to `rb`
+/// (mm), all lengths multiplied by `scale`, sampled at 61 points.
+fn bezier(
+    name: &str,
+    a: [f64; 3],
+    b: [f64; 3],
+    bow: [f64; 3],
+    radii: [f64; 2],
+    scale: f64,
+) -> BranchSpec {
+    let (a, b) = (Vector3::from(a), Vector3::from(b));
+    let c = (a + b) * 0.5 + Vector3::from(bow);
+    let n = 60;
+    let (mut points, mut r) = (Vec::new(), Vec::new());
+    for i in 0..=n {
+        let t = i as f64 / n as f64;
+        let p = a * (1.0 - t).powi(2) + c * 2.0 * t * (1.0 - t) + b * t * t;
+        points.push(Point3::from(p * scale * 1e-3));
+        r.push((radii[0] + (radii[1] - radii[0]) * t) * scale * 1e-3);
+    }
+    BranchSpec {
+        name: name.into(),
+        kind: VesselKind::Other,
+        side: Side::Midline,
+        points,
+        radii: r,
+    }
+}
+
+/// The segmentation reference tree in a cube of `60·scale` mm (corner at the origin): a
+/// curved trunk (radius 4 → 3.5 mm) that enters through the bottom face, a side branch
+/// (1.6 → 1.4 mm) that ends inside, and a bifurcation into two daughters (3 → 2.5 and
+/// 2.6 → 2 mm) that leave through the top face; every length times `scale`.
+pub fn reference_tree(scale: f64) -> Result<VesselGraph> {
+    let mut g = VesselGraph::new();
+    for spec in [
+        bezier(
+            "trunk_lower",
+            [30.0, 30.0, -3.0],
+            [31.0, 29.0, 20.0],
+            [3.0, 0.0, 0.0],
+            [4.0, 3.7],
+            scale,
+        ),
+        bezier(
+            "trunk_upper",
+            [31.0, 29.0, 20.0],
+            [30.0, 30.0, 35.0],
+            [-2.0, 1.0, 0.0],
+            [3.7, 3.5],
+            scale,
+        ),
+        bezier(
+            "daughter_a",
+            [30.0, 30.0, 35.0],
+            [12.0, 36.0, 63.0],
+            [-2.0, 0.0, 6.0],
+            [3.0, 2.5],
+            scale,
+        ),
+        bezier(
+            "daughter_b",
+            [30.0, 30.0, 35.0],
+            [50.0, 24.0, 63.0],
+            [3.0, 0.0, 5.0],
+            [2.6, 2.0],
+            scale,
+        ),
+        bezier(
+            "side",
+            [31.0, 29.0, 20.0],
+            [52.0, 44.0, 15.0],
+            [0.0, 3.0, 4.0],
+            [1.6, 1.4],
+            scale,
+        ),
+    ] {
+        g.add_branch(spec)?;
+    }
+    Ok(g)
 }

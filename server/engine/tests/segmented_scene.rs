@@ -1,0 +1,117 @@
+//! The segmented real CT as a scene: `scenes/aorta_ct_renal.toml` segments
+//! `data/ct/aorta.mha` at load, and a shaped wire driven by the autopilot navigates the
+//! segmented lumen from the iliac access into the renal artery target, with flow from the
+//! aorta and fluoroscopy of the same CT.
+
+use std::path::Path;
+
+use cathlab_engine::*;
+use cathlab_physics::autopilot::{Autopilot, AutopilotPhase, AutopilotSettings};
+use cathlab_physics::{Insertion, Twist};
+
+#[test]
+fn a_wire_navigates_the_segmented_aorta_into_the_renal_artery() {
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let text = std::fs::read_to_string(scenes.join("aorta_ct_renal.toml")).unwrap();
+    let spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
+    let assets = AssetCache::default().load(&spec, &scenes).unwrap();
+    let graph = &assets.anatomy.graph;
+    assert!(
+        graph.branches.len() >= 7,
+        "{} branches",
+        graph.branches.len()
+    );
+    assert!(
+        assets
+            .anatomy
+            .lumen
+            .mesh()
+            .topology()
+            .is_closed_oriented_manifold()
+    );
+    // The target is a side branch of renal size.
+    let target = graph.branch(&spec.target.branch).unwrap();
+    let mean_radius = target.radii.iter().sum::<f64>() / target.radii.len() as f64;
+    println!(
+        "segmented scene: {} branches, route {:.0} mm, target {} {:.0} mm long, mean radius {:.1} mm",
+        graph.branches.len(),
+        assets.route.length * 1e3,
+        target.name,
+        target.length() * 1e3,
+        mean_radius * 1e3
+    );
+    assert!(mean_radius > 1.5e-3 && mean_radius < 6e-3);
+
+    let mut world = World::new(assets.clone()).unwrap();
+    let mut pilot = Autopilot::new(
+        graph,
+        assets.route.clone(),
+        0.0,
+        AutopilotSettings {
+            reach_m: spec.target.reach_mm * 1e-3,
+            ..AutopilotSettings::default()
+        },
+    )
+    .unwrap();
+    let mut seq = 0;
+    let mut reached = None;
+    let max_steps = 40 * 500;
+    for _ in 0..max_steps {
+        let command = pilot.command(world.navigation());
+        if pilot.phase() == AutopilotPhase::Reached {
+            reached = Some(world.step_index());
+            break;
+        }
+        let Insertion::Velocity(v) = command.insertion else {
+            panic!("the autopilot pushes by speed")
+        };
+        let Twist::Target(t) = command.twist else {
+            panic!("the autopilot twists to targets")
+        };
+        seq += 2;
+        world.apply(seq - 1, &Command::PushVelocity(v)).unwrap();
+        world.apply(seq, &Command::TwistTarget(t)).unwrap();
+        world.step().unwrap();
+    }
+    let m = world.metrics();
+    println!(
+        "autopilot: reached at step {reached:?} ({:.2} s), {} retries; tip path {:.0} mm, wall force max {:.3} N",
+        reached.unwrap_or(0) as f64 * spec.time_step_s(),
+        pilot.retries(),
+        m.tip_path_length_m * 1e3,
+        m.max_wall_force_n
+    );
+    assert!(reached.is_some(), "the wire did not reach the renal artery");
+    assert!(m.target_reached_at_s.is_some());
+    // Every node of the wire is inside the segmented lumen (within the contact tolerance).
+    let snapshot = world.snapshot();
+    let outside = snapshot
+        .nodes
+        .iter()
+        .filter(|p| {
+            let p = nalgebra::Point3::from(**p);
+            assets.anatomy.lumen.query(&p).signed_distance > 0.5e-3
+        })
+        .count();
+    assert_eq!(outside, 0, "wire nodes outside the lumen");
+    // Fluoroscopy of the real CT with the wire in it renders, and the wire darkens it.
+    let mut chain = cathlab_xray::Fluoroscope::new(
+        Box::new(cathlab_xray::CpuRenderer::default()),
+        cathlab_engine::session::fluoroscope_settings(&assets),
+    )
+    .unwrap();
+    let layers = cathlab_engine::imaging::layers_of(&assets, &snapshot).unwrap();
+    let carm = cathlab_engine::imaging::carm_of(&assets, &snapshot);
+    let frame = chain
+        .expose(
+            0.0,
+            cathlab_xray::Scene {
+                volume: &assets.volume,
+                carm: &carm,
+                layers: &layers,
+            },
+        )
+        .unwrap();
+    let (raw, w, h) = encode_frame(&frame, Encoding::Raw8, 0, 0).unwrap();
+    assert_eq!((w, h, raw.len()), (512, 512, 512 * 512));
+}
