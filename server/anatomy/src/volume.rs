@@ -35,36 +35,8 @@ impl ScalarVolume {
         direction: Matrix3<f64>,
         values: Vec<f32>,
     ) -> Result<Self> {
-        let invalid = |reason: String| AnatomyError::InvalidVolume(reason);
-        if let Some(axis) = dims.iter().position(|&n| n == 0) {
-            return Err(invalid(format!("size along axis {axis} is 0 voxels")));
-        }
-        for axis in 0..3 {
-            let s = spacing_m[axis];
-            if !(s.is_finite() && s > 0.0) {
-                return Err(invalid(format!(
-                    "voxel spacing along axis {axis} is {s} m (must be finite and > 0)"
-                )));
-            }
-            if !origin_m[axis].is_finite() {
-                return Err(invalid(format!("origin component {axis} is not finite")));
-            }
-        }
-        let orthonormal = (direction.transpose() * direction - Matrix3::identity())
-            .abs()
-            .max();
-        if orthonormal.is_nan() || orthonormal >= 1e-4 {
-            return Err(invalid(format!(
-                "direction matrix is not orthonormal (|DᵀD − I| = {orthonormal})"
-            )));
-        }
-        let count = dims[0] * dims[1] * dims[2];
-        if values.len() != count {
-            return Err(invalid(format!(
-                "{} values for {count} voxels",
-                values.len()
-            )));
-        }
+        check_grid(dims, &spacing_m, &origin_m, &direction, values.len())
+            .map_err(AnatomyError::InvalidVolume)?;
         Ok(Self {
             dims,
             spacing_m,
@@ -217,6 +189,45 @@ impl ScalarVolume {
         out.extend_from_slice(&data);
         std::fs::write(path, out).map_err(io)
     }
+}
+
+/// Checks a voxel grid: at least one voxel per axis, finite positive spacing (m), finite
+/// origin (m), orthonormal direction, `count` = the number of voxels. The error says what
+/// is wrong, in words.
+pub fn check_grid(
+    dims: [usize; 3],
+    spacing_m: &Vector3<f64>,
+    origin_m: &Vector3<f64>,
+    direction: &Matrix3<f64>,
+    count: usize,
+) -> std::result::Result<(), String> {
+    if let Some(axis) = dims.iter().position(|&n| n == 0) {
+        return Err(format!("size along axis {axis} is 0 voxels"));
+    }
+    for axis in 0..3 {
+        let s = spacing_m[axis];
+        if !(s.is_finite() && s > 0.0) {
+            return Err(format!(
+                "voxel spacing along axis {axis} is {s} m (must be finite and > 0)"
+            ));
+        }
+        if !origin_m[axis].is_finite() {
+            return Err(format!("origin component {axis} is not finite"));
+        }
+    }
+    let orthonormal = (direction.transpose() * direction - Matrix3::identity())
+        .abs()
+        .max();
+    if orthonormal.is_nan() || orthonormal >= 1e-4 {
+        return Err(format!(
+            "direction matrix is not orthonormal (|DᵀD − I| = {orthonormal})"
+        ));
+    }
+    let voxels = dims[0] * dims[1] * dims[2];
+    if count != voxels {
+        return Err(format!("{count} values for {voxels} voxels"));
+    }
+    Ok(())
 }
 
 fn bad(file: &Path, reason: impl Into<String>) -> AnatomyError {

@@ -58,6 +58,25 @@ impl Renderer for SharedRenderer {
     }
 }
 
+/// One fluoroscopy exposure of `snapshot` outside any session (tests and tools): a fresh
+/// fluoroscope with the scene's settings on the CPU renderer, at time 0.
+pub fn expose_snapshot(assets: &SceneAssets, snapshot: &Snapshot) -> Result<cathlab_xray::Frame> {
+    let mut chain = cathlab_xray::Fluoroscope::new(
+        Box::new(cathlab_xray::CpuRenderer::default()),
+        crate::session::fluoroscope_settings(assets),
+    )?;
+    let layers = layers_of(assets, snapshot)?;
+    let carm = carm_of(assets, snapshot);
+    Ok(chain.expose(
+        0.0,
+        cathlab_xray::Scene {
+            volume: &assets.volume,
+            carm: &carm,
+            layers: &layers,
+        },
+    )?)
+}
+
 /// The contrast and device layers of `snapshot`.
 pub fn layers_of(assets: &SceneAssets, snapshot: &Snapshot) -> Result<Layers> {
     let mut layers = Layers::new();

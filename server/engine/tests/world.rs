@@ -259,23 +259,7 @@ fn frames_encode_to_every_format_consistently() {
     let a = assets(&default_text());
     let world = World::new(a.clone()).unwrap();
     let snapshot = world.snapshot();
-    let mut chain = cathlab_xray::Fluoroscope::new(
-        Box::new(cathlab_xray::CpuRenderer::default()),
-        cathlab_engine::session::fluoroscope_settings(&a),
-    )
-    .unwrap();
-    let layers = cathlab_engine::imaging::layers_of(&a, &snapshot).unwrap();
-    let carm = cathlab_engine::imaging::carm_of(&a, &snapshot);
-    let frame = chain
-        .expose(
-            0.0,
-            cathlab_xray::Scene {
-                volume: &a.volume,
-                carm: &carm,
-                layers: &layers,
-            },
-        )
-        .unwrap();
+    let frame = cathlab_engine::imaging::expose_snapshot(&a, &snapshot).unwrap();
     let (raw, w, h) = encode_frame(&frame, Encoding::Raw8, 0, 0).unwrap();
     assert_eq!((w, h, raw.len()), (512, 512, 512 * 512));
     assert_eq!(raw, frame.to_8bit());

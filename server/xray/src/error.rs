@@ -49,6 +49,10 @@ pub enum XrayError {
         /// What, e.g. `ElementType MET_LONG_ARRAY`.
         what: String,
     },
+    /// A volume built in memory is inconsistent (zero size or spacing, non-orthonormal
+    /// direction, wrong voxel count).
+    #[error("invalid volume: {0}")]
+    InvalidVolume(String),
     /// An operation that needs something not there yet, e.g. a roadmap without a DSA run.
     #[error("{0}")]
     Unavailable(String),

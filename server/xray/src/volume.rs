@@ -9,7 +9,7 @@ use cathlab_anatomy::ScalarVolume;
 
 use nalgebra::{Matrix3, Point3, Vector3};
 
-use crate::error::{Result, XrayError, require_finite, require_positive};
+use crate::error::{Result, XrayError, require_finite};
 
 /// Hounsfield units outside the volume (air).
 pub const AIR_HU: f64 = -1000.0;
@@ -39,43 +39,8 @@ impl Volume {
         direction: Matrix3<f64>,
         hu: Vec<i16>,
     ) -> Result<Self> {
-        for (axis, &n) in dims.iter().enumerate() {
-            if n == 0 {
-                return Err(XrayError::OutOfRange {
-                    what: format!("volume size along axis {axis}"),
-                    range: "at least 1 voxel",
-                    value: 0.0,
-                });
-            }
-        }
-        for axis in 0..3 {
-            require_positive(
-                || format!("voxel spacing along axis {axis} (m)"),
-                spacing_m[axis],
-            )?;
-            require_finite(
-                || format!("volume origin component {axis} (m)"),
-                origin_m[axis],
-            )?;
-        }
-        let orthonormal = (direction.transpose() * direction - Matrix3::identity())
-            .abs()
-            .max();
-        if orthonormal.is_nan() || orthonormal >= 1e-4 {
-            return Err(XrayError::OutOfRange {
-                what: "volume direction matrix: largest deviation of DᵀD from I".into(),
-                range: "below 1e-4 (orthonormal)",
-                value: orthonormal,
-            });
-        }
-        let count = dims[0] * dims[1] * dims[2];
-        if hu.len() != count {
-            return Err(XrayError::OutOfRange {
-                what: "voxel count".into(),
-                range: "the product of the dimensions",
-                value: hu.len() as f64,
-            });
-        }
+        cathlab_anatomy::volume::check_grid(dims, &spacing_m, &origin_m, &direction, hu.len())
+            .map_err(XrayError::InvalidVolume)?;
         Ok(Self {
             dims,
             spacing_m,
