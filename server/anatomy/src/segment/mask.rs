@@ -172,27 +172,34 @@ mod tests {
             .collect()
     }
 
+    /// Erosion and dilation by a ball equal the brute-force definitions (no background voxel
+    /// within the radius; some foreground voxel within the radius), on a ball and a slab.
     #[test]
-    fn erosion_and_dilation_of_a_ball_are_balls() {
-        let dims = [31, 31, 31];
-        let b = ball(dims, [15.0; 3], 10.0);
-        // Erosion by 3 keeps every voxel of the ball of 7 (minus rounding) and none beyond 7 + √3/2.
-        let e = erode(&b, dims, [1.0; 3], 3.0);
-        let (inner, outer) = (
-            ball(dims, [15.0; 3], 6.99),
-            ball(dims, [15.0; 3], 7.0 + 0.87),
-        );
-        for n in 0..e.len() {
-            assert!(!inner[n] || e[n], "voxel {n} eroded away");
-            assert!(!e[n] || outer[n], "voxel {n} kept");
+    fn erosion_and_dilation_match_their_definitions() {
+        let dims = [23, 21, 19];
+        let spacing = [1.0, 0.8, 1.3];
+        let mut m = ball(dims, [11.0, 10.0, 9.0], 7.0);
+        for (n, v) in m.iter_mut().enumerate() {
+            *v |= n % 23 < 3;
         }
-        // Dilation of a digital ball by 3 contains the ball of 13 and stays inside 13 + √3/2.
-        let d = dilate(&b, dims, [1.0; 3], 3.0);
-        let inner = ball(dims, [15.0; 3], 13.0);
-        let outer = ball(dims, [15.0; 3], 13.0 + 0.87);
-        for n in 0..d.len() {
-            assert!(!inner[n] || d[n]);
-            assert!(!d[n] || outer[n]);
+        let at = |n: usize| [n % 23, (n / 23) % 21, n / (23 * 21)];
+        let within = |n: usize, r: f64, want: bool| {
+            let p = at(n);
+            (0..m.len()).any(|q| {
+                let c = at(q);
+                m[q] == want
+                    && (0..3)
+                        .map(|a| ((p[a] as f64 - c[a] as f64) * spacing[a]).powi(2))
+                        .sum::<f64>()
+                        <= r * r
+            })
+        };
+        let r = 2.5;
+        let e = erode(&m, dims, spacing, r);
+        let d = dilate(&m, dims, spacing, r);
+        for n in 0..m.len() {
+            assert_eq!(e[n], m[n] && !within(n, r, false), "erosion at {:?}", at(n));
+            assert_eq!(d[n], within(n, r, true), "dilation at {:?}", at(n));
         }
     }
 
