@@ -482,6 +482,38 @@ impl World {
         Ok(())
     }
 
+    /// Drives the world with `pilot` (a scripted trainee) for at most `max_steps` steps; its
+    /// commands are applied as recorded commands numbered from `first_seq`. Returns the step
+    /// index at which the autopilot found the target reached, or `None` if it did not.
+    pub fn follow_autopilot(
+        &mut self,
+        pilot: &mut cathlab_physics::autopilot::Autopilot,
+        max_steps: usize,
+        first_seq: u64,
+    ) -> Result<Option<u64>> {
+        use cathlab_physics::autopilot::AutopilotPhase;
+        let mut seq = first_seq;
+        for _ in 0..max_steps {
+            let command = pilot.command(self.navigation());
+            if pilot.phase() == AutopilotPhase::Reached {
+                return Ok(Some(self.step_index()));
+            }
+            let push = match command.insertion {
+                Insertion::Velocity(v) => Command::PushVelocity(v),
+                Insertion::Target(x) => Command::PushTarget(x),
+            };
+            let twist = match command.twist {
+                Twist::Rate(w) => Command::TwistRate(w),
+                Twist::Target(a) => Command::TwistTarget(a),
+            };
+            self.apply(seq, &push)?;
+            self.apply(seq + 1, &twist)?;
+            seq += 2;
+            self.step()?;
+        }
+        Ok(None)
+    }
+
     /// Advances one physics step (and contrast every few steps). Divergence puts the device
     /// back at its start, reports it and counts it; the world stays usable.
     pub fn step(&mut self) -> Result<()> {

@@ -6,8 +6,7 @@
 use std::path::Path;
 
 use cathlab_engine::*;
-use cathlab_physics::autopilot::{Autopilot, AutopilotPhase, AutopilotSettings};
-use cathlab_physics::{Insertion, Twist};
+use cathlab_physics::autopilot::{Autopilot, AutopilotSettings};
 
 #[test]
 fn a_wire_navigates_the_segmented_aorta_past_the_renal_arteries() {
@@ -58,26 +57,7 @@ fn a_wire_navigates_the_segmented_aorta_past_the_renal_arteries() {
         },
     )
     .unwrap();
-    let mut seq = 0;
-    let mut reached = None;
-    let max_steps = 40 * 500;
-    for _ in 0..max_steps {
-        let command = pilot.command(world.navigation());
-        if pilot.phase() == AutopilotPhase::Reached {
-            reached = Some(world.step_index());
-            break;
-        }
-        let Insertion::Velocity(v) = command.insertion else {
-            panic!("the autopilot pushes by speed")
-        };
-        let Twist::Target(t) = command.twist else {
-            panic!("the autopilot twists to targets")
-        };
-        seq += 2;
-        world.apply(seq - 1, &Command::PushVelocity(v)).unwrap();
-        world.apply(seq, &Command::TwistTarget(t)).unwrap();
-        world.step().unwrap();
-    }
+    let reached = world.follow_autopilot(&mut pilot, 40 * 500, 1).unwrap();
     let m = world.metrics();
     println!(
         "autopilot: reached at step {reached:?} ({:.2} s), {} retries; tip path {:.0} mm, wall force max {:.3} N",

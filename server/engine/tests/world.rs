@@ -299,8 +299,7 @@ fn frames_encode_to_every_format_consistently() {
 
 #[test]
 fn the_target_metric_agrees_with_an_autopilot_that_reaches_the_lcca() {
-    use cathlab_physics::autopilot::{Autopilot, AutopilotPhase};
-    use cathlab_physics::{Insertion, Twist};
+    use cathlab_physics::autopilot::Autopilot;
     let a = assets(&default_text());
     let mut world = World::new(a.clone()).unwrap();
     let plan =
@@ -316,25 +315,9 @@ fn the_target_metric_agrees_with_an_autopilot_that_reaches_the_lcca() {
     )
     .unwrap();
     let start_tip = world.snapshot().tip();
-    let mut seq = 0;
-    let mut pilot_reached = None;
-    for _ in 0..plan.max_steps {
-        let command = pilot.command(world.navigation());
-        if pilot.phase() == AutopilotPhase::Reached {
-            pilot_reached = Some(world.step_index());
-            break;
-        }
-        let Insertion::Velocity(v) = command.insertion else {
-            panic!("the autopilot pushes by speed")
-        };
-        let Twist::Target(t) = command.twist else {
-            panic!("the autopilot twists to targets")
-        };
-        seq += 2;
-        world.apply(seq - 1, &Command::PushVelocity(v)).unwrap();
-        world.apply(seq, &Command::TwistTarget(t)).unwrap();
-        world.step().unwrap();
-    }
+    let pilot_reached = world
+        .follow_autopilot(&mut pilot, plan.max_steps, 1)
+        .unwrap();
     let reached_step = pilot_reached.expect("the autopilot reaches the LCCA");
     let at = world
         .metrics()
