@@ -68,11 +68,7 @@ fn run(case: &str) {
         r.branches,
         r.total_length_mm,
         r.surface_triangles,
-        r.stage_seconds
-            .iter()
-            .map(|(s, t)| format!("{s} {t:.2} s"))
-            .collect::<Vec<_>>()
-            .join(", ")
+        r.stages_text()
     );
 }
 

@@ -356,6 +356,16 @@ impl VesselGraph {
         Ok(&self.branches[self.branch_id(name)?])
     }
 
+    /// Branches meeting at each node (1 at free ends, 3 or more at branch points).
+    pub fn node_degrees(&self) -> Vec<usize> {
+        let mut degree = vec![0; self.nodes.len()];
+        for b in &self.branches {
+            degree[b.start] += 1;
+            degree[b.end] += 1;
+        }
+        degree
+    }
+
     /// Total centerline length of all branches (m).
     pub fn total_length(&self) -> f64 {
         self.branches.iter().map(Branch::length).sum()

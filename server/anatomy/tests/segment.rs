@@ -51,11 +51,7 @@ fn accuracy(truth: &VesselGraph, found: &VesselGraph) -> Accuracy {
             .map(|(d, q)| (d, *q))
             .unwrap()
     };
-    let mut degree = vec![0; truth.nodes.len()];
-    for b in &truth.branches {
-        degree[b.start] += 1;
-        degree[b.end] += 1;
-    }
+    let degree = truth.node_degrees();
     let junctions: Vec<Point3<f64>> = (0..truth.nodes.len())
         .filter(|&n| degree[n] >= 3)
         .map(|n| truth.nodes[n])

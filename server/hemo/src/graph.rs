@@ -75,11 +75,9 @@ pub fn network_from_graph(
         t.reference_resistance,
     )?;
     let node_count = graph.nodes.len();
-    let mut degree = vec![0usize; node_count];
+    let degree = graph.node_degrees();
     let mut vessels = Vec::with_capacity(graph.branches.len());
     for branch in &graph.branches {
-        degree[branch.start] += 1;
-        degree[branch.end] += 1;
         let mut stations = Vec::with_capacity(branch.points.len());
         let mut points = Vec::with_capacity(branch.points.len());
         for ((p, &r), &arc) in branch

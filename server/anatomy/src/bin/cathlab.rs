@@ -136,11 +136,7 @@ fn main() -> ExitCode {
             "surface {} triangles, watertight {}; stages {}",
             r.surface_triangles,
             r.surface_watertight,
-            r.stage_seconds
-                .iter()
-                .map(|(s, t)| format!("{s} {t:.2} s"))
-                .collect::<Vec<_>>()
-                .join(", ")
+            r.stages_text()
         );
         println!(
             "wrote {} to {}",

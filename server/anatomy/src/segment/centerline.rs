@@ -10,6 +10,7 @@ use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
 
 use super::skeleton::{Adjacency, branches};
+use crate::components::UnionFind;
 use crate::error::{AnatomyError, Result};
 use crate::graph::{BranchSpec, Side, VesselGraph, VesselKind};
 use crate::volume::ScalarVolume;
@@ -168,29 +169,6 @@ fn median_filter(values: &[f64], half: usize) -> Vec<f64> {
         .collect()
 }
 
-struct UnionFind(Vec<usize>);
-impl UnionFind {
-    fn find(&mut self, a: usize) -> usize {
-        let mut r = a;
-        while self.0[r] != r {
-            r = self.0[r];
-        }
-        let mut x = a;
-        while self.0[x] != r {
-            let next = self.0[x];
-            self.0[x] = r;
-            x = next;
-        }
-        r
-    }
-    fn union(&mut self, a: usize, b: usize) {
-        let (ra, rb) = (self.find(a), self.find(b));
-        if ra != rb {
-            self.0[ra.max(rb)] = ra.min(rb);
-        }
-    }
-}
-
 /// Builds the vessel graph of a pruned skeleton. `image` is the (filtered) image the
 /// cross-sections are cast in, `dbf` the wall distance per voxel (m), `root` the access
 /// end's voxel. Branches are named `vessel_00`, `vessel_01`, … in breadth-first order from
@@ -230,7 +208,7 @@ pub fn vessel_graph(
             });
         }
     }
-    let mut clusters = UnionFind((0..node_voxels.len()).collect());
+    let mut clusters = UnionFind::new(node_voxels.len());
     let mut kept = Vec::new();
     for b in &voxel_branches {
         let (a, z) = (b.voxels[0], b.voxels[b.voxels.len() - 1]);
@@ -250,14 +228,12 @@ pub fn vessel_graph(
     }
     let cluster_of = |v: usize, uf: &mut UnionFind| uf.find(node_ids[&v]);
     // Breadth-first orientation from the access end.
-    let root_cluster = cluster_of(
-        *node_ids
-            .keys()
-            .find(|&&v| v == root)
-            .or_else(|| node_ids.keys().min_by_key(|&&v| degree(v)))
-            .unwrap_or(&root),
-        &mut clusters,
-    );
+    let root_node = if node_ids.contains_key(&root) {
+        root
+    } else {
+        *node_ids.keys().min_by_key(|&&v| degree(v)).unwrap_or(&root)
+    };
+    let root_cluster = cluster_of(root_node, &mut clusters);
     let ends: Vec<(usize, usize)> = kept
         .iter()
         .map(|b| {

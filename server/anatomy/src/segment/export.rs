@@ -145,11 +145,7 @@ pub fn figure(segmentation: &Segmentation, volume: &ScalarVolume) -> RgbImage {
             }
         }
     }
-    let mut degree = vec![0usize; segmentation.graph.nodes.len()];
-    for b in &segmentation.graph.branches {
-        degree[b.start] += 1;
-        degree[b.end] += 1;
-    }
+    let degree = segmentation.graph.node_degrees();
     for (n, p) in segmentation.graph.nodes.iter().enumerate() {
         if degree[n] >= 3 {
             let (x, y) = to_pixel(p);

@@ -81,11 +81,38 @@ pub fn anisotropic_diffusion(volume: &ScalarVolume, iterations: usize, edge: f64
     u
 }
 
+/// Replaces every line of `values` along `axis` by `transform(line)`, lines in parallel: the
+/// gather, transform and scatter the separable filters share.
+fn transform_lines(
+    values: &mut [f32],
+    dims: [usize; 3],
+    axis: usize,
+    transform: impl Fn(&[f32]) -> Vec<f32> + Sync,
+) {
+    let stride = [1, dims[0], dims[0] * dims[1]][axis];
+    let n = dims[axis];
+    let starts: Vec<usize> = (0..values.len())
+        .filter(|&m| (m / stride).is_multiple_of(n))
+        .collect();
+    let source: &[f32] = values;
+    let lines: Vec<(usize, Vec<f32>)> = starts
+        .par_iter()
+        .map(|&start| {
+            let line: Vec<f32> = (0..n).map(|p| source[start + p * stride]).collect();
+            (start, transform(&line))
+        })
+        .collect();
+    for (start, line) in lines {
+        for (p, v) in line.into_iter().enumerate() {
+            values[start + p * stride] = v;
+        }
+    }
+}
+
 /// Separable Gaussian blur of `values` on the grid `dims` with standard deviation `sigma`
 /// in voxels per axis (0 leaves an axis alone); kernels are cut at 3σ and renormalised at
 /// the border.
 pub fn gaussian_blur(values: &mut [f32], dims: [usize; 3], sigma: [f64; 3]) {
-    let strides = [1, dims[0], dims[0] * dims[1]];
     for axis in 0..3 {
         if sigma[axis] <= 0.0 || dims[axis] < 2 {
             continue;
@@ -94,82 +121,55 @@ pub fn gaussian_blur(values: &mut [f32], dims: [usize; 3], sigma: [f64; 3]) {
         let kernel: Vec<f64> = (-radius..=radius)
             .map(|d| (-0.5 * (d as f64 / sigma[axis]).powi(2)).exp())
             .collect();
-        let n = dims[axis];
-        let stride = strides[axis];
-        let src = values.to_vec();
-        let line_starts: Vec<usize> = (0..values.len())
-            .filter(|&m| (m / stride).is_multiple_of(n))
-            .collect();
-        let lines: Vec<(usize, Vec<f32>)> = line_starts
-            .par_iter()
-            .map(|&start| {
-                let out = (0..n)
-                    .map(|p| {
-                        let (mut sum, mut weight) = (0.0, 0.0);
-                        for (t, &kw) in kernel.iter().enumerate() {
-                            let q = p as isize + t as isize - radius;
-                            if q >= 0 && (q as usize) < n {
-                                sum += kw * f64::from(src[start + q as usize * stride]);
-                                weight += kw;
-                            }
+        transform_lines(values, dims, axis, |line| {
+            let n = line.len() as isize;
+            (0..n)
+                .map(|p| {
+                    let (mut sum, mut weight) = (0.0, 0.0);
+                    for (t, &kw) in kernel.iter().enumerate() {
+                        let q = p + t as isize - radius;
+                        if (0..n).contains(&q) {
+                            sum += kw * f64::from(line[q as usize]);
+                            weight += kw;
                         }
-                        (sum / weight) as f32
-                    })
-                    .collect();
-                (start, out)
-            })
-            .collect();
-        for (start, line) in lines {
-            for (p, v) in line.into_iter().enumerate() {
-                values[start + p * stride] = v;
-            }
-        }
+                    }
+                    (sum / weight) as f32
+                })
+                .collect()
+        });
     }
 }
 
 /// Separable running maximum over a box of `2·half[a] + 1` voxels along each axis (a
 /// monotone queue per line: linear in the voxel count whatever the box).
 pub fn box_maximum(values: &[f32], dims: [usize; 3], half: [usize; 3]) -> Vec<f32> {
-    let strides = [1, dims[0], dims[0] * dims[1]];
     let mut out = values.to_vec();
     for axis in 0..3 {
         if half[axis] == 0 || dims[axis] < 2 {
             continue;
         }
-        let (n, stride, w) = (dims[axis], strides[axis], half[axis]);
-        let src = out.clone();
-        let starts: Vec<usize> = (0..src.len())
-            .filter(|&m| (m / stride).is_multiple_of(n))
-            .collect();
-        let lines: Vec<(usize, Vec<f32>)> = starts
-            .par_iter()
-            .map(|&start| {
-                let at = |q: usize| src[start + q * stride];
-                let mut queue = std::collections::VecDeque::<usize>::new();
-                let mut line = Vec::with_capacity(n);
-                // Window of output p is [p − w, p + w]; push up to p + w as p advances.
-                let mut pushed = 0;
-                for p in 0..n {
-                    while pushed < n && pushed <= p + w {
-                        while queue.back().is_some_and(|&b| at(b) <= at(pushed)) {
-                            queue.pop_back();
-                        }
-                        queue.push_back(pushed);
-                        pushed += 1;
+        let w = half[axis];
+        transform_lines(&mut out, dims, axis, |line| {
+            let n = line.len();
+            let mut queue = std::collections::VecDeque::<usize>::new();
+            let mut maxima = Vec::with_capacity(n);
+            // Window of output p is [p − w, p + w]; push up to p + w as p advances.
+            let mut pushed = 0;
+            for p in 0..n {
+                while pushed < n && pushed <= p + w {
+                    while queue.back().is_some_and(|&b| line[b] <= line[pushed]) {
+                        queue.pop_back();
                     }
-                    while queue.front().is_some_and(|&f| f + w < p) {
-                        queue.pop_front();
-                    }
-                    line.push(at(queue[0]));
+                    queue.push_back(pushed);
+                    pushed += 1;
                 }
-                (start, line)
-            })
-            .collect();
-        for (start, line) in lines {
-            for (p, v) in line.into_iter().enumerate() {
-                out[start + p * stride] = v;
+                while queue.front().is_some_and(|&f| f + w < p) {
+                    queue.pop_front();
+                }
+                maxima.push(line[queue[0]]);
             }
-        }
+            maxima
+        });
     }
     out
 }

@@ -136,6 +136,17 @@ pub struct SegmentationReport {
     pub stage_seconds: Vec<(String, f64)>,
 }
 
+impl SegmentationReport {
+    /// The stage timings as one line: `diffusion 0.28 s, threshold and morphology 0.81 s, …`.
+    pub fn stages_text(&self) -> String {
+        self.stage_seconds
+            .iter()
+            .map(|(stage, seconds)| format!("{stage} {seconds:.2} s"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
 /// The result: the vessel graph, its lumen surface, the lumen mask and the report.
 #[derive(Debug, Clone)]
 pub struct Segmentation {
@@ -376,11 +387,7 @@ pub fn segment(
     let topology = surface.topology();
     stages.lap("surface");
 
-    let mut degree = vec![0usize; graph.nodes.len()];
-    for b in &graph.branches {
-        degree[b.start] += 1;
-        degree[b.end] += 1;
-    }
+    let degree = graph.node_degrees();
     let mut radii: Vec<f32> = graph
         .branches
         .iter()

@@ -345,16 +345,15 @@ pub fn prune_spurs(
         let mut spurs = Vec::new();
         for b in &all {
             let (first, last) = (b.voxels[0], b.voxels[b.voxels.len() - 1]);
-            let (tip, junction, chain): (usize, usize, Vec<usize>) =
-                match (degree(first), degree(last)) {
-                    (1, d) if d >= 3 => (first, last, b.voxels.iter().rev().copied().collect()),
-                    (d, 1) if d >= 3 => (last, first, b.voxels.clone()),
-                    _ => continue,
-                };
+            // The chain from the branch point to the free end.
+            let (junction, chain): (usize, Vec<usize>) = match (degree(first), degree(last)) {
+                (1, d) if d >= 3 => (last, b.voxels.iter().rev().copied().collect()),
+                (d, 1) if d >= 3 => (first, b.voxels.clone()),
+                _ => continue,
+            };
             if chain.contains(&keep) {
                 continue;
             }
-            let _ = tip;
             let length: f64 = chain.windows(2).map(|w| distance(w[0], w[1])).sum();
             let parent_radius = f64::from(dbf[junction]);
             let protrusion = length - parent_radius;
