@@ -7,9 +7,7 @@
 #[path = "../tests/common/mod.rs"]
 mod common;
 
-use std::net::TcpListener;
-
-use common::{Lines, Server, device, wall_scene};
+use common::{Rig, device};
 
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
@@ -19,35 +17,12 @@ fn main() {
         "hold:0.5,push:15:1"
     };
     let dir = std::env::temp_dir().join(format!("cathlab-haptic-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let scene = dir.join("wall.toml");
-    std::fs::write(&scene, wall_scene()).unwrap();
-    let port = TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let server = Server::start(port, &dir.join("bench.sqlite"));
-    let url = format!("http://127.0.0.1:{port}");
-    let mut bridge = Lines::spawn(&[
-        "bridge",
-        "--server",
-        &url,
-        "--scene-file",
-        scene.to_str().unwrap(),
-        "--udp",
-        "127.0.0.1:0",
-        "--report-s",
-        "0.2",
-        "--exit-on-stdin-eof",
-    ]);
-    let udp = bridge.next("listening line")["udp"]
-        .as_str()
-        .unwrap()
-        .to_owned();
-    bridge.until(60.0, "a connected report", |v| {
-        v["report"]["connected"] == true
-    });
+    let Rig {
+        server,
+        mut bridge,
+        udp,
+        ..
+    } = Rig::start(&dir, &dir.join("bench.sqlite"));
     device(&udp, script, 0.1);
     drop(bridge.child.stdin.take());
     let r = bridge.until(10.0, "the stopped line", |v| v["event"] == "stopped")["report"].clone();

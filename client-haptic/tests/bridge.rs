@@ -6,41 +6,18 @@
 
 mod common;
 
-use std::net::TcpListener;
-
-use common::{Lines, Server, device, mean_force, wall_scene};
+use common::{Rig, Server, device, mean_force};
 
 #[test]
 fn a_virtual_device_feels_the_wall_through_loss_and_a_server_restart() {
     let dir = std::env::temp_dir().join(format!("cathlab-haptic-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let scene = dir.join("wall.toml");
-    std::fs::write(&scene, wall_scene()).unwrap();
-    let port = TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
     let database = dir.join("haptic.sqlite");
-    let server = Server::start(port, &database);
-    let url = format!("http://127.0.0.1:{port}");
-    let mut bridge = Lines::spawn(&[
-        "bridge",
-        "--server",
-        &url,
-        "--scene-file",
-        scene.to_str().unwrap(),
-        "--udp",
-        "127.0.0.1:0",
-        "--report-s",
-        "0.2",
-        "--exit-on-stdin-eof",
-    ]);
-    let listening = bridge.next("listening line");
-    let udp = listening["udp"].as_str().unwrap().to_owned();
-    bridge.until(60.0, "a connected report", |v| {
-        v["report"]["connected"] == true
-    });
+    let Rig {
+        server,
+        port,
+        mut bridge,
+        udp,
+    } = Rig::start(&dir, &database);
 
     // Hold, then push 60 mm at 15 mm/s: free for ~40 mm, then into the cap.
     let samples = device(&udp, "hold:1,push:15:4,hold:0.5", 0.1);

@@ -29,6 +29,60 @@ pub fn wall_scene() -> String {
     text.replace("along_route_mm = 0.0", "along_route_mm = 360.0")
 }
 
+/// A loopback server on a free port (recording to `database`) and the bridge connected to
+/// it with the wall scene written into `dir`, once the bridge reports its UDP address and a
+/// connection.
+pub struct Rig {
+    /// The server.
+    pub server: Server,
+    /// Its port, to start it again on.
+    pub port: u16,
+    /// The bridge process (reports every 0.2 s; exits when its stdin closes).
+    pub bridge: Lines,
+    /// The bridge's device address.
+    pub udp: String,
+}
+
+impl Rig {
+    pub fn start(dir: &Path, database: &Path) -> Self {
+        std::fs::create_dir_all(dir).unwrap();
+        let scene = dir.join("wall.toml");
+        std::fs::write(&scene, wall_scene()).unwrap();
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let server = Server::start(port, database);
+        let url = format!("http://127.0.0.1:{port}");
+        let bridge = Lines::spawn(&[
+            "bridge",
+            "--server",
+            &url,
+            "--scene-file",
+            scene.to_str().unwrap(),
+            "--udp",
+            "127.0.0.1:0",
+            "--report-s",
+            "0.2",
+            "--exit-on-stdin-eof",
+        ]);
+        let udp = bridge.next("listening line")["udp"]
+            .as_str()
+            .unwrap()
+            .to_owned();
+        bridge.until(60.0, "a connected report", |v| {
+            v["report"]["connected"] == true
+        });
+        Self {
+            server,
+            port,
+            bridge,
+            udp,
+        }
+    }
+}
+
 pub struct Server {
     stop: Option<tokio::sync::oneshot::Sender<()>>,
     thread: Option<std::thread::JoinHandle<()>>,
