@@ -84,3 +84,40 @@ fn a_wire_navigates_the_segmented_aorta_past_the_renal_arteries() {
     let (raw, w, h) = encode_frame(&frame, Encoding::Raw8, 0, 0).unwrap();
     assert_eq!((w, h, raw.len()), (512, 512, 512 * 512));
 }
+
+#[test]
+fn a_bad_segmentation_scene_names_the_field_and_the_fault() {
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let text = std::fs::read_to_string(scenes.join("segmented_aorta_suprarenal.toml")).unwrap();
+    let cases = [
+        (
+            text.replace("seed_voxel = [72, 300, 17]", "seed_voxel = [500, 0, 0]"),
+            "anatomy.seed_voxel",
+            "outside the volume",
+        ),
+        (
+            text.replace("seed_voxel = [72, 300, 17]", "seed_voxel = [2, 2, 2]"),
+            "anatomy.seed_voxel",
+            "contrast-filled vessel",
+        ),
+        (
+            text.replace(
+                "volume = \"../data/ct/aorta.mha\"",
+                "volume = \"../data/ct/missing.mha\"",
+            ),
+            "anatomy.volume",
+            "missing.mha",
+        ),
+    ];
+    for (scene, field, fault) in cases {
+        let spec = SceneSpec::parse(&scene, SceneFormat::Toml).unwrap();
+        let message = AssetCache::default()
+            .load(&spec, &scenes)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            message.contains(field) && message.contains(fault),
+            "{message}"
+        );
+    }
+}
