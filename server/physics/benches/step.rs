@@ -49,6 +49,7 @@ fn equilibrium(c: &mut Criterion) {
         drag: None,
         max_step_increment: None,
         geometric_stiffness_in_compression: true,
+        max_substep_halvings: 0,
     };
     let result = tip_loaded_cantilever(1.0, 100, settings, 1, 0).unwrap();
     assert!(result.converged && result.tip_error < 1e-4, "{result:?}");

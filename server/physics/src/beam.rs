@@ -29,7 +29,7 @@ use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3, Vector6};
 use crate::contact::{Contact, ContactResponse, ContactSettings, gauss_seidel, point_displacement};
 use crate::device::Device;
 use crate::element::{BendingCoefficients, local_geometric_stiffness, local_stiffness};
-use crate::error::{PhysicsError, Result, require_finite, require_positive};
+use crate::error::{DivergenceCheck, PhysicsError, Result, require_finite, require_positive};
 use crate::section::BeamProperties;
 use crate::substructure::{BlockTridiagonal, Flexibility, Substructure};
 
@@ -86,6 +86,12 @@ pub struct SolverSettings {
     /// the step relaxes into a buckled shape instead of following an unstable straight branch
     /// (see the buckling test).
     pub geometric_stiffness_in_compression: bool,
+    /// Converged mode only: when a step trips an increment guard (a rotation larger than π, a
+    /// translation larger than [`MAX_TRANSLATION_INCREMENT_LENGTHS`] device lengths) or does
+    /// not converge, it is redone as sub-steps that apply the change of loads and base pose
+    /// since the last step in fractions, halving the fraction up to this many times before
+    /// the step is reported as diverged (0: never split).
+    pub max_substep_halvings: usize,
 }
 
 /// Viscous drag per unit length on the device (Levenberg–Marquardt regularization with a
@@ -108,6 +114,7 @@ impl Default for SolverSettings {
             drag: None,
             max_step_increment: None,
             geometric_stiffness_in_compression: true,
+            max_substep_halvings: 10,
         }
     }
 }
@@ -138,6 +145,8 @@ pub struct BeamSnapshot {
     rest_positions: Vec<Vector3<f64>>,
     rest_rotations: Vec<UnitQuaternion<f64>>,
     external: Vec<Vector6<f64>>,
+    last_external: Vec<Vector6<f64>>,
+    last_base: (Vector3<f64>, UnitQuaternion<f64>),
     length_m: f64,
     step_count: u64,
 }
@@ -295,6 +304,10 @@ pub struct BeamModel {
     rest_positions: Vec<Vector3<f64>>,
     rest_rotations: Vec<UnitQuaternion<f64>>,
     external: Vec<Vector6<f64>>,
+    /// External loads and base pose at the end of the last completed step: where a split step
+    /// starts from.
+    last_external: Vec<Vector6<f64>>,
+    last_base: (Vector3<f64>, UnitQuaternion<f64>),
     settings: SolverSettings,
     step_count: u64,
     length_m: f64,
@@ -379,6 +392,8 @@ impl BeamModel {
             positions,
             rotations,
             external: vec![Vector6::zeros(); nodes],
+            last_external: vec![Vector6::zeros(); nodes],
+            last_base: (base_position, base_rotation),
             settings,
             step_count: 0,
             stiffness: BlockTridiagonal::zeros(nodes - 1),
@@ -571,6 +586,8 @@ impl BeamModel {
             *p = position + delta * (*p - origin);
             *q = delta * *q;
         }
+        // The rigid move is exact for a free device: a split step does not undo it.
+        self.last_base = (position, rotation);
         Ok(())
     }
 
@@ -638,6 +655,8 @@ impl BeamModel {
             rest_positions: self.rest_positions.clone(),
             rest_rotations: self.rest_rotations.clone(),
             external: self.external.clone(),
+            last_external: self.last_external.clone(),
+            last_base: self.last_base,
             length_m: self.length_m,
             step_count: self.step_count,
         }
@@ -651,6 +670,8 @@ impl BeamModel {
         self.rest_positions = snapshot.rest_positions;
         self.rest_rotations = snapshot.rest_rotations;
         self.external = snapshot.external;
+        self.last_external = snapshot.last_external;
+        self.last_base = snapshot.last_base;
         self.length_m = snapshot.length_m;
         self.step_count = snapshot.step_count;
         self.resize_work_buffers();
@@ -744,6 +765,7 @@ impl BeamModel {
         self.rest_positions.insert(index + 1, position);
         self.rest_rotations.insert(index + 1, rotation);
         self.external.insert(index + 1, Vector6::zeros());
+        self.last_external.insert(index + 1, Vector6::zeros());
         self.resize_work_buffers();
     }
 
@@ -770,6 +792,7 @@ impl BeamModel {
             v.remove(index + 1);
         }
         self.external.remove(index + 1);
+        self.last_external.remove(index + 1);
         self.resize_work_buffers();
         Ok(())
     }
@@ -793,17 +816,102 @@ impl BeamModel {
         self.rhs.resize(nodes - 1, Vector6::zeros());
     }
 
-    /// Advances one step with the configured mode.
+    /// Advances one step with the configured mode. In converged mode a step that trips an
+    /// increment guard or does not converge is split (see
+    /// [`SolverSettings::max_substep_halvings`]); the report then counts every sub-step's
+    /// solves. On error the configuration is left as it was.
     pub fn step(&mut self) -> Result<StepReport> {
         self.saved_positions.clone_from(&self.positions);
         self.saved_rotations.clone_from(&self.rotations);
-        let result = self.step_inner();
-        self.step_count += 1;
-        if result.is_err() {
+        let mut result = self.step_inner();
+        if self.should_split(&result) {
             self.positions.clone_from(&self.saved_positions);
             self.rotations.clone_from(&self.saved_rotations);
+            result = self.split_step();
+        }
+        self.step_count += 1;
+        match result {
+            Ok(_) => {
+                self.last_external.clone_from(&self.external);
+                self.last_base = (self.positions[0], self.rotations[0]);
+            }
+            Err(_) => {
+                self.positions.clone_from(&self.saved_positions);
+                self.rotations.clone_from(&self.saved_rotations);
+            }
         }
         result
+    }
+
+    /// Whether a converged-mode step outcome calls for sub-steps.
+    fn should_split(&self, result: &Result<StepReport>) -> bool {
+        if self.settings.max_substep_halvings == 0
+            || !matches!(self.settings.mode, StepMode::Converged { .. })
+        {
+            return false;
+        }
+        match result {
+            Ok(report) => !report.converged,
+            Err(PhysicsError::Diverged { check, .. }) => matches!(
+                check,
+                DivergenceCheck::RotationIncrement { .. }
+                    | DivergenceCheck::TranslationIncrement { .. }
+            ),
+            Err(_) => false,
+        }
+    }
+
+    /// The step again as sub-steps: loads and the base pose go from their values at the end
+    /// of the last step to the requested ones in fractions, each fraction halved (up to
+    /// `max_substep_halvings` times) while its sub-step trips a guard or does not converge.
+    fn split_step(&mut self) -> Result<StepReport> {
+        let target = self.external.clone();
+        let start = self.last_external.clone();
+        let (base_to, rotation_to) = (self.positions[0], self.rotations[0]);
+        let (base_from, rotation_from) = self.last_base;
+        let mut report = StepReport {
+            iterations: 0,
+            converged: true,
+            last_translation_increment_m: 0.0,
+            last_rotation_increment_rad: 0.0,
+        };
+        let (mut done, mut halvings) = (0.0f64, 1usize);
+        let mut positions = self.positions.clone();
+        let mut rotations = self.rotations.clone();
+        let outcome = loop {
+            if done >= 1.0 {
+                break Ok(());
+            }
+            let to = (done + 0.5f64.powi(halvings as i32)).min(1.0);
+            for ((f, a), b) in self.external.iter_mut().zip(&start).zip(&target) {
+                *f = a + (b - a) * to;
+            }
+            self.positions[0] = base_from + (base_to - base_from) * to;
+            self.rotations[0] = rotation_from.slerp(&rotation_to, to);
+            let result = self.step_inner();
+            if self.should_split(&result) && halvings < self.settings.max_substep_halvings {
+                self.positions.clone_from(&positions);
+                self.rotations.clone_from(&rotations);
+                halvings += 1;
+                continue;
+            }
+            match result {
+                Ok(sub) => {
+                    report.iterations += sub.iterations;
+                    report.converged &= sub.converged;
+                    report.last_translation_increment_m = sub.last_translation_increment_m;
+                    report.last_rotation_increment_rad = sub.last_rotation_increment_rad;
+                    positions.clone_from(&self.positions);
+                    rotations.clone_from(&self.rotations);
+                    done = to;
+                }
+                Err(e) => break Err(e),
+            }
+        };
+        self.external = target;
+        self.positions[0] = base_to;
+        self.rotations[0] = rotation_to;
+        outcome.map(|()| report)
     }
 
     fn step_inner(&mut self) -> Result<StepReport> {
@@ -883,21 +991,25 @@ impl BeamModel {
         for (i, du) in increments.iter().enumerate() {
             let dx = du.fixed_rows::<3>(0).into_owned();
             let dtheta = du.fixed_rows::<3>(3).into_owned();
-            let diverged = |quantity| PhysicsError::Diverged {
-                quantity,
+            let diverged = |check| PhysicsError::Diverged {
+                check,
                 node: i + 1,
-                step: self.step_count,
+                step: self.step_count + 1,
             };
             if !du.iter().all(|v| v.is_finite()) {
-                return Err(diverged("increment (non-finite)"));
+                return Err(diverged(DivergenceCheck::NonFinite("increment")));
             }
-            if dx.norm() > MAX_TRANSLATION_INCREMENT_LENGTHS * self.length_m {
-                return Err(diverged(
-                    "translation increment (larger than 10 device lengths)",
-                ));
+            let limit_m = MAX_TRANSLATION_INCREMENT_LENGTHS * self.length_m;
+            if dx.norm() > limit_m {
+                return Err(diverged(DivergenceCheck::TranslationIncrement {
+                    increment_m: dx.norm(),
+                    limit_m,
+                }));
             }
             if dtheta.norm() > std::f64::consts::PI {
-                return Err(diverged("rotation increment (larger than π)"));
+                return Err(diverged(DivergenceCheck::RotationIncrement {
+                    increment_rad: dtheta.norm(),
+                }));
             }
             max_dx = max_dx.max(dx.norm());
             max_dtheta = max_dtheta.max(dtheta.norm());
@@ -933,7 +1045,12 @@ impl BeamModel {
     ) -> Result<ContactStep> {
         self.saved_positions.clone_from(&self.positions);
         self.saved_rotations.clone_from(&self.rotations);
-        let result = self.step_with_contacts_inner(detect, settings, warm_start);
+        let mut result = self.step_with_contacts_inner(detect, settings, warm_start);
+        if let Err(PhysicsError::Diverged { step, .. }) = &mut result
+            && *step == 0
+        {
+            *step = self.step_count + 1;
+        }
         self.step_count += 1;
         if result.is_err() {
             self.positions.clone_from(&self.saved_positions);

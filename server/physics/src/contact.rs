@@ -807,8 +807,9 @@ pub fn gauss_seidel(
         }
     }
     if local.iter().any(|l| !l.iter().all(|v| v.is_finite())) {
+        // The step number is the caller's to fill in (`BeamModel::step_with_contacts` does).
         return Err(PhysicsError::Diverged {
-            quantity: "contact force (non-finite)",
+            check: crate::error::DivergenceCheck::NonFinite("contact force"),
             node: 0,
             step: 0,
         });

@@ -80,16 +80,55 @@ pub enum PhysicsError {
         /// Node index (0-based, among the unknown nodes).
         node: usize,
     },
-    /// The simulation produced NaN or infinity; the state was left as it was before the step.
-    #[error("non-finite {quantity} at node {node} in step {step}: the simulation diverged")]
+    /// A step failed a divergence check; the state was left as it was before the step.
+    #[error("step {step}, node {node}: {check}: the simulation diverged")]
     Diverged {
-        /// What became non-finite (position, rotation, force...).
-        quantity: &'static str,
-        /// Node index.
+        /// Which check tripped.
+        check: DivergenceCheck,
+        /// Node index (in the model whose step diverged; 0 where no node is concerned).
         node: usize,
-        /// Step counter at which it happened.
+        /// The step that diverged, numbered from 1.
         step: u64,
     },
+}
+
+/// The divergence check that tripped (see [`PhysicsError::Diverged`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DivergenceCheck {
+    /// A quantity (named) became NaN or infinite.
+    NonFinite(&'static str),
+    /// One linear solve moved a node farther than the limit: no quasi-static load a device can
+    /// bear does that.
+    TranslationIncrement {
+        /// The node's translation increment (m).
+        increment_m: f64,
+        /// The limit (m): [`crate::beam::MAX_TRANSLATION_INCREMENT_LENGTHS`] device lengths.
+        limit_m: f64,
+    },
+    /// One linear solve rotated a node by more than π: the rotation vector is no longer a
+    /// unique description of the increment.
+    RotationIncrement {
+        /// The node's rotation increment (rad).
+        increment_rad: f64,
+    },
+}
+
+impl std::fmt::Display for DivergenceCheck {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            DivergenceCheck::NonFinite(quantity) => write!(f, "non-finite {quantity}"),
+            DivergenceCheck::TranslationIncrement {
+                increment_m,
+                limit_m,
+            } => write!(
+                f,
+                "translation increment of {increment_m:.3e} m exceeds the limit of {limit_m:.3e} m"
+            ),
+            DivergenceCheck::RotationIncrement { increment_rad } => {
+                write!(f, "rotation increment of {increment_rad:.3} rad exceeds π")
+            }
+        }
+    }
 }
 
 /// Result alias of the physics library.

@@ -26,7 +26,7 @@ pub use beam::{
 };
 pub use contact::{Contact, ContactResponse, ContactSettings};
 pub use device::{Device, RestShape, Section, presets};
-pub use error::{PhysicsError, Result};
+pub use error::{DivergenceCheck, PhysicsError, Result};
 pub use navigation::{
     Command, Insertion, Navigation, NavigationReport, NavigationSettings, Refinement, Twist,
 };

@@ -275,6 +275,7 @@ impl<W: Wall> Navigation<W> {
                 }),
                 max_step_increment: Some((settings.max_step_m, settings.max_step_rad)),
                 geometric_stiffness_in_compression: false,
+                max_substep_halvings: 0,
             },
         )?;
         Ok(Self {

@@ -164,6 +164,13 @@ fn divergence_is_detected_and_the_state_kept() {
         "{err}"
     );
     assert!(err.to_string().contains("diverged"), "{err}");
+    // The second step, numbered from 1, and the check that tripped (a finite but huge
+    // increment, not a NaN).
+    assert!(err.to_string().starts_with("step 2, node "), "{err}");
+    assert!(
+        err.to_string().contains("translation increment of"),
+        "{err}"
+    );
     assert_eq!(model.positions(), &before[..], "state must be rolled back");
     assert!(
         model

@@ -3,7 +3,9 @@
 mod common;
 
 use cathlab_physics::element::{local_geometric_stiffness, local_stiffness};
-use cathlab_physics::scenarios::{end_moment_rollup, slender_test_wire, tip_loaded_cantilever};
+use cathlab_physics::scenarios::{
+    end_moment_rollup, end_moment_rollup_turns, slender_test_wire, tip_loaded_cantilever,
+};
 use cathlab_physics::{BeamModel, PhysicsError, SolverSettings, StepMode, elastica};
 use nalgebra::{DMatrix, Vector3};
 
@@ -104,8 +106,10 @@ fn end_moment_rolls_the_beam_into_a_circle() {
 /// not stabilised) or when the device is under tension. These are the documented failures.
 #[test]
 fn paper_tangent_without_geometric_stiffness_fails_where_documented() {
+    // Sub-stepping would rescue these steps: switch it off to show the raw iteration.
     let literal = SolverSettings {
         geometric_stiffness: false,
+        max_substep_halvings: 0,
         ..converged()
     };
     // Roll-up: fine with small load steps (2π/200 per step) ...
@@ -189,4 +193,52 @@ fn clamped_free_column_buckles_at_euler_load() {
     println!("lateral tip deflection: 0.98 Pcr {below:.4}, 1.02 Pcr {above:.4}");
     assert!(below.abs() < 0.01, "below: {below}");
     assert!(above.abs() > 0.1, "above: {above}");
+}
+
+#[test]
+fn converged_mode_splits_a_step_that_trips_the_rotation_guard() {
+    // Whole loads applied in one load step: the first linear solve of α = 10 rotates the tip
+    // by PL²/2EI = 5 rad, past the π guard, and two turns of roll-up ask for 4π. Split into
+    // sub-steps, both converge to the exact answer.
+    for alpha in [1.0, 2.0, 5.0, 10.0] {
+        let ramped = tip_loaded_cantilever(alpha, 50, converged(), 10, 0).unwrap();
+        let one = tip_loaded_cantilever(alpha, 50, converged(), 1, 0).unwrap();
+        println!(
+            "α={alpha} in one load step: error {:.3e}·L in {} solves (10 load steps: {:.3e}·L)",
+            one.tip_error, one.solves, ramped.tip_error
+        );
+        assert!(one.converged, "α={alpha}");
+        assert!(
+            (one.tip_error - ramped.tip_error).abs() < 1e-6,
+            "α={alpha}: {one:?} vs {ramped:?}"
+        );
+    }
+    for turns in [0.5, 1.0, 1.5, 2.0] {
+        let one = end_moment_rollup_turns(100, converged(), 1, turns).unwrap();
+        println!(
+            "roll-up of {turns} turns in one load step: tip error {:.3e}·L in {} solves",
+            one.tip_error, one.solves
+        );
+        assert!(
+            one.converged && one.tip_error < 1e-3,
+            "{turns} turns: {one:?}"
+        );
+    }
+    // Without sub-steps the same α = 10 step is reported as diverged, naming the check.
+    let err = tip_loaded_cantilever(
+        10.0,
+        50,
+        SolverSettings {
+            max_substep_halvings: 0,
+            ..converged()
+        },
+        1,
+        0,
+    )
+    .unwrap_err();
+    let message = err.to_string();
+    assert!(message.contains("rotation increment of"), "{message}");
+    assert!(message.contains("exceeds π"), "{message}");
+    assert!(!message.contains("non-finite"), "{message}");
+    assert!(message.starts_with("step 1, node "), "{message}");
 }
