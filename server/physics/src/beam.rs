@@ -258,8 +258,10 @@ impl Element {
     /// rest shape does not matter).
     fn from_spec(spec: &ElementSpec) -> Result<Self> {
         require_positive(|| "element length_m".into(), spec.length_m)?;
-        require_finite(|| "element curvature_per_m".into(), spec.curvature_per_m)?;
-        let (dp, dq) = arc_increment(spec.curvature_per_m, spec.length_m);
+        for v in spec.curvature_per_m.iter() {
+            require_finite(|| "element curvature_per_m".into(), *v)?;
+        }
+        let (dp, dq) = arc_increment(&spec.curvature_per_m, spec.length_m);
         let frame = element_frame(&UnitQuaternion::identity(), &dq, &dp);
         Ok(Self::new(
             spec.props,
@@ -326,16 +328,30 @@ fn axis_x() -> Vector3<f64> {
     Vector3::x()
 }
 
-/// Rest geometry of one element: properties, length (m) and rest curvature about the
-/// material z axis (1/m).
-#[derive(Debug, Clone, Copy)]
+/// Rest geometry of one element: properties, length (m) and rest curvature (1/m).
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ElementSpec {
     /// Section properties.
     pub props: BeamProperties,
     /// Arc length of the element at rest (m).
     pub length_m: f64,
-    /// Rest curvature about the material z axis (1/m); positive bends towards material +y.
-    pub curvature_per_m: f64,
+    /// Rest curvature (Darboux) vector in the material frame at the element's start (1/m): x
+    /// is the rest torsion rate, y and z the bending curvatures about the material y and z
+    /// axes (a positive z component bends towards material +y). The element's rest shape is
+    /// the helix the frame traces rotating at this constant rate.
+    pub curvature_per_m: Vector3<f64>,
+}
+
+impl ElementSpec {
+    /// An element bent in the material x–y plane: curvature `kappa_per_m` (1/m) about the
+    /// material z axis, positive towards material +y.
+    pub fn planar(props: BeamProperties, length_m: f64, kappa_per_m: f64) -> Self {
+        Self {
+            props,
+            length_m,
+            curvature_per_m: Vector3::new(0.0, 0.0, kappa_per_m),
+        }
+    }
 }
 
 impl BeamModel {
@@ -352,10 +368,9 @@ impl BeamModel {
         }
         for (i, s) in specs.iter().enumerate() {
             require_positive(|| format!("element {i}: length_m"), s.length_m)?;
-            require_finite(
-                || format!("element {i}: curvature_per_m"),
-                s.curvature_per_m,
-            )?;
+            for v in s.curvature_per_m.iter() {
+                require_finite(|| format!("element {i}: curvature_per_m"), *v)?;
+            }
         }
         for (i, v) in base_position.iter().enumerate() {
             require_finite(|| format!("base position component {i}"), *v)?;
@@ -363,7 +378,7 @@ impl BeamModel {
         let mut positions = vec![base_position];
         let mut rotations = vec![base_rotation];
         for s in specs {
-            let (dp, dq) = arc_increment(s.curvature_per_m, s.length_m);
+            let (dp, dq) = arc_increment(&s.curvature_per_m, s.length_m);
             let (p, q) = (*positions.last().unwrap(), *rotations.last().unwrap());
             positions.push(p + q * dp);
             rotations.push(q * dq);
@@ -417,11 +432,7 @@ impl BeamModel {
         if elements == 0 {
             return Err(PhysicsError::TooFewElements { count: 0, min: 1 });
         }
-        let spec = ElementSpec {
-            props,
-            length_m: length_m / elements as f64,
-            curvature_per_m: 0.0,
-        };
+        let spec = ElementSpec::planar(props, length_m / elements as f64, 0.0);
         Self::new(
             &vec![spec; elements],
             Vector3::zeros(),
@@ -463,10 +474,11 @@ impl BeamModel {
         let specs: Vec<ElementSpec> = (0..elements)
             .map(|i| {
                 let mid = start + (i as f64 + 0.5) * h;
+                let a = start + i as f64 * h;
                 ElementSpec {
                     props: device.section_at(mid).0.beam_properties(),
                     length_m: h,
-                    curvature_per_m: device.rest_curvature_at(mid),
+                    curvature_per_m: device.mean_rest_curvature(a, a + h),
                 }
             })
             .collect();
@@ -1375,27 +1387,66 @@ fn rotate_wrench(r: &Matrix3<f64>, w: &Vector6<f64>) -> Vector6<f64> {
     Vector6::new(f.x, f.y, f.z, m.x, m.y, m.z)
 }
 
-/// Position and rotation increment along an arc of curvature `kappa` (1/m, about material z)
-/// and length `length` (m), in the frame at its start.
-fn arc_increment(kappa: f64, length: f64) -> (Vector3<f64>, UnitQuaternion<f64>) {
-    let angle = kappa * length;
-    let (along, across) = if angle.abs() < 1e-6 {
+/// Position and rotation increment along a helix of constant material curvature vector
+/// `kappa` (1/m, see [`ElementSpec::curvature_per_m`]) and arc length `length` (m), in the
+/// frame at its start: the frame turns by exp(s·κ̂), and the position is
+/// ∫₀ᴸ exp(s·κ̂)·x ds = (L·I + (1 − cos θ)/|κ|²·κ̂ + (L − sin θ/|κ|)/|κ|²·κ̂²)·x, θ = |κ|L.
+fn arc_increment(kappa: &Vector3<f64>, length: f64) -> (Vector3<f64>, UnitQuaternion<f64>) {
+    let k = kappa.norm();
+    let theta = k * length;
+    // Coefficients of κ̂ and κ̂², with their series near θ = 0.
+    let (c1, c2) = if theta < 1e-4 {
+        let t2 = theta * theta;
         (
-            length * (1.0 - angle * angle / 6.0),
-            length * angle / 2.0 * (1.0 - angle * angle / 12.0),
+            length * length / 2.0 * (1.0 - t2 / 12.0),
+            length * length * length / 6.0 * (1.0 - t2 / 20.0),
         )
     } else {
-        (angle.sin() / kappa, (1.0 - angle.cos()) / kappa)
+        (
+            (1.0 - theta.cos()) / (k * k),
+            (length - theta.sin() / k) / (k * k),
+        )
     };
+    let x = Vector3::x();
+    let kx = kappa.cross(&x);
+    let kkx = kappa.cross(&kx);
     (
-        Vector3::new(along, across, 0.0),
-        UnitQuaternion::from_scaled_axis(Vector3::z() * angle),
+        x * length + kx * c1 + kkx * c2,
+        UnitQuaternion::from_scaled_axis(kappa * length),
     )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The closed-form helix increment against a fine midpoint integration of the frame ODE
+    /// (planar, torsion only, and a general 3D curvature, small and large angles).
+    #[test]
+    fn helix_increment_matches_integrated_frame() {
+        for kappa in [
+            Vector3::new(0.0, 0.0, 300.0),
+            Vector3::new(50.0, 0.0, 0.0),
+            Vector3::new(40.0, -120.0, 250.0),
+            Vector3::new(1e-5, 2e-5, -3e-5),
+        ] {
+            let length = 0.02;
+            let n = 20_000;
+            let ds = length / n as f64;
+            let mut p = Vector3::zeros();
+            for i in 0..n {
+                let q = UnitQuaternion::from_scaled_axis(kappa * ((i as f64 + 0.5) * ds));
+                p += q * Vector3::x() * ds;
+            }
+            let (dp, dq) = arc_increment(&kappa, length);
+            assert!(
+                (dp - p).norm() < 1e-9 * length,
+                "{kappa:?}: {dp:?} vs {p:?}"
+            );
+            let exact = UnitQuaternion::from_scaled_axis(kappa * length);
+            assert!(dq.angle_to(&exact) < 1e-12);
+        }
+    }
 
     #[test]
     fn rotation_vector_is_accurate_near_identity() {
@@ -1473,11 +1524,7 @@ mod tests {
             },
         );
         let specs: Vec<ElementSpec> = (0..40)
-            .map(|i| ElementSpec {
-                props,
-                length_m: 1e-3,
-                curvature_per_m: if i >= 20 { 1.0 / 3e-3 } else { 0.0 },
-            })
+            .map(|i| ElementSpec::planar(props, 1e-3, if i >= 20 { 1.0 / 3e-3 } else { 0.0 }))
             .collect();
         let mut model = BeamModel::new(
             &specs,

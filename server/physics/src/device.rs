@@ -4,79 +4,151 @@
 //! Each section has its own cross-section, material, wall friction and rest curvature, so a
 //! stiff shaft, a transition and a soft shaped tip can be described, as real devices are.
 
+use nalgebra::Vector3;
+
 use crate::error::{PhysicsError, Result, require_finite, require_positive};
 use crate::section::{BeamProperties, CircularSection, Material};
 
-/// Rest (unloaded) curvature of a section. Bending happens in the device's material x–y
-/// plane (about the material z axis): twisting the device turns that plane.
+/// One arc of a rest shape: constant curvature in a bending plane, with an optional torsion
+/// that winds the plane (a helix) for 3D shapes.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum RestShape {
-    /// Straight.
-    Straight,
-    /// Bent by `angle_rad` over the last `bend_length_m` of the section (angled / hockey-stick
-    /// tips), with uniform curvature angle/length.
-    Angled {
-        /// Total bend angle (rad).
-        angle_rad: f64,
-        /// Length over which the bend is spread (m), at the distal end of the section.
-        bend_length_m: f64,
-    },
-    /// A J: an arc of `radius_m` over `angle_rad` (π for a full J) at the distal end of the
-    /// section.
-    J {
-        /// Radius of the J (m).
-        radius_m: f64,
-        /// Arc angle (rad).
-        angle_rad: f64,
-    },
+pub struct RestArc {
+    /// Arc length (m).
+    pub length_m: f64,
+    /// Curvature (1/m); 0 for a straight piece between two bends.
+    pub curvature_per_m: f64,
+    /// Direction the arc bends to, as an angle about the device axis from the material +y axis
+    /// (rad): 0 bends towards +y, π/2 towards +z, π back towards −y (a reverse curve).
+    pub plane_rad: f64,
+    /// Rest torsion (rad/m): how fast the bending plane turns about the axis along the arc.
+    pub torsion_per_m: f64,
 }
 
-impl RestShape {
-    /// Curvature (1/m) at `s` metres from the section's proximal end, for a section of
-    /// `length_m`.
-    pub fn curvature_at(&self, s: f64, length_m: f64) -> f64 {
-        let (kappa, bent_length) = match *self {
-            RestShape::Straight => return 0.0,
-            RestShape::Angled {
-                angle_rad,
-                bend_length_m,
-            } => (angle_rad / bend_length_m, bend_length_m),
-            RestShape::J {
-                radius_m,
-                angle_rad,
-            } => (1.0 / radius_m, radius_m * angle_rad),
-        };
-        if s >= length_m - bent_length {
-            kappa
-        } else {
-            0.0
+impl RestArc {
+    /// A planar arc of `length_m` bending by `angle_rad` in the plane at `plane_rad`.
+    pub fn bend(length_m: f64, angle_rad: f64, plane_rad: f64) -> Self {
+        Self {
+            length_m,
+            curvature_per_m: angle_rad / length_m,
+            plane_rad,
+            torsion_per_m: 0.0,
         }
     }
 
+    /// The material curvature (Darboux) vector of the arc (1/m): torsion along x, bending
+    /// about the axis perpendicular to its plane.
+    pub fn curvature_vector(&self) -> Vector3<f64> {
+        let (sin, cos) = self.plane_rad.sin_cos();
+        Vector3::new(
+            self.torsion_per_m,
+            -self.curvature_per_m * sin,
+            self.curvature_per_m * cos,
+        )
+    }
+}
+
+/// Rest (unloaded) shape of a section: a sequence of arcs ending at the section's distal end,
+/// straight before them. Bending planes are fixed in the device's material frame, so twisting
+/// the device turns them. Straight, angled and J tips are one-arc cases; a Simmons reverse
+/// curve, a Cobra or a Headhunter are several.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct RestShape {
+    /// Arcs, proximal first; the last ends at the section's distal end.
+    pub arcs: Vec<RestArc>,
+}
+
+impl RestShape {
+    /// Straight.
+    pub fn straight() -> Self {
+        Self::default()
+    }
+
+    /// Bent by `angle_rad` over the last `bend_length_m` of the section (angled / hockey-stick
+    /// tips), with uniform curvature, towards material +y.
+    pub fn angled(angle_rad: f64, bend_length_m: f64) -> Self {
+        Self {
+            arcs: vec![RestArc::bend(bend_length_m, angle_rad, 0.0)],
+        }
+    }
+
+    /// A J: an arc of `radius_m` over `angle_rad` (π for a full J) at the distal end of the
+    /// section, towards material +y.
+    pub fn j(radius_m: f64, angle_rad: f64) -> Self {
+        Self {
+            arcs: vec![RestArc {
+                length_m: radius_m * angle_rad.abs(),
+                curvature_per_m: angle_rad.signum() / radius_m,
+                plane_rad: 0.0,
+                torsion_per_m: 0.0,
+            }],
+        }
+    }
+
+    /// Arcs, proximal first, ending at the section's distal end.
+    pub fn from_arcs(arcs: Vec<RestArc>) -> Self {
+        Self { arcs }
+    }
+
+    /// Whether the shape is straight everywhere.
+    pub fn is_straight(&self) -> bool {
+        self.arcs
+            .iter()
+            .all(|a| a.curvature_per_m == 0.0 && a.torsion_per_m == 0.0)
+    }
+
+    /// Length of the shaped part at the distal end (m).
+    pub fn shaped_length_m(&self) -> f64 {
+        self.arcs.iter().map(|a| a.length_m).sum()
+    }
+
+    /// Material curvature vector (1/m) at `s` metres from the proximal end of a section of
+    /// `length_m`.
+    pub fn curvature_at(&self, s: f64, length_m: f64) -> Vector3<f64> {
+        let mut start = length_m - self.shaped_length_m();
+        if s < start {
+            return Vector3::zeros();
+        }
+        for arc in &self.arcs {
+            if s < start + arc.length_m {
+                return arc.curvature_vector();
+            }
+            start += arc.length_m;
+        }
+        self.arcs
+            .last()
+            .map_or_else(Vector3::zeros, RestArc::curvature_vector)
+    }
+
+    /// Integral of the curvature vector over [a, b] (m from the section's proximal end, within
+    /// a section of `length_m`), in 1/m · m.
+    pub fn integrated_curvature(&self, a: f64, b: f64, length_m: f64) -> Vector3<f64> {
+        let mut start = length_m - self.shaped_length_m();
+        let mut total = Vector3::zeros();
+        for arc in &self.arcs {
+            let end = start + arc.length_m;
+            let overlap = b.min(end) - a.max(start);
+            if overlap > 0.0 {
+                total += arc.curvature_vector() * overlap;
+            }
+            start = end;
+        }
+        total
+    }
+
     fn validate(&self, owner: &str, length_m: f64) -> Result<()> {
-        let (angle, bent) = match *self {
-            RestShape::Straight => return Ok(()),
-            RestShape::Angled {
-                angle_rad,
-                bend_length_m,
-            } => {
-                require_positive(|| format!("{owner}: rest bend_length_m"), bend_length_m)?;
-                (angle_rad, bend_length_m)
-            }
-            RestShape::J {
-                radius_m,
-                angle_rad,
-            } => {
-                require_positive(|| format!("{owner}: rest J radius_m"), radius_m)?;
-                (angle_rad, radius_m * angle_rad)
-            }
-        };
-        require_finite(|| format!("{owner}: rest angle_rad"), angle)?;
-        if bent > length_m {
+        for (k, arc) in self.arcs.iter().enumerate() {
+            let what = |field: &str| format!("{owner}: rest arc {k} {field}");
+            require_positive(|| what("length_m"), arc.length_m)?;
+            require_finite(|| what("curvature_per_m"), arc.curvature_per_m)?;
+            require_finite(|| what("plane_rad"), arc.plane_rad)?;
+            require_finite(|| what("torsion_per_m"), arc.torsion_per_m)?;
+        }
+        let shaped = self.shaped_length_m();
+        if shaped > length_m * (1.0 + 1e-12) {
             return Err(PhysicsError::OutOfRange {
                 what: format!("{owner}: curved length of the rest shape (m)"),
                 range: "(0, section length]",
-                value: bent,
+                value: shaped,
             });
         }
         Ok(())
@@ -184,10 +256,48 @@ impl Device {
         (last, last.length_m)
     }
 
-    /// Rest curvature (1/m) at arc length `s`.
-    pub fn rest_curvature_at(&self, s: f64) -> f64 {
+    /// Rest curvature vector (1/m, material frame, see [`RestArc::curvature_vector`]) at arc
+    /// length `s`.
+    pub fn rest_curvature_at(&self, s: f64) -> Vector3<f64> {
         let (section, local) = self.section_at(s);
         section.rest_shape.curvature_at(local, section.length_m)
+    }
+
+    /// Mean rest curvature vector (1/m) over arc lengths [a, b] (m from the proximal end,
+    /// a < b): the exact average of the piecewise-constant profile, so that an element that
+    /// straddles the start of a bend carries its share of it.
+    pub fn mean_rest_curvature(&self, a: f64, b: f64) -> Vector3<f64> {
+        let mut start = 0.0;
+        let mut total = Vector3::zeros();
+        for section in &self.sections {
+            let end = start + section.length_m;
+            let (lo, hi) = (a.max(start), b.min(end));
+            if hi > lo {
+                total += section.rest_shape.integrated_curvature(
+                    lo - start,
+                    hi - start,
+                    section.length_m,
+                );
+            }
+            start = end;
+        }
+        total / (b - a)
+    }
+
+    /// Arc length (m from the proximal end) where the distal shaped part begins: the start of
+    /// the most proximal arc of the last run of shaped sections; `None` for a straight device.
+    pub fn shaped_from_m(&self) -> Option<f64> {
+        let mut start = 0.0;
+        let mut first = None;
+        for section in &self.sections {
+            if section.rest_shape.is_straight() {
+                first = None;
+            } else if first.is_none() {
+                first = Some(start + section.length_m - section.rest_shape.shaped_length_m());
+            }
+            start += section.length_m;
+        }
+        first
     }
 }
 
@@ -250,7 +360,7 @@ pub mod presets {
                     wire,
                     nitinol(55e9),
                     0.08,
-                    RestShape::Straight,
+                    RestShape::straight(),
                 ),
                 section(
                     "transition",
@@ -258,7 +368,7 @@ pub mod presets {
                     wire,
                     nitinol(12e9),
                     0.03,
-                    RestShape::Straight,
+                    RestShape::straight(),
                 ),
                 section(
                     "tip",
@@ -269,10 +379,7 @@ pub mod presets {
                         ..nitinol(1.5e9)
                     },
                     0.03,
-                    RestShape::Angled {
-                        angle_rad: 45f64.to_radians(),
-                        bend_length_m: 0.002,
-                    },
+                    RestShape::angled(45f64.to_radians(), 0.002),
                 ),
             ],
         }
@@ -294,7 +401,7 @@ pub mod presets {
                     wire,
                     nitinol(60e9),
                     0.08,
-                    RestShape::Straight,
+                    RestShape::straight(),
                 ),
                 section(
                     "transition",
@@ -302,7 +409,7 @@ pub mod presets {
                     wire,
                     nitinol(15e9),
                     0.04,
-                    RestShape::Straight,
+                    RestShape::straight(),
                 ),
                 section(
                     "tip",
@@ -313,10 +420,7 @@ pub mod presets {
                         ..nitinol(2e9)
                     },
                     0.04,
-                    RestShape::J {
-                        radius_m: 0.003,
-                        angle_rad: std::f64::consts::PI,
-                    },
+                    RestShape::j(0.003, std::f64::consts::PI),
                 ),
             ],
         }
@@ -336,10 +440,7 @@ pub mod presets {
         );
         if let Some(tip) = wire.sections.last_mut() {
             tip.length_m = tip.length_m.max(bend_length_m + 0.005);
-            tip.rest_shape = RestShape::Angled {
-                angle_rad,
-                bend_length_m,
-            };
+            tip.rest_shape = RestShape::angled(angle_rad, bend_length_m);
         }
         wire
     }
@@ -362,7 +463,7 @@ pub mod presets {
                     tube,
                     polymer(2.5e9),
                     0.05,
-                    RestShape::Straight,
+                    RestShape::straight(),
                 ),
                 section(
                     "transition",
@@ -370,7 +471,7 @@ pub mod presets {
                     tube,
                     polymer(0.8e9),
                     0.05,
-                    RestShape::Straight,
+                    RestShape::straight(),
                 ),
                 section(
                     "tip",
@@ -378,10 +479,7 @@ pub mod presets {
                     tube,
                     polymer(0.15e9),
                     0.05,
-                    RestShape::Angled {
-                        angle_rad: 45f64.to_radians(),
-                        bend_length_m: 0.008,
-                    },
+                    RestShape::angled(45f64.to_radians(), 0.008),
                 ),
             ],
         }
@@ -404,7 +502,7 @@ pub mod presets {
                     tube,
                     polymer(1.5e9),
                     0.04,
-                    RestShape::Straight,
+                    RestShape::straight(),
                 ),
                 section(
                     "transition",
@@ -412,7 +510,7 @@ pub mod presets {
                     tube,
                     polymer(0.4e9),
                     0.04,
-                    RestShape::Straight,
+                    RestShape::straight(),
                 ),
                 section(
                     "tip",
@@ -420,7 +518,7 @@ pub mod presets {
                     tube,
                     polymer(0.08e9),
                     0.04,
-                    RestShape::Straight,
+                    RestShape::straight(),
                 ),
             ],
         }

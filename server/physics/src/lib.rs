@@ -25,7 +25,7 @@ pub use beam::{
     BeamModel, ContactStep, ElementSpec, SolverSettings, StepMode, StepReport, ViscousDrag,
 };
 pub use contact::{Contact, ContactResponse, ContactSettings};
-pub use device::{Device, RestShape, Section, presets};
+pub use device::{Device, RestArc, RestShape, Section, presets};
 pub use error::{DivergenceCheck, PhysicsError, Result};
 pub use navigation::{
     Command, Insertion, Navigation, NavigationReport, NavigationSettings, Refinement, Twist,

@@ -386,8 +386,9 @@ impl<W: Wall> Navigation<W> {
     /// starts. `None` for a straight device.
     fn first_curved_element(&self) -> Option<usize> {
         (0..self.model.element_count()).find(|&e| {
-            let mid = 0.5 * (self.material[e] + self.material[e + 1]);
-            self.device.rest_curvature_at(mid) != 0.0
+            self.device
+                .mean_rest_curvature(self.material[e], self.material[e + 1])
+                != Vector3::zeros()
         })
     }
 
@@ -715,7 +716,7 @@ fn element_spec(device: &Device, a: f64, b: f64) -> ElementSpec {
     ElementSpec {
         props: device.section_at(mid).0.beam_properties(),
         length_m: b - a,
-        curvature_per_m: device.rest_curvature_at(mid),
+        curvature_per_m: device.mean_rest_curvature(a, b),
     }
 }
 

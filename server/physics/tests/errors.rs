@@ -61,31 +61,16 @@ fn invalid_parameters_are_named() {
             "friction_coefficient must be finite",
         ),
         (
-            with(|s| {
-                s.rest_shape = RestShape::J {
-                    radius_m: 0.0,
-                    angle_rad: 1.0,
-                }
-            }),
-            "radius_m must be > 0",
+            with(|s| s.rest_shape = RestShape::j(0.0, 1.0)),
+            "rest arc 0 length_m must be > 0",
         ),
         (
-            with(|s| {
-                s.rest_shape = RestShape::J {
-                    radius_m: 1.0,
-                    angle_rad: 3.0,
-                }
-            }),
+            with(|s| s.rest_shape = RestShape::j(1.0, 3.0)),
             "curved length",
         ),
         (
-            with(|s| {
-                s.rest_shape = RestShape::Angled {
-                    angle_rad: f64::NAN,
-                    bend_length_m: 0.01,
-                }
-            }),
-            "angle_rad must be finite",
+            with(|s| s.rest_shape = RestShape::angled(f64::NAN, 0.01)),
+            "rest arc 0 curvature_per_m must be finite",
         ),
         (
             Device::new("short", sections()[..2].to_vec()),

@@ -24,17 +24,9 @@ fn j_tip_wire() -> Device {
     Device::new(
         "J-tip test wire",
         vec![
-            section("shaft", 0.05, 60e9, RestShape::Straight),
-            section("transition", 0.02, 15e9, RestShape::Straight),
-            section(
-                "tip",
-                0.02,
-                2e9,
-                RestShape::J {
-                    radius_m: 0.003,
-                    angle_rad: std::f64::consts::PI,
-                },
-            ),
+            section("shaft", 0.05, 60e9, RestShape::straight()),
+            section("transition", 0.02, 15e9, RestShape::straight()),
+            section("tip", 0.02, 2e9, RestShape::j(0.003, std::f64::consts::PI)),
         ],
     )
     .unwrap()
@@ -185,11 +177,7 @@ fn twist_is_transmitted_through_a_held_tip() {
 fn arc_model() -> (BeamModel, ElementSpec, f64) {
     let props = presets::guidewire_035().sections[0].beam_properties();
     let radius = 0.02;
-    let spec = ElementSpec {
-        props,
-        length_m: 5e-3,
-        curvature_per_m: 1.0 / radius,
-    };
+    let spec = ElementSpec::planar(props, 5e-3, 1.0 / radius);
     let model = BeamModel::new(
         &[spec; 8],
         Vector3::zeros(),
