@@ -738,22 +738,12 @@ impl BeamModel {
         }
         let a = Element::from_spec(&first)?;
         let b = Element::from_spec(&second)?;
-        let total = a.rest_length_m + b.rest_length_m;
-        let f = a.rest_length_m / total;
-        let (p0, p1) = (self.positions[index], self.positions[index + 1]);
-        let (q0, q1) = (self.rotations[index], self.rotations[index + 1]);
-        // Tangent length chord / cos²(θ/4), θ the angle between the end tangents: the one
-        // that puts the Hermite midpoint exactly on a circular arc.
-        let (d0, d1) = (q0 * Vector3::x(), q1 * Vector3::x());
-        let scale = (p1 - p0).norm() / (0.25 * d0.angle(&d1).min(3.0)).cos().powi(2);
-        let (t0, t1) = (d0 * scale, d1 * scale);
-        // Cubic Hermite basis at f.
-        let (f2, f3) = (f * f, f * f * f);
-        let position = p0 * (2.0 * f3 - 3.0 * f2 + 1.0)
-            + t0 * (f3 - 2.0 * f2 + f)
-            + p1 * (-2.0 * f3 + 3.0 * f2)
-            + t1 * (f3 - f2);
-        let rotation = q0.slerp(&q1, f);
+        let f = a.rest_length_m / (a.rest_length_m + b.rest_length_m);
+        let (position, rotation) = hermite_point(
+            (&self.positions[index], &self.rotations[index]),
+            (&self.positions[index + 1], &self.rotations[index + 1]),
+            f,
+        );
         self.insert_node(index, a, b, position, rotation);
         Ok(())
     }
@@ -819,6 +809,62 @@ impl BeamModel {
             });
         }
         self.merge_elements(0, merged)
+    }
+
+    /// Replaces the whole discretization at once: new rest geometries `specs`, node positions
+    /// (m) and frames. Element `e` is copied from the current element `keep[e]` where that is
+    /// `Some` (its rest geometry unchanged: no rebuild), else built from `specs[e]`. Loads are
+    /// cleared. Used by coaxial stacks, whose nodes move along the path every step.
+    pub fn remesh(
+        &mut self,
+        specs: &[ElementSpec],
+        keep: &[Option<usize>],
+        positions: &[Vector3<f64>],
+        rotations: &[UnitQuaternion<f64>],
+    ) -> Result<()> {
+        let nodes = specs.len() + 1;
+        for (what, len) in [
+            ("element keep list", keep.len() + 1),
+            ("node positions", positions.len()),
+            ("node rotations", rotations.len()),
+        ] {
+            if len != nodes {
+                return Err(PhysicsError::LengthMismatch {
+                    what,
+                    expected: nodes,
+                    actual: len,
+                });
+            }
+        }
+        if specs.is_empty() {
+            return Err(PhysicsError::TooFewElements { count: 0, min: 1 });
+        }
+        for (i, p) in positions.iter().enumerate() {
+            for v in p.iter() {
+                require_finite(|| format!("node {i} position"), *v)?;
+            }
+        }
+        let mut elements = Vec::with_capacity(specs.len());
+        for (spec, kept) in specs.iter().zip(keep) {
+            match kept.and_then(|k| self.elements.get(k)) {
+                Some(element) => elements.push(element.clone()),
+                None => elements.push(Element::from_spec(spec)?),
+            }
+        }
+        self.elements = elements;
+        self.length_m = specs.iter().map(|s| s.length_m).sum();
+        self.positions.clear();
+        self.positions.extend_from_slice(positions);
+        self.rotations.clear();
+        self.rotations.extend_from_slice(rotations);
+        self.rest_positions.clone_from(&self.positions);
+        self.rest_rotations.clone_from(&self.rotations);
+        for v in [&mut self.external, &mut self.last_external] {
+            v.clear();
+            v.resize(nodes, Vector6::zeros());
+        }
+        self.resize_work_buffers();
+        Ok(())
     }
 
     fn resize_work_buffers(&mut self) {
@@ -1379,6 +1425,26 @@ fn element_forces(element: &Element, state: &ElementState) -> (Vector6<f64>, Vec
     let f2 = Vector6::new(axial, shear_y, shear_z, -torsion, m2y, m2z);
     let f1 = Vector6::new(-axial, -shear_y, -shear_z, torsion, m1y, m1z);
     (f1, f2, axial)
+}
+
+/// The point at fraction `f` ∈ [0, 1] of the smooth curve between two nodes (position m,
+/// frame): the cubic Hermite interpolant of their positions and tangents, with the tangent
+/// length chord / cos²(θ/4) (θ the angle between the end tangents) that puts it exactly on a
+/// circular arc; the frame is the slerp of the two node frames.
+pub(crate) fn hermite_point(
+    (p0, q0): (&Vector3<f64>, &UnitQuaternion<f64>),
+    (p1, q1): (&Vector3<f64>, &UnitQuaternion<f64>),
+    f: f64,
+) -> (Vector3<f64>, UnitQuaternion<f64>) {
+    let (d0, d1) = (q0 * Vector3::x(), q1 * Vector3::x());
+    let scale = (p1 - p0).norm() / (0.25 * d0.angle(&d1).min(3.0)).cos().powi(2);
+    let (t0, t1) = (d0 * scale, d1 * scale);
+    let (f2, f3) = (f * f, f * f * f);
+    let position = p0 * (2.0 * f3 - 3.0 * f2 + 1.0)
+        + t0 * (f3 - 2.0 * f2 + f)
+        + p1 * (-2.0 * f3 + 3.0 * f2)
+        + t1 * (f3 - f2);
+    (position, q0.slerp(q1, f))
 }
 
 fn rotate_wrench(r: &Matrix3<f64>, w: &Vector6<f64>) -> Vector6<f64> {

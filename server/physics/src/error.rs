@@ -56,6 +56,36 @@ pub enum PhysicsError {
         /// Sections required.
         min: usize,
     },
+    /// An inner instrument of a coaxial stack does not fit the lumen of the one around it.
+    #[error(
+        "\"{inner}\" (largest outer diameter {inner_diameter_mm:.3} mm) does not fit the lumen of \"{outer}\" (smallest inner diameter {lumen_mm:.3} mm)"
+    )]
+    StackFit {
+        /// The inner device's name.
+        inner: String,
+        /// The outer device's name.
+        outer: String,
+        /// Largest outer diameter of the inner device (mm).
+        inner_diameter_mm: f64,
+        /// Smallest lumen diameter of the outer device (mm).
+        lumen_mm: f64,
+    },
+    /// A device definition (catalogue entry) with a bad field.
+    #[error("device \"{device}\", {section}: {field}: {problem}")]
+    DeviceDefinition {
+        /// Device identifier or name.
+        device: String,
+        /// `section "name"`, or `device` for a device-level field.
+        section: String,
+        /// The field, as written in the definition (`inner_diameter_mm`).
+        field: String,
+        /// What is wrong with it.
+        problem: String,
+    },
+    /// A stack operation that the stack's state does not allow (exchanging an instrument that
+    /// is still inserted, an instrument index out of range).
+    #[error("stack: {0}")]
+    Stack(String),
     /// A discretisation needs at least one element.
     #[error("a beam needs at least {min} element(s), got {count}")]
     TooFewElements {

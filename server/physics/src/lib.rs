@@ -18,6 +18,7 @@ pub mod error;
 pub mod navigation;
 pub mod scenarios;
 pub mod section;
+pub mod stack;
 pub mod substructure;
 pub mod wall;
 
@@ -31,5 +32,6 @@ pub use navigation::{
     Command, Insertion, Navigation, NavigationReport, NavigationSettings, Refinement, Twist,
 };
 pub use section::{BeamProperties, CircularSection, Material};
+pub use stack::{InstrumentSpec, ProximalReaction, Stack, StackReport};
 pub use substructure::{BlockTridiagonal, Flexibility, Substructure};
-pub use wall::{CappedTube, RingTube, Wall, WallProbe};
+pub use wall::{CappedTube, FreeSpace, RingTube, Wall, WallProbe};

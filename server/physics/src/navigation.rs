@@ -658,14 +658,14 @@ impl<W: Wall> Navigation<W> {
 }
 
 /// Material coordinate of a contact point (m from the proximal end).
-fn material_of(material: &[f64], contact: &Contact) -> f64 {
+pub(crate) fn material_of(material: &[f64], contact: &Contact) -> f64 {
     let (a, b) = (material[contact.element], material[contact.element + 1]);
     a + contact.t * (b - a)
 }
 
 /// The previous step's forces for contacts within `tolerance` (m, along the device) of the
 /// same material point, as a Gauss–Seidel warm start; both lists are ordered along the device.
-fn warm_start(
+pub(crate) fn warm_start(
     contacts: &[Contact],
     material: &[f64],
     previous: &[(f64, Vector3<f64>)],
@@ -696,15 +696,15 @@ fn warm_start(
 
 /// One collision point.
 #[derive(Debug, Clone, Copy)]
-struct Sample {
-    element: usize,
-    t: f64,
-    radius: f64,
-    friction: f64,
+pub(crate) struct Sample {
+    pub(crate) element: usize,
+    pub(crate) t: f64,
+    pub(crate) radius: f64,
+    pub(crate) friction: f64,
 }
 
 /// Node spacing at material coordinate `s` (m from the proximal end) of a device of `length`.
-fn spacing(settings: &NavigationSettings, length: f64, s: f64) -> f64 {
+pub(crate) fn spacing(settings: &NavigationSettings, length: f64, s: f64) -> f64 {
     let from_tip = length - s;
     let ramp = ((from_tip - settings.tip_zone_m) / settings.tip_zone_m).clamp(0.0, 1.0);
     settings.tip_element_m + ramp * (settings.shaft_element_m - settings.tip_element_m)
@@ -724,7 +724,7 @@ fn element_spec(device: &Device, a: f64, b: f64) -> ElementSpec {
 /// point within the margin, with its gap shifted back so that `gap + n·δ_free` is the
 /// predicted gap (the contact solver linearizes about the free motion, so a fast push cannot
 /// tunnel through the wall).
-fn detect<W: Wall>(
+pub(crate) fn detect<W: Wall>(
     wall: &W,
     samples: &[Sample],
     positions: &[Vector3<f64>],

@@ -40,6 +40,16 @@ impl<T: Wall + ?Sized> Wall for Arc<T> {
     }
 }
 
+/// No wall at all: free space, for tests and free-standing devices.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FreeSpace;
+
+impl Wall for FreeSpace {
+    fn probe(&self, _point: &Vector3<f64>, _search_m: f64) -> Option<WallProbe> {
+        None
+    }
+}
+
 impl Wall for Lumen {
     fn probe(&self, point: &Vector3<f64>, search_m: f64) -> Option<WallProbe> {
         let p = Point3::from(*point);

@@ -1,0 +1,402 @@
+//! Coaxial stacks in merged mode: composite stiffness against analytic cantilevers, the
+//! stiffness-weighted blend of rest shapes, twist of one instrument without the other,
+//! invariants of the instruments' positions, and bad input.
+//!
+//! Figures print with `cargo test -p cathlab-physics --test coaxial -- --nocapture`.
+
+use std::f64::consts::PI;
+
+use cathlab_physics::navigation::{Command, Insertion, NavigationSettings, Twist};
+use cathlab_physics::{
+    BeamModel, CircularSection, Device, FreeSpace, InstrumentSpec, Material, PhysicsError,
+    RestShape, Section, SolverSettings, Stack, StepMode, presets,
+};
+use nalgebra::{UnitQuaternion, Vector3};
+use proptest::prelude::*;
+
+/// A uniform device of three identical sections, the distal one with `tip_shape`.
+fn uniform(
+    name: &str,
+    length_m: f64,
+    outer_diameter_m: f64,
+    inner_diameter_m: f64,
+    young_modulus_pa: f64,
+    tip_shape: RestShape,
+) -> Device {
+    let section = |label: &str, length_m: f64, rest_shape: RestShape| Section {
+        name: label.into(),
+        length_m,
+        cross_section: CircularSection {
+            outer_radius_m: outer_diameter_m / 2.0,
+            inner_radius_m: inner_diameter_m / 2.0,
+        },
+        material: Material {
+            young_modulus_pa,
+            poisson_ratio: 0.35,
+            density_kg_m3: 2000.0,
+        },
+        friction_coefficient: 0.05,
+        rest_shape,
+    };
+    Device::new(
+        name,
+        vec![
+            section("shaft", 0.8 * length_m, RestShape::straight()),
+            section("transition", 0.1 * length_m, RestShape::straight()),
+            section("tip", 0.1 * length_m, tip_shape),
+        ],
+    )
+    .unwrap()
+}
+
+/// A straight 5 F-like tube and a straight 0.035"-like wire.
+fn straight_pair() -> (Device, Device) {
+    (
+        uniform("tube", 1.0, 1.67e-3, 0.97e-3, 2.5e9, RestShape::straight()),
+        uniform("wire", 1.5, 0.889e-3, 0.0, 60e9, RestShape::straight()),
+    )
+}
+
+fn free_stack(devices: Vec<(Device, f64)>) -> Stack<FreeSpace> {
+    let settings = NavigationSettings::default();
+    let specs = devices
+        .into_iter()
+        .map(|(d, l)| InstrumentSpec::new(d, l, &settings))
+        .collect();
+    Stack::new(specs, FreeSpace, Vector3::zeros(), Vector3::x(), settings).unwrap()
+}
+
+/// Switches the strand's model to a converged static solve without drag.
+fn static_solve(model: &mut BeamModel) {
+    model.set_settings(SolverSettings {
+        mode: StepMode::Converged {
+            tolerance: 1e-12,
+            max_iterations: 200,
+        },
+        ..SolverSettings::default()
+    });
+    let report = model.step().unwrap();
+    assert!(
+        report.converged,
+        "static solve did not converge: {report:?}"
+    );
+}
+
+/// E·I of a circular tube (N·m²).
+fn ei(young: f64, outer_d: f64, inner_d: f64) -> f64 {
+    young * PI / 64.0 * (outer_d.powi(4) - inner_d.powi(4))
+}
+
+/// κ·G·A of a circular tube (N), Cowper's κ.
+fn kga(young: f64, nu: f64, outer_d: f64, inner_d: f64) -> f64 {
+    let m = inner_d / outer_d;
+    let m2 = m * m;
+    let kappa = 6.0 * (1.0 + nu) * (1.0 + m2).powi(2)
+        / ((7.0 + 6.0 * nu) * (1.0 + m2).powi(2) + (20.0 + 12.0 * nu) * m2);
+    kappa * young / (2.0 * (1.0 + nu)) * PI / 4.0 * (outer_d * outer_d - inner_d * inner_d)
+}
+
+#[test]
+fn composite_cantilever_matches_the_summed_stiffness() {
+    let (tube, wire) = straight_pair();
+    let ei_tube = ei(2.5e9, 1.67e-3, 0.97e-3);
+    let ei_wire = ei(60e9, 0.889e-3, 0.0);
+    let kga_tube = kga(2.5e9, 0.35, 1.67e-3, 0.97e-3);
+    let kga_wire = kga(60e9, 0.35, 0.889e-3, 0.0);
+    let length = 0.1;
+    // Full overlap: tips flush.
+    let p = 1e-7 * (ei_tube + ei_wire) / (length * length);
+    let mut stack = free_stack(vec![(tube.clone(), length), (wire.clone(), length)]);
+    let model = stack.model_mut();
+    let tip = model.node_count() - 1;
+    model
+        .set_load(tip, Vector3::new(0.0, p, 0.0), Vector3::zeros())
+        .unwrap();
+    static_solve(model);
+    let deflection = model.tip_position().y;
+    let expected =
+        p * length.powi(3) / (3.0 * (ei_tube + ei_wire)) + p * length / (kga_tube + kga_wire);
+    let error = (deflection - expected).abs() / expected;
+    println!(
+        "full overlap: deflection {deflection:.6e} m, analytic {expected:.6e} m, relative error {error:.1e}"
+    );
+    assert!(error < 1e-9, "full overlap relative error {error:e}");
+
+    // Partial overlap: the wire leads 40 mm out of the tube; two-segment cantilever.
+    let (a, l) = (0.06, 0.1);
+    let ei_a = ei_tube + ei_wire;
+    let p = 1e-7 * ei_wire / (l * l);
+    let mut stack = free_stack(vec![(tube, a), (wire, l)]);
+    let model = stack.model_mut();
+    let tip = model.node_count() - 1;
+    model
+        .set_load(tip, Vector3::new(0.0, p, 0.0), Vector3::zeros())
+        .unwrap();
+    static_solve(model);
+    let v_a = p * a * a * (3.0 * l - a) / (6.0 * ei_a) + p * a / (kga_tube + kga_wire);
+    let theta_a = p * a * (2.0 * l - a) / (2.0 * ei_a);
+    let expected =
+        v_a + theta_a * (l - a) + p * (l - a).powi(3) / (3.0 * ei_wire) + p * (l - a) / kga_wire;
+    let deflection = model.tip_position().y;
+    let error = (deflection - expected).abs() / expected;
+    println!(
+        "partial overlap: deflection {deflection:.6e} m, analytic {expected:.6e} m, relative error {error:.1e}"
+    );
+    assert!(error < 1e-9, "partial overlap relative error {error:e}");
+}
+
+/// Curvature (1/m) of the strand between path coordinates `a` < `b`: the rotation angle
+/// between the frames there over the arc length.
+fn curvature_between(stack: &Stack<FreeSpace>, a: f64, b: f64) -> f64 {
+    let (_, qa) = stack.point_at(a);
+    let (_, qb) = stack.point_at(b);
+    (qa * Vector3::x()).angle(&(qb * Vector3::x())) / (b - a)
+}
+
+/// Node path coordinates strictly inside (a, b), first and last.
+fn nodes_within(stack: &Stack<FreeSpace>, a: f64, b: f64) -> (f64, f64) {
+    let inside: Vec<f64> = stack
+        .node_sigma_m()
+        .into_iter()
+        .filter(|&s| s > a + 1e-9 && s < b - 1e-9)
+        .collect();
+    (inside[0], *inside.last().unwrap())
+}
+
+fn run_to_targets(stack: &mut Stack<FreeSpace>, targets: &[(usize, Option<f64>, Option<f64>)]) {
+    for &(i, inserted, twist) in targets {
+        let current = stack.command(i).unwrap();
+        stack
+            .set_command(
+                i,
+                Command {
+                    insertion: inserted.map_or(current.insertion, Insertion::Target),
+                    twist: twist.map_or(current.twist, Twist::Target),
+                },
+            )
+            .unwrap();
+    }
+    for _ in 0..20_000 {
+        stack.step().unwrap();
+        let done = targets.iter().all(|&(i, inserted, twist)| {
+            inserted.is_none_or(|l| stack.inserted_m(i).unwrap() == l)
+                && twist.is_none_or(|t| stack.twist_rad(i).unwrap() == t)
+        });
+        if done {
+            return;
+        }
+    }
+    panic!("targets not reached");
+}
+
+#[test]
+fn j_wire_straightens_inside_a_catheter_and_recovers_outside() {
+    let mut catheter = presets::diagnostic_catheter_5f();
+    catheter.sections[2].rest_shape = RestShape::straight();
+    let wire = presets::guidewire_035();
+    let radius = 0.003;
+    let j_length = radius * PI;
+    let (l_cath, l_wire) = (0.15, 0.14);
+    let mut stack = free_stack(vec![(catheter, l_cath), (wire, l_wire)]);
+    static_solve(stack.model_mut());
+    // Inside: the catheter's soft tip (0.15 GPa) around the wire's coil tip (2 GPa).
+    let ei_cath = ei(0.15e9, 5e-3 / 3.0, 0.038 * 0.0254);
+    let ei_wire = ei(2e9, 0.035 * 0.0254, 0.0);
+    let blend = ei_wire / (ei_wire + ei_cath) / radius;
+    let (a, b) = nodes_within(&stack, l_wire - j_length, l_wire);
+    let inside = curvature_between(&stack, a, b);
+    let error = (inside - blend).abs() / blend;
+    println!(
+        "J inside the catheter: curvature {inside:.4} 1/m, blend formula {blend:.4} 1/m (rest {:.4}), relative error {error:.1e}",
+        1.0 / radius
+    );
+    assert!(error < 1e-6, "blend error {error:e}");
+    // Pushed 30 mm out of the catheter tip: the J comes back.
+    run_to_targets(&mut stack, &[(1, Some(l_cath + 0.03), None)]);
+    static_solve(stack.model_mut());
+    let end = l_cath + 0.03;
+    let (a, b) = nodes_within(&stack, end - j_length, end);
+    let outside = curvature_between(&stack, a, b);
+    let error = (outside * radius - 1.0).abs();
+    println!("J pushed 30 mm out: curvature {outside:.6} 1/m, relative error {error:.1e}");
+    assert!(error < 1e-6, "recovered J error {error:e}");
+}
+
+/// Unit bend direction of the strand between path coordinates `a` < `b`: where the tangent
+/// turns to, across the tangent at `a`.
+fn bend_direction(stack: &Stack<FreeSpace>, a: f64, b: f64) -> (Vector3<f64>, Vector3<f64>) {
+    let ta = stack.point_at(a).1 * Vector3::x();
+    let tb = stack.point_at(b).1 * Vector3::x();
+    ((tb - ta * ta.dot(&tb)).normalize(), ta)
+}
+
+/// Angle (rad) of `direction` about `tangent` from the entry's +y axis carried to `tangent`
+/// by the minimal rotation (parallel transport along a planar path).
+fn roll_angle(direction: &Vector3<f64>, tangent: &Vector3<f64>) -> f64 {
+    let carry = UnitQuaternion::rotation_between(&Vector3::x(), tangent)
+        .unwrap_or_else(UnitQuaternion::identity);
+    let reference = carry * Vector3::y();
+    let across = tangent.cross(&reference);
+    direction.dot(&across).atan2(direction.dot(&reference))
+}
+
+fn wrap(angle: f64) -> f64 {
+    (angle + PI).rem_euclid(2.0 * PI) - PI
+}
+
+#[test]
+fn twisting_one_instrument_turns_its_curve_and_not_the_others() {
+    let catheter = presets::diagnostic_catheter_5f(); // 45° over the distal 8 mm
+    let wire = presets::guidewire_035_shaped(45f64.to_radians(), 0.010);
+    let (l_cath, l_wire) = (0.15, 0.17);
+    let measure = |stack: &Stack<FreeSpace>| {
+        let (c, ct) = bend_direction(stack, l_cath - 0.012, l_cath - 0.001);
+        let (w, wt) = bend_direction(stack, l_wire - 0.011, l_wire);
+        (roll_angle(&c, &ct), roll_angle(&w, &wt))
+    };
+    for (turned, name) in [(0, "catheter"), (1, "wire")] {
+        let mut stack = free_stack(vec![(catheter.clone(), l_cath), (wire.clone(), l_wire)]);
+        static_solve(stack.model_mut());
+        let (cath0, wire0) = measure(&stack);
+        run_to_targets(&mut stack, &[(turned, None, Some(PI / 2.0))]);
+        static_solve(stack.model_mut());
+        let (cath1, wire1) = measure(&stack);
+        let (dc, dw) = (wrap(cath1 - cath0), wrap(wire1 - wire0));
+        println!(
+            "{name} turned 90°: catheter curve turned {:.6}°, wire tip turned {:.6}°",
+            dc.to_degrees(),
+            dw.to_degrees()
+        );
+        let (expect_c, expect_w) = if turned == 0 {
+            (PI / 2.0, 0.0)
+        } else {
+            (0.0, PI / 2.0)
+        };
+        assert!((dc - expect_c).abs() < 1e-6, "catheter curve turned {dc}");
+        assert!((dw - expect_w).abs() < 1e-6, "wire tip turned {dw}");
+    }
+}
+
+#[test]
+fn a_stack_that_does_not_fit_is_a_typed_error_naming_both_devices() {
+    let settings = NavigationSettings::default();
+    let microcatheter = presets::micro_catheter();
+    let wire = presets::guidewire_035();
+    let err = Stack::new(
+        vec![
+            InstrumentSpec::new(microcatheter, 0.1, &settings),
+            InstrumentSpec::new(wire, 0.05, &settings),
+        ],
+        FreeSpace,
+        Vector3::zeros(),
+        Vector3::x(),
+        settings,
+    )
+    .unwrap_err();
+    assert!(matches!(err, PhysicsError::StackFit { .. }), "{err:?}");
+    let text = err.to_string();
+    assert!(
+        text.contains("0.035in J guidewire") && text.contains("micro-catheter 0.017in ID"),
+        "{text}"
+    );
+}
+
+#[test]
+fn stack_bad_input_is_named() {
+    let settings = NavigationSettings::default();
+    let (tube, wire) = straight_pair();
+    let spec = |d: &Device, l| InstrumentSpec::new(d.clone(), l, &settings);
+    let make = |specs: Vec<InstrumentSpec>| {
+        Stack::new(specs, FreeSpace, Vector3::zeros(), Vector3::x(), settings)
+    };
+    let too_many = make(vec![spec(&tube, 0.1); 5]).unwrap_err().to_string();
+    assert!(too_many.contains("number of instruments"), "{too_many}");
+    let none = make(vec![]).unwrap_err().to_string();
+    assert!(none.contains("number of instruments"), "{none}");
+    let deep = make(vec![spec(&tube, 0.1), spec(&wire, 0.7)])
+        .unwrap_err()
+        .to_string();
+    assert!(deep.contains("instrument 1 \"wire\""), "{deep}");
+    let mut stack = make(vec![spec(&tube, 0.1), spec(&wire, 0.05)]).unwrap();
+    let nan = stack
+        .set_command(
+            1,
+            Command {
+                insertion: Insertion::Velocity(f64::NAN),
+                twist: Twist::Rate(0.0),
+            },
+        )
+        .unwrap_err()
+        .to_string();
+    assert!(nan.contains("instrument 1: insertion command"), "{nan}");
+    let missing = stack.set_command(2, Command::default()).unwrap_err();
+    assert!(missing.to_string().contains("no instrument 2"), "{missing}");
+    let inserted = stack.exchange(1, wire.clone()).unwrap_err().to_string();
+    assert!(inserted.contains("still inserted"), "{inserted}");
+}
+
+#[test]
+fn a_withdrawn_wire_is_exchanged_for_another() {
+    let (tube, wire) = straight_pair();
+    let mut stack = free_stack(vec![(tube, 0.1), (wire, 0.12)]);
+    let (hub, _) = stack.inserted_range_m(1).unwrap();
+    run_to_targets(&mut stack, &[(1, Some(hub), None)]);
+    let micro = uniform(
+        "straight 0.014in wire",
+        2.0,
+        0.36e-3,
+        0.0,
+        55e9,
+        RestShape::straight(),
+    );
+    stack.exchange(1, micro.clone()).unwrap();
+    assert_eq!(stack.device(1).unwrap(), &micro);
+    run_to_targets(&mut stack, &[(1, Some(0.13), None)]);
+    let gap = (stack.tip_position(1).unwrap() - stack.tip_position(0).unwrap()).norm();
+    assert!((gap - 0.03).abs() < 1e-9, "new wire leads by {gap}");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(24))]
+
+    /// Random pushes and pulls of a straight triaxial stack in free space: every instrument
+    /// stays within its range (an inner tip leaves the one around it only through its distal
+    /// tip), the strand is as long as the leading instrument is inserted, and the tips lie
+    /// on the entry axis at exactly their inserted lengths.
+    #[test]
+    fn instruments_keep_their_lengths_and_order(
+        moves in prop::collection::vec((0usize..3, -0.08f64..0.08), 1..6)
+    ) {
+        let guide = uniform("guide", 0.9, 2.3e-3, 1.8e-3, 3e9, RestShape::straight());
+        let micro = uniform("micro", 1.5, 0.9e-3, 0.45e-3, 1.5e9, RestShape::straight());
+        let wire = uniform("wire", 2.0, 0.36e-3, 0.0, 55e9, RestShape::straight());
+        let mut stack = free_stack(vec![(guide, 0.10), (micro, 0.08), (wire, 0.12)]);
+        for (index, change) in moves {
+            let (lo, hi) = stack.inserted_range_m(index).unwrap();
+            let target = (stack.inserted_m(index).unwrap() + change).clamp(lo, hi);
+            stack.set_command(index, Command {
+                insertion: Insertion::Target(target),
+                twist: Twist::Rate(0.0),
+            }).unwrap();
+            for _ in 0..300 {
+                stack.step().unwrap();
+                for k in 0..3 {
+                    let l = stack.inserted_m(k).unwrap();
+                    let (lo, hi) = stack.inserted_range_m(k).unwrap();
+                    prop_assert!(l >= lo - 1e-12 && l <= hi + 1e-12, "instrument {} at {} outside [{}, {}]", k, l, lo, hi);
+                }
+                let lead = (0..3).map(|k| stack.inserted_m(k).unwrap()).fold(f64::MIN, f64::max);
+                prop_assert!((stack.model().length_m() - lead).abs() < 1e-9);
+                if stack.inserted_m(index).unwrap() == target {
+                    break;
+                }
+            }
+            for k in 0..3 {
+                let l = stack.inserted_m(k).unwrap();
+                if let Some(tip) = stack.tip_position(k) {
+                    prop_assert!((tip - Vector3::x() * l).norm() < 1e-9, "tip {} at {:?}, inserted {}", k, tip, l);
+                }
+            }
+        }
+    }
+}
