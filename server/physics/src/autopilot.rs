@@ -10,6 +10,40 @@ use crate::error::{PhysicsError, Result, require_positive};
 use crate::navigation::{Command, Insertion, Navigation, Twist};
 use crate::wall::Wall;
 
+/// What the autopilot needs of a device it steers: where its tip is and points, which way its
+/// shaped tip bends, and the operator's twist and insertion. Implemented by [`Navigation`] and
+/// by one instrument of a coaxial [`crate::stack::Stack`].
+pub trait Steered {
+    /// Tip position (m).
+    fn tip_position(&self) -> Vector3<f64>;
+    /// Unit tangent where the shaped tip starts (or at the tip if straight).
+    fn tip_axis(&self) -> Vector3<f64>;
+    /// Unit world direction the shaped tip bends to, across the device; `None` if straight.
+    fn tip_bend_direction(&self) -> Option<Vector3<f64>>;
+    /// Twist at the entry point (rad).
+    fn twist_rad(&self) -> f64;
+    /// Inserted length (m).
+    fn inserted_m(&self) -> f64;
+}
+
+impl<W: Wall> Steered for Navigation<W> {
+    fn tip_position(&self) -> Vector3<f64> {
+        Navigation::tip_position(self)
+    }
+    fn tip_axis(&self) -> Vector3<f64> {
+        Navigation::tip_axis(self)
+    }
+    fn tip_bend_direction(&self) -> Option<Vector3<f64>> {
+        Navigation::tip_bend_direction(self)
+    }
+    fn twist_rad(&self) -> f64 {
+        Navigation::twist_rad(self)
+    }
+    fn inserted_m(&self) -> f64 {
+        Navigation::inserted_m(self)
+    }
+}
+
 /// How the autopilot drives.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AutopilotSettings {
@@ -119,6 +153,11 @@ impl<'g> Autopilot<'g> {
         (start.coords, (ahead - start).normalize())
     }
 
+    /// The path it follows.
+    pub fn path(&self) -> &VesselPath {
+        &self.path
+    }
+
     /// Current phase.
     pub fn phase(&self) -> AutopilotPhase {
         self.phase
@@ -130,7 +169,7 @@ impl<'g> Autopilot<'g> {
     }
 
     /// Looks at the device and returns the next command.
-    pub fn command<W: Wall>(&mut self, navigation: &Navigation<W>) -> Command {
+    pub fn command(&mut self, navigation: &impl Steered) -> Command {
         let tip = navigation.tip_position();
         let tip_point = Point3::from(tip);
         let Some(location) = self.graph.nearest(&tip_point) else {
@@ -194,7 +233,7 @@ impl<'g> Autopilot<'g> {
 }
 
 /// Holds the device where it is.
-fn hold<W: Wall>(navigation: &Navigation<W>) -> Command {
+fn hold(navigation: &impl Steered) -> Command {
     Command {
         insertion: Insertion::Velocity(0.0),
         twist: Twist::Target(navigation.twist_rad()),

@@ -168,6 +168,9 @@ pub struct Section {
     pub material: Material,
     /// Coulomb friction coefficient against the vessel wall (dimensionless).
     pub friction_coefficient: f64,
+    /// Coulomb friction coefficient of an instrument sliding inside this section's lumen
+    /// (dimensionless; unused for a solid wire).
+    pub lumen_friction_coefficient: f64,
     /// Rest curvature.
     pub rest_shape: RestShape,
 }
@@ -183,12 +186,21 @@ impl Section {
             || format!("{owner}: friction_coefficient"),
             self.friction_coefficient,
         )?;
-        if mu < 0.0 {
-            return Err(PhysicsError::OutOfRange {
-                what: format!("{owner}: friction_coefficient"),
-                range: "[0, ∞)",
-                value: mu,
-            });
+        let lumen_mu = require_finite(
+            || format!("{owner}: lumen_friction_coefficient"),
+            self.lumen_friction_coefficient,
+        )?;
+        for (field, value) in [
+            ("friction_coefficient", mu),
+            ("lumen_friction_coefficient", lumen_mu),
+        ] {
+            if value < 0.0 {
+                return Err(PhysicsError::OutOfRange {
+                    what: format!("{owner}: {field}"),
+                    range: "[0, ∞)",
+                    value,
+                });
+            }
         }
         self.rest_shape.validate(&owner, self.length_m)
     }
@@ -338,6 +350,8 @@ pub mod presets {
             cross_section,
             material,
             friction_coefficient,
+            // Inter-device friction of coated devices (NOTES.md: μ ≈ 0.04).
+            lumen_friction_coefficient: 0.04,
             rest_shape,
         }
     }

@@ -82,6 +82,10 @@ pub enum PhysicsError {
         /// What is wrong with it.
         problem: String,
     },
+    /// A device catalogue that is not valid TOML or lacks a field (the message names the line
+    /// and the key).
+    #[error("device catalogue: {0}")]
+    CatalogueSyntax(String),
     /// A stack operation that the stack's state does not allow (exchanging an instrument that
     /// is still inserted, an instrument index out of range).
     #[error("stack: {0}")]

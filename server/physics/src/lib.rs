@@ -10,6 +10,7 @@
 
 pub mod autopilot;
 pub mod beam;
+pub mod catalogue;
 pub mod contact;
 pub mod device;
 pub mod elastica;
@@ -25,6 +26,7 @@ pub mod wall;
 pub use beam::{
     BeamModel, ContactStep, ElementSpec, SolverSettings, StepMode, StepReport, ViscousDrag,
 };
+pub use catalogue::{Catalogue, CatalogueEntry, DeviceKind};
 pub use contact::{Contact, ContactResponse, ContactSettings};
 pub use device::{Device, RestArc, RestShape, Section, presets};
 pub use error::{DivergenceCheck, PhysicsError, Result};
@@ -32,6 +34,6 @@ pub use navigation::{
     Command, Insertion, Navigation, NavigationReport, NavigationSettings, Refinement, Twist,
 };
 pub use section::{BeamProperties, CircularSection, Material};
-pub use stack::{InstrumentSpec, ProximalReaction, Stack, StackReport};
+pub use stack::{InstrumentSpec, InstrumentView, ProximalReaction, Stack, StackReport};
 pub use substructure::{BlockTridiagonal, Flexibility, Substructure};
 pub use wall::{CappedTube, FreeSpace, RingTube, Wall, WallProbe};

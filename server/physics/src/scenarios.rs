@@ -317,3 +317,326 @@ pub fn run_arch_to_cow(
         .unwrap_or_default();
     Ok(run)
 }
+
+/// A scripted two-hand navigation of a coaxial stack in the real arch-to-cow anatomy, from the
+/// femoral access in the descending aorta (no parked catheter): the autopilot steers the wire,
+/// the catheter follows over it `catheter_lag_m` behind its tip; where a wire change is
+/// planned, the catheter is parked, the wire withdrawn to the hub and exchanged, and the new
+/// wire leads on; at the end, optionally, the wire is withdrawn and a microcatheter goes
+/// through the catheter over a microwire `micro_beyond_m` past the catheter's tip.
+#[derive(Debug, Clone)]
+pub struct CoaxialPlan {
+    /// Target branch name (`LCCA`, `RVA`).
+    pub target: String,
+    /// The catheter (outer instrument).
+    pub catheter: crate::device::Device,
+    /// The first wire.
+    pub wire: crate::device::Device,
+    /// How far behind the wire's tip the catheter follows (m).
+    pub catheter_lag_m: f64,
+    /// Once the wire has reached the target, how far behind its tip the catheter is tracked
+    /// over it before the wire is withdrawn (m).
+    pub catheter_track_m: f64,
+    /// A wire change: once the wire tip is this far along the route (m), park the catheter
+    /// there, withdraw the wire and lead on with the second device and autopilot settings.
+    pub exchange: Option<(f64, crate::device::Device, crate::autopilot::AutopilotSettings)>,
+    /// Autopilot settings of the first wire.
+    pub autopilot: crate::autopilot::AutopilotSettings,
+    /// Microcatheter and microwire sent through the catheter at the end, and how far beyond
+    /// the catheter's tip the microcatheter goes (m).
+    pub micro: Option<(crate::device::Device, crate::device::Device, f64)>,
+    /// Give up after this many steps.
+    pub max_steps: usize,
+}
+
+impl CoaxialPlan {
+    /// The two-hand plans, both from the femoral access with a 5 F catheter (45° tip)
+    /// following 50 mm behind a shaped 0.035" wire, then a 0.017" microcatheter over a 0.014"
+    /// microwire 30 mm beyond the catheter's tip:
+    /// - `LCCA`: the 90°-over-30 mm wire of the single-wire plan all the way;
+    /// - `RVA`: that wire to the aortic arch (where the route enters the brachiocephalic
+    ///   trunk), then exchanged for the 90°-over-10 mm wire that selects the vertebral.
+    pub fn for_target(graph: &cathlab_anatomy::VesselGraph, target: &str) -> Result<Self> {
+        use crate::device::presets::{
+            diagnostic_catheter_5f, guidewire_035_shaped, micro_catheter, micro_guidewire_014,
+        };
+        let single = ArchToCowPlan::for_target(graph, target)?;
+        let arch = ArchToCowPlan::for_target(graph, "LCCA")?;
+        let right_vertebral = target == "RVA";
+        let exchange_at = if right_vertebral {
+            let access = nalgebra::Point3::from(cathlab_anatomy::real::ARCH_TO_COW_ACCESS_M);
+            let path = graph
+                .path_to(&access, target)
+                .map_err(|e| crate::error::PhysicsError::Anatomy(e.to_string()))?;
+            let name = std::env::var("CO_AT").unwrap_or("arch_to_LCCA+RCCA+RVA".into());
+            let mut along = 0.0;
+            for leg in &path.legs {
+                if graph.branches[leg.branch].name == name {
+                    break;
+                }
+                along += (leg.to_arc - leg.from_arc).abs();
+            }
+            along + std::env::var("CO_PLUS").ok().and_then(|v| v.parse().ok()).unwrap_or(0.01)
+        } else {
+            0.0
+        };
+        Ok(Self {
+            target: target.to_owned(),
+            catheter: diagnostic_catheter_5f(),
+            wire: match std::env::var("CO_WIRE").as_deref() {
+                Ok("J") => crate::device::presets::guidewire_035(),
+                Ok("45") => guidewire_035_shaped(std::f64::consts::FRAC_PI_4, 0.010),
+                Ok("60") => guidewire_035_shaped(std::f64::consts::FRAC_PI_3, 0.020),
+                _ => guidewire_035_shaped(std::f64::consts::FRAC_PI_2, 0.030),
+            },
+            catheter_lag_m: std::env::var("CO_LAG").ok().and_then(|v| v.parse().ok()).unwrap_or(0.05),
+            catheter_track_m: 0.015,
+            exchange: right_vertebral.then(|| {
+                (
+                    exchange_at,
+                    single.device.clone(),
+                    single.autopilot,
+                )
+            }),
+            autopilot: if right_vertebral {
+                arch.autopilot
+            } else {
+                single.autopilot
+            },
+            micro: Some((micro_catheter(), micro_guidewire_014(), 0.03)),
+            max_steps: 60_000,
+        })
+    }
+}
+
+/// The outcome of [`run_coaxial_arch_to_cow`].
+#[derive(Debug, Clone, Default)]
+pub struct CoaxialRun {
+    /// Step at which the wire tip reached the target, if it did.
+    pub reached_at_step: Option<usize>,
+    /// Step at which the microcatheter was `micro_beyond_m` past the catheter's tip.
+    pub micro_done_at_step: Option<usize>,
+    /// Steps taken.
+    pub steps: usize,
+    /// Worst penetration into the wall over all steps (m).
+    pub worst_penetration_m: f64,
+    /// Wall-clock time of every step (s).
+    pub step_times_s: Vec<f64>,
+    /// Pull-backs of the autopilot.
+    pub retries: usize,
+    /// Branch nearest to the leading tip at the end.
+    pub tip_branch: String,
+    /// Inserted lengths at the end (m), outermost first.
+    pub inserted_m: Vec<f64>,
+    /// Leading tip position at the end (m).
+    pub tip_position: Vector3<f64>,
+    /// Largest axial force any hand felt (N).
+    pub max_hand_force_n: f64,
+}
+
+/// Drives `plan` through the real arch-to-cow anatomy with a merged coaxial stack.
+pub fn run_coaxial_arch_to_cow(
+    anatomy: &cathlab_anatomy::real::Anatomy,
+    plan: &CoaxialPlan,
+) -> Result<CoaxialRun> {
+    use crate::autopilot::{Autopilot, AutopilotPhase};
+    use crate::navigation::{Command, Insertion, NavigationSettings, Twist};
+    use crate::stack::{InstrumentSpec, Stack};
+    let access = nalgebra::Point3::from(cathlab_anatomy::real::ARCH_TO_COW_ACCESS_M);
+    let path = anatomy
+        .graph
+        .path_to(&access, &plan.target)
+        .map_err(|e| crate::error::PhysicsError::Anatomy(e.to_string()))?;
+    let mut pilot = Autopilot::new(&anatomy.graph, path.clone(), 0.0, plan.autopilot)?;
+    let (entry, direction) = pilot.entry();
+    let settings = NavigationSettings::default();
+    let mut stack = Stack::new(
+        vec![
+            InstrumentSpec::new(plan.catheter.clone(), 0.01, &settings),
+            InstrumentSpec::new(plan.wire.clone(), 0.03, &settings),
+        ],
+        &anatomy.lumen,
+        entry,
+        direction,
+        settings,
+    )?;
+    let route = anatomy.graph.sample_path(&path, 1e-3);
+    let along_route = |p: &Vector3<f64>| {
+        route
+            .iter()
+            .enumerate()
+            .min_by(|a, b| (a.1.0.coords - p).norm().total_cmp(&(b.1.0.coords - p).norm()))
+            .map_or(0.0, |(i, _)| i as f64 * 1e-3)
+    };
+    #[derive(Clone, Copy, PartialEq)]
+    enum Phase {
+        Lead,
+        Track,
+        Withdraw,
+        Micro,
+    }
+    let mut phase = Phase::Lead;
+    let mut exchanged = plan.exchange.is_none();
+    let mut run = CoaxialRun {
+        step_times_s: Vec::with_capacity(plan.max_steps),
+        ..Default::default()
+    };
+    let hold = |twist| Command {
+        insertion: Insertion::Velocity(0.0),
+        twist: Twist::Target(twist),
+    };
+    let mut catheter_park = None;
+    for step in 0..plan.max_steps {
+        let wire_l = stack.inserted_m(1).unwrap_or(0.0);
+        match phase {
+            Phase::Lead => {
+                let command = pilot.command(&stack.instrument(1).expect("a wire"));
+                if !exchanged
+                    && let Some((at, _, _)) = &plan.exchange
+                    && along_route(&stack.tip_position(1).unwrap_or(entry)) >= *at
+                {
+                    phase = Phase::Track;
+                    continue;
+                }
+                if pilot.phase() == AutopilotPhase::Reached {
+                    run.reached_at_step.get_or_insert(step);
+                    match &plan.micro {
+                        Some(_) => {
+                            phase = Phase::Track;
+                            continue;
+                        }
+                        None => break,
+                    }
+                }
+                stack.set_command(1, command)?;
+                let follow = Command {
+                    insertion: Insertion::Target((wire_l - plan.catheter_lag_m).max(0.01)),
+                    twist: Twist::Target(stack.twist_rad(0).unwrap_or(0.0)),
+                };
+                stack.set_command(0, follow)?;
+            }
+            Phase::Track => {
+                // The wire holds; the catheter tracks over it to `catheter_track_m` behind
+                // its tip, into the target branch.
+                let goal = wire_l - plan.catheter_track_m;
+                let catheter_l = stack.inserted_m(0).unwrap_or(0.0);
+                if catheter_l >= goal - 1e-9 {
+                    phase = Phase::Withdraw;
+                    catheter_park = Some(catheter_l);
+                    continue;
+                }
+                let twists = [0, 1].map(|k| stack.twist_rad(k).unwrap_or(0.0));
+                stack.set_command(1, hold(twists[1]))?;
+                stack.set_command(
+                    0,
+                    Command {
+                        insertion: Insertion::Target(goal),
+                        twist: Twist::Target(twists[0]),
+                    },
+                )?;
+            }
+            Phase::Withdraw => {
+                let (hub, _) = stack.inserted_range_m(1).expect("a wire");
+                let twist0 = stack.twist_rad(0).unwrap_or(0.0);
+                stack.set_command(0, hold(twist0))?;
+                if let Some(park) = catheter_park {
+                    stack.set_command(
+                        0,
+                        Command {
+                            insertion: Insertion::Target(park),
+                            twist: Twist::Target(twist0),
+                        },
+                    )?;
+                }
+                if wire_l <= hub {
+                    if !exchanged {
+                        let (_, wire, settings) = plan.exchange.clone().expect("planned");
+                        stack.exchange(1, wire)?;
+                        let mut next = Autopilot::new(&anatomy.graph, path.clone(), 0.0, settings)?;
+                        std::mem::swap(&mut pilot, &mut next);
+                        run.retries += next.retries();
+                        exchanged = true;
+                        phase = Phase::Lead;
+                    } else if let Some((microcatheter, microwire, _)) = &plan.micro {
+                        stack.pop_instrument()?;
+                        stack.push_instrument(microcatheter.clone())?;
+                        stack.push_instrument(microwire.clone())?;
+                        phase = Phase::Micro;
+                    }
+                    continue;
+                }
+                let twist1 = stack.twist_rad(1).unwrap_or(0.0);
+                stack.set_command(
+                    1,
+                    Command {
+                        insertion: Insertion::Target(hub),
+                        twist: Twist::Target(twist1),
+                    },
+                )?;
+            }
+            Phase::Micro => {
+                let (_, _, beyond) = plan.micro.as_ref().expect("planned");
+                let catheter_l = stack.inserted_m(0).unwrap_or(0.0);
+                let micro_l = stack.inserted_m(1).unwrap_or(0.0);
+                let goal = catheter_l + beyond;
+                if micro_l >= goal {
+                    run.micro_done_at_step = Some(step);
+                    break;
+                }
+                // The microwire leads the microcatheter by 10 mm outside the catheter.
+                let wire_goal = (micro_l + 0.01).min(goal + 0.01);
+                let twists: Vec<f64> = (0..3).map(|k| stack.twist_rad(k).unwrap_or(0.0)).collect();
+                let twist = |k: usize| twists[k];
+                stack.set_command(0, hold(twist(0)))?;
+                stack.set_command(
+                    2,
+                    Command {
+                        insertion: Insertion::Target(wire_goal.max(micro_l)),
+                        twist: Twist::Target(twist(2)),
+                    },
+                )?;
+                let micro_goal = if stack.inserted_m(2).unwrap_or(0.0) >= micro_l + 0.005
+                    || micro_l < catheter_l - 0.01
+                {
+                    goal
+                } else {
+                    micro_l
+                };
+                stack.set_command(
+                    1,
+                    Command {
+                        insertion: Insertion::Target(micro_goal),
+                        twist: Twist::Target(twist(1)),
+                    },
+                )?;
+            }
+        }
+        let started = std::time::Instant::now();
+        stack.step()?;
+        run.step_times_s.push(started.elapsed().as_secs_f64());
+        run.steps += 1;
+        run.worst_penetration_m = run.worst_penetration_m.max(stack.max_penetration_m());
+        for reaction in stack.proximal_reactions() {
+            run.max_hand_force_n = run.max_hand_force_n.max(reaction.axial_force_n.abs());
+        }
+    }
+    run.retries += pilot.retries();
+    let lead = (0..stack.len())
+        .max_by(|&a, &b| {
+            stack
+                .inserted_m(a)
+                .unwrap_or(0.0)
+                .total_cmp(&stack.inserted_m(b).unwrap_or(0.0))
+        })
+        .unwrap_or(0);
+    run.tip_position = stack.tip_position(lead).unwrap_or(entry);
+    run.inserted_m = (0..stack.len())
+        .map(|k| stack.inserted_m(k).unwrap_or(0.0))
+        .collect();
+    run.tip_branch = anatomy
+        .graph
+        .nearest(&nalgebra::Point3::from(run.tip_position))
+        .map(|l| anatomy.graph.branches[l.branch].name.clone())
+        .unwrap_or_default();
+    Ok(run)
+}

@@ -165,6 +165,35 @@ type Saved = (
     u64,
 );
 
+/// One instrument of a stack, as the autopilot steers it.
+#[derive(Debug, Clone, Copy)]
+pub struct InstrumentView<'a, W: Wall> {
+    stack: &'a Stack<W>,
+    index: usize,
+}
+
+impl<W: Wall> crate::autopilot::Steered for InstrumentView<'_, W> {
+    fn tip_position(&self) -> Vector3<f64> {
+        self.stack
+            .tip_position(self.index)
+            .unwrap_or(self.stack.entry_position)
+    }
+    fn tip_axis(&self) -> Vector3<f64> {
+        self.stack
+            .tip_axis(self.index)
+            .unwrap_or_else(|| self.stack.entry_rotation * Vector3::x())
+    }
+    fn tip_bend_direction(&self) -> Option<Vector3<f64>> {
+        self.stack.tip_bend_direction(self.index)
+    }
+    fn twist_rad(&self) -> f64 {
+        self.stack.instruments[self.index].twist_rad
+    }
+    fn inserted_m(&self) -> f64 {
+        self.stack.instruments[self.index].inserted_m
+    }
+}
+
 /// Checks that `inner` fits the lumen of `outer`: its largest outer diameter is smaller than
 /// the smallest inner diameter of `outer`.
 pub fn check_fit(outer: &Device, inner: &Device) -> Result<()> {
@@ -520,6 +549,107 @@ impl<W: Wall> Stack<W> {
                 },
             })
             .collect()
+    }
+
+    /// Unit tangent of instrument `index` where its shaped tip starts (at its tip if it is
+    /// straight); `None` while it is withdrawn proximal of the entry.
+    pub fn tip_axis(&self, index: usize) -> Option<Vector3<f64>> {
+        let instrument = self.instruments.get(index)?;
+        let l = instrument.inserted_m;
+        if l <= 0.0 {
+            return None;
+        }
+        let start = instrument
+            .shaped_from_m
+            .map_or(l, |s| l - instrument.length_m + s)
+            .clamp(0.0, l);
+        Some(self.point_at(start).1 * Vector3::x())
+    }
+
+    /// Unit world direction instrument `index`'s shaped tip bends to where it starts, across
+    /// the strand: its material bending direction turned by its own twist. `None` for a
+    /// straight or withdrawn instrument.
+    pub fn tip_bend_direction(&self, index: usize) -> Option<Vector3<f64>> {
+        let instrument = self.instruments.get(index)?;
+        let l = instrument.inserted_m;
+        let shaped = instrument.shaped_from_m?;
+        if l <= 0.0 {
+            return None;
+        }
+        let kappa = instrument.device.rest_curvature_at(shaped + 1e-9);
+        let bend = kappa.cross(&Vector3::x()).try_normalize(1e-12)?;
+        let start = (l - instrument.length_m + shaped).clamp(0.0, l);
+        let (_, q) = self.point_at(start);
+        let relative = UnitQuaternion::from_axis_angle(
+            &Vector3::x_axis(),
+            instrument.twist_rad - self.instruments[0].twist_rad,
+        );
+        let tangent = q * Vector3::x();
+        let side = q * (relative * bend);
+        (side - tangent * tangent.dot(&side)).try_normalize(1e-12)
+    }
+
+    /// One instrument as the autopilot sees it.
+    pub fn instrument(&self, index: usize) -> Option<InstrumentView<'_, W>> {
+        (index < self.instruments.len()).then_some(InstrumentView { stack: self, index })
+    }
+
+    /// Adds `device` as the new innermost instrument, its tip at the hub of the one around it
+    /// (to be pushed in), as an operator loads a microwire into a microcatheter.
+    pub fn push_instrument(&mut self, device: Device) -> Result<()> {
+        if self.instruments.len() >= MAX_INSTRUMENTS {
+            return Err(PhysicsError::OutOfRange {
+                what: "number of instruments in a stack".into(),
+                range: "1 to 4",
+                value: (self.instruments.len() + 1) as f64,
+            });
+        }
+        device.validate()?;
+        let outer = self.instruments.last().expect("a stack has an instrument");
+        check_fit(&outer.device, &device)?;
+        let (lo, _) = inserted_range(
+            Some((outer.inserted_m, outer.length_m)),
+            device.length_m(),
+            self.settings.tip_element_m,
+        );
+        let (speed, rate) = (outer.max_insertion_speed_m_s, outer.max_twist_rate_rad_s);
+        self.instruments.push(Instrument {
+            length_m: device.length_m(),
+            shaped_from_m: device.shaped_from_m(),
+            inserted_m: lo,
+            twist_rad: 0.0,
+            command: Command::default(),
+            max_insertion_speed_m_s: speed,
+            max_twist_rate_rad_s: rate,
+            tip_node: None,
+            device,
+        });
+        Ok(())
+    }
+
+    /// Removes the innermost instrument (not the only one), which must be withdrawn to the hub
+    /// of the one around it; returns its device.
+    pub fn pop_instrument(&mut self) -> Result<Device> {
+        let index = self.instruments.len() - 1;
+        if index == 0 {
+            return Err(PhysicsError::Stack(
+                "the outermost instrument cannot be removed".into(),
+            ));
+        }
+        let instrument = &self.instruments[index];
+        let (lo, _) = inserted_range(
+            around(&self.instruments, index),
+            instrument.length_m,
+            self.settings.tip_element_m,
+        );
+        if instrument.inserted_m > lo + 1e-12 {
+            return Err(PhysicsError::Stack(format!(
+                "instrument {index} \"{}\" is still inserted {:.1} mm beyond the hub of the one around it; withdraw it before removing it",
+                instrument.device.name,
+                (instrument.inserted_m - lo) * 1e3
+            )));
+        }
+        Ok(self.instruments.pop().expect("checked above").device)
     }
 
     /// Replaces instrument `index` (not the outermost) by `device`, as an operator exchanges a

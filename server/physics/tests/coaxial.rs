@@ -36,6 +36,7 @@ fn uniform(
             density_kg_m3: 2000.0,
         },
         friction_coefficient: 0.05,
+        lumen_friction_coefficient: 0.04,
         rest_shape,
     };
     Device::new(

@@ -19,6 +19,7 @@ fn j_tip_wire() -> Device {
             density_kg_m3: 6450.0,
         },
         friction_coefficient: 0.04,
+        lumen_friction_coefficient: 0.04,
         rest_shape,
     };
     Device::new(
