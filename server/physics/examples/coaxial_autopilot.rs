@@ -24,14 +24,25 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let percentile = |p: f64| times[((times.len() - 1) as f64 * p).round() as usize] * 1e3;
         println!(
             "{target}: wire {} at step {:?}, microcatheter {} at step {:?}; {} steps, {} pull-backs, tip in {}, inserted {:?} mm",
-            if run.reached_at_step.is_some() { "reached" } else { "NOT reached" },
+            if run.reached_at_step.is_some() {
+                "reached"
+            } else {
+                "NOT reached"
+            },
             run.reached_at_step,
-            if run.micro_done_at_step.is_some() { "through" } else { "NOT through" },
+            if run.micro_done_at_step.is_some() {
+                "through"
+            } else {
+                "NOT through"
+            },
             run.micro_done_at_step,
             run.steps,
             run.retries,
             run.tip_branch,
-            run.inserted_m.iter().map(|l| (l * 1e4).round() / 10.0).collect::<Vec<_>>()
+            run.inserted_m
+                .iter()
+                .map(|l| (l * 1e4).round() / 10.0)
+                .collect::<Vec<_>>()
         );
         println!(
             "  step time p50 {:.3} ms, p99 {:.3} ms, max {:.3} ms; worst penetration {:.4} mm; largest hand force {:.3} N",

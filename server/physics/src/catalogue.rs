@@ -140,8 +140,9 @@ impl Catalogue {
 
     /// The device with identifier `id`, or an error naming it and the identifiers known.
     pub fn device(&self, id: &str) -> Result<Device> {
-        self.get(id).map(|e| e.device.clone()).ok_or_else(|| {
-            PhysicsError::DeviceDefinition {
+        self.get(id)
+            .map(|e| e.device.clone())
+            .ok_or_else(|| PhysicsError::DeviceDefinition {
                 device: id.into(),
                 section: "device".into(),
                 field: "id".into(),
@@ -153,8 +154,7 @@ impl Catalogue {
                         .collect::<Vec<_>>()
                         .join(", ")
                 ),
-            }
-        })
+            })
     }
 }
 
@@ -256,7 +256,9 @@ fn convert(raw: RawDevice) -> Result<CatalogueEntry> {
             return Err(fault(
                 &owner,
                 "arc",
-                format!("the arcs are {shaped_mm} mm long, longer than the section's {length_mm} mm"),
+                format!(
+                    "the arcs are {shaped_mm} mm long, longer than the section's {length_mm} mm"
+                ),
             ));
         }
         sections.push(Section {

@@ -339,7 +339,11 @@ pub struct CoaxialPlan {
     pub catheter_track_m: f64,
     /// A wire change: once the wire tip is this far along the route (m), park the catheter
     /// there, withdraw the wire and lead on with the second device and autopilot settings.
-    pub exchange: Option<(f64, crate::device::Device, crate::autopilot::AutopilotSettings)>,
+    pub exchange: Option<(
+        f64,
+        crate::device::Device,
+        crate::autopilot::AutopilotSettings,
+    )>,
     /// Autopilot settings of the first wire.
     pub autopilot: crate::autopilot::AutopilotSettings,
     /// Microcatheter and microwire sent through the catheter at the end, and how far beyond
@@ -368,36 +372,27 @@ impl CoaxialPlan {
             let path = graph
                 .path_to(&access, target)
                 .map_err(|e| crate::error::PhysicsError::Anatomy(e.to_string()))?;
-            let name = std::env::var("CO_AT").unwrap_or("arch_to_LCCA+RCCA+RVA".into());
+            // Past the left subclavian origin, where the arch goes on to the LCCA and the
+            // brachiocephalic trunk.
             let mut along = 0.0;
             for leg in &path.legs {
-                if graph.branches[leg.branch].name == name {
+                if graph.branches[leg.branch].name == "arch_to_LCCA+RCCA+RVA" {
                     break;
                 }
                 along += (leg.to_arc - leg.from_arc).abs();
             }
-            along + std::env::var("CO_PLUS").ok().and_then(|v| v.parse().ok()).unwrap_or(0.01)
+            along + 0.01
         } else {
             0.0
         };
         Ok(Self {
             target: target.to_owned(),
             catheter: diagnostic_catheter_5f(),
-            wire: match std::env::var("CO_WIRE").as_deref() {
-                Ok("J") => crate::device::presets::guidewire_035(),
-                Ok("45") => guidewire_035_shaped(std::f64::consts::FRAC_PI_4, 0.010),
-                Ok("60") => guidewire_035_shaped(std::f64::consts::FRAC_PI_3, 0.020),
-                _ => guidewire_035_shaped(std::f64::consts::FRAC_PI_2, 0.030),
-            },
-            catheter_lag_m: std::env::var("CO_LAG").ok().and_then(|v| v.parse().ok()).unwrap_or(0.05),
+            wire: guidewire_035_shaped(std::f64::consts::FRAC_PI_2, 0.030),
+            catheter_lag_m: 0.05,
             catheter_track_m: 0.015,
-            exchange: right_vertebral.then(|| {
-                (
-                    exchange_at,
-                    single.device.clone(),
-                    single.autopilot,
-                )
-            }),
+            exchange: right_vertebral
+                .then(|| (exchange_at, single.device.clone(), single.autopilot)),
             autopilot: if right_vertebral {
                 arch.autopilot
             } else {
@@ -465,7 +460,11 @@ pub fn run_coaxial_arch_to_cow(
         route
             .iter()
             .enumerate()
-            .min_by(|a, b| (a.1.0.coords - p).norm().total_cmp(&(b.1.0.coords - p).norm()))
+            .min_by(|a, b| {
+                (a.1.0.coords - p)
+                    .norm()
+                    .total_cmp(&(b.1.0.coords - p).norm())
+            })
             .map_or(0.0, |(i, _)| i as f64 * 1e-3)
     };
     #[derive(Clone, Copy, PartialEq)]

@@ -7,9 +7,10 @@
 use std::f64::consts::PI;
 
 use cathlab_physics::navigation::{Command, Insertion, NavigationSettings, Twist};
+use cathlab_physics::scenarios::{CoaxialPlan, run_coaxial_arch_to_cow};
 use cathlab_physics::{
-    BeamModel, CircularSection, Device, FreeSpace, InstrumentSpec, Material, PhysicsError,
-    RestShape, Section, SolverSettings, Stack, StepMode, presets,
+    BeamModel, Catalogue, CircularSection, Device, FreeSpace, InstrumentSpec, Material,
+    PhysicsError, RestArc, RestShape, Section, SolverSettings, Stack, StepMode, presets,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use proptest::prelude::*;
@@ -400,4 +401,242 @@ proptest! {
             }
         }
     }
+}
+
+/// A one-device catalogue whose tip section has `field = value`.
+fn catalogue_with(field: &str, value: &str) -> String {
+    let section = |name: &str, tip: bool| {
+        let mut fields = vec![
+            ("length_mm", "100.0"),
+            ("outer_diameter_mm", "1.67"),
+            ("inner_diameter_mm", "0.97"),
+            ("young_modulus_gpa", "2.5"),
+            ("poisson_ratio", "0.4"),
+            ("density_kg_m3", "1150.0"),
+            ("wall_friction", "0.05"),
+            ("lumen_friction", "0.04"),
+        ];
+        if tip {
+            for f in &mut fields {
+                if f.0 == field {
+                    f.1 = value;
+                }
+            }
+        }
+        let body: String = fields.iter().map(|(k, v)| format!("{k} = {v}\n")).collect();
+        format!("[[device.section]]\nname = \"{name}\"\n{body}")
+    };
+    format!(
+        "[[device]]\nid = \"test-catheter\"\nname = \"Test catheter\"\nkind = \"catheter\"\nsource = \"test\"\n{}{}{}",
+        section("shaft", false),
+        section("transition", false),
+        section("tip", true)
+    )
+}
+
+fn definition_error(text: &str) -> (String, String, String) {
+    match Catalogue::from_toml_str(text) {
+        Err(PhysicsError::DeviceDefinition {
+            device,
+            section,
+            field,
+            ..
+        }) => (device, section, field),
+        other => panic!("expected a device definition error, got {other:?}"),
+    }
+}
+
+#[test]
+fn catalogue_inner_diameter_not_below_outer_is_named() {
+    let (device, section, field) = definition_error(&catalogue_with("inner_diameter_mm", "1.67"));
+    assert_eq!(
+        (device.as_str(), section.as_str(), field.as_str()),
+        ("test-catheter", "section \"tip\"", "inner_diameter_mm")
+    );
+}
+
+#[test]
+fn catalogue_negative_length_is_named() {
+    let (device, section, field) = definition_error(&catalogue_with("length_mm", "-5.0"));
+    assert_eq!(
+        (device.as_str(), section.as_str(), field.as_str()),
+        ("test-catheter", "section \"tip\"", "length_mm")
+    );
+}
+
+#[test]
+fn catalogue_nan_is_named() {
+    let text = catalogue_with("young_modulus_gpa", "nan");
+    let err = Catalogue::from_toml_str(&text).unwrap_err();
+    assert!(
+        err.to_string()
+            .contains("young_modulus_gpa: must be finite"),
+        "{err}"
+    );
+    assert_eq!(
+        definition_error(&text).2,
+        "young_modulus_gpa",
+        "the field is named"
+    );
+}
+
+#[test]
+fn catalogue_arcs_longer_than_their_section_are_named() {
+    let text = catalogue_with("lumen_friction", "0.04")
+        + "[[device.section.arc]]\nlength_mm = 150.0\nangle_deg = 90.0\n";
+    let (_, section, field) = definition_error(&text);
+    assert_eq!(
+        (section.as_str(), field.as_str()),
+        ("section \"tip\"", "arc")
+    );
+}
+
+#[test]
+fn catalogue_syntax_and_unknown_fields_are_errors() {
+    let err = Catalogue::from_toml_str(&catalogue_with("length_mm", "\"long\"")).unwrap_err();
+    assert!(matches!(err, PhysicsError::CatalogueSyntax(_)), "{err:?}");
+    let err =
+        Catalogue::from_toml_str(&(catalogue_with("length_mm", "100.0") + "colour = \"blue\"\n"))
+            .unwrap_err();
+    assert!(err.to_string().contains("colour"), "{err}");
+    let unknown = Catalogue::builtin().device("no-such-device").unwrap_err();
+    assert!(unknown.to_string().contains("no-such-device"), "{unknown}");
+}
+
+#[test]
+fn a_user_device_in_toml_runs_in_a_stack() {
+    let catalogue = Catalogue::from_toml_str(&catalogue_with("length_mm", "100.0")).unwrap();
+    let entry = catalogue.get("test-catheter").unwrap();
+    assert!((entry.device.length_m() - 0.3).abs() < 1e-12);
+    let mut stack = free_stack(vec![
+        (entry.device.clone(), 0.05),
+        (presets::guidewire_035(), 0.07),
+    ]);
+    stack.step().unwrap();
+    assert!((stack.tip_position(0).unwrap() - Vector3::x() * 0.05).norm() < 1e-9);
+}
+
+/// A 5 F Simmons-like reverse-curve catheter (100 cm): a 180° primary hook over 30 mm, a
+/// 30 mm limb, a 30° reverse tip curve over 8 mm.
+fn simmons() -> Device {
+    let mut catheter = presets::diagnostic_catheter_5f();
+    let tip = &mut catheter.sections[2];
+    tip.length_m = 0.08;
+    tip.rest_shape = RestShape::from_arcs(vec![
+        RestArc::bend(0.030, PI, 0.0),
+        RestArc::bend(0.030, 0.0, 0.0),
+        RestArc::bend(0.008, PI / 6.0, PI),
+    ]);
+    catheter.sections[1].length_m = 0.02;
+    catheter
+}
+
+/// Signed turning (rad) of a curve in the world x–y plane from path coordinate `a` to `b`,
+/// summed over 0.5 mm pieces (so that turns beyond 180° unwrap).
+fn turning(stack: &Stack<FreeSpace>, a: f64, b: f64) -> f64 {
+    let pieces = ((b - a) / 0.5e-3).ceil() as usize;
+    (0..pieces)
+        .map(|k| {
+            let s = |j: usize| a + (b - a) * j as f64 / pieces as f64;
+            let ta = stack.point_at(s(k)).1 * Vector3::x();
+            let tb = stack.point_at(s(k + 1)).1 * Vector3::x();
+            ta.cross(&tb).z.atan2(ta.dot(&tb))
+        })
+        .sum()
+}
+
+#[test]
+fn a_stiff_wire_straightens_a_simmons_curve_which_returns_as_it_is_withdrawn() {
+    let catheter = simmons();
+    let wire = presets::guidewire_035(); // 60 GPa shaft, 150 mm soft distal part
+    let l_cath = 0.2;
+    // From 10 mm before the shaped part (straight at rest) to the tip.
+    let shaped_from = l_cath - 0.078;
+    // The wire's stiff shaft covers the whole curve: its tip 160 mm beyond the catheter's.
+    let mut stack = free_stack(vec![(catheter, l_cath), (wire, l_cath + 0.16)]);
+    static_solve(stack.model_mut());
+    let ei_cath = ei(0.15e9, 5e-3 / 3.0, 0.038 * 0.0254);
+    let ei_wire = ei(60e9, 0.035 * 0.0254, 0.0);
+    let share = ei_cath / (ei_cath + ei_wire);
+    // Net planar turning: 180° one way, 30° back.
+    let rest = PI - PI / 6.0;
+    let straightened = turning(&stack, shaped_from, l_cath);
+    let error = (straightened - share * rest).abs();
+    println!(
+        "Simmons with a stiff wire: tip turned {:.4}° (blend formula {:.4}°, rest {:.1}°)",
+        straightened.to_degrees(),
+        (share * rest).to_degrees(),
+        rest.to_degrees()
+    );
+    assert!(error < 1e-6, "straightened angle error {error:e} rad");
+    // Withdraw the wire in 20 mm steps: the curve comes back (through more than its rest
+    // turning while the wire's soft tip still holds the reverse tip curve straight).
+    let mut previous = straightened;
+    for back in [0.17, 0.19, 0.21, 0.23, 0.25] {
+        run_to_targets(&mut stack, &[(1, Some(l_cath + 0.16 - back), None)]);
+        static_solve(stack.model_mut());
+        let angle = turning(&stack, shaped_from, l_cath);
+        println!(
+            "  wire tip {:.0} mm behind the catheter tip: curve {:.2}°",
+            (back - 0.16) * 1e3,
+            angle.to_degrees()
+        );
+        assert!(angle > straightened, "the curve comes back");
+        previous = angle;
+    }
+    // Withdrawn behind the whole shaped part: the rest shape, exactly.
+    let error = (previous - rest).abs();
+    assert!(error < 1e-6, "recovered angle error {error:e} rad");
+}
+
+fn arch_to_cow() -> &'static cathlab_anatomy::real::Anatomy {
+    static ANATOMY: std::sync::OnceLock<cathlab_anatomy::real::Anatomy> =
+        std::sync::OnceLock::new();
+    ANATOMY.get_or_init(|| {
+        let dir =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/anatomy/arch-to-cow");
+        cathlab_anatomy::real::load_arch_to_cow(&dir).unwrap()
+    })
+}
+
+#[test]
+fn two_hands_take_a_catheter_over_a_wire_to_the_lcca_and_a_microcatheter_beyond() {
+    let anatomy = arch_to_cow();
+    let plan = CoaxialPlan::for_target(&anatomy.graph, "LCCA").unwrap();
+    let run = run_coaxial_arch_to_cow(anatomy, &plan).unwrap();
+    println!(
+        "LCCA: wire reached at step {:?}, microcatheter 30 mm beyond the catheter at step {:?}, {} pull-backs, worst penetration {:.4} mm, inserted {:?} mm, tip in {}",
+        run.reached_at_step,
+        run.micro_done_at_step,
+        run.retries,
+        run.worst_penetration_m * 1e3,
+        run.inserted_m
+            .iter()
+            .map(|l| (l * 1e4).round() / 10.0)
+            .collect::<Vec<_>>(),
+        run.tip_branch
+    );
+    assert!(run.reached_at_step.is_some(), "the wire reached the LCCA");
+    assert!(
+        run.micro_done_at_step.is_some(),
+        "the microcatheter went through"
+    );
+    assert_eq!(run.tip_branch, "LCCA");
+    assert!(run.inserted_m[1] - run.inserted_m[0] >= 0.03 - 1e-9);
+    assert!(run.worst_penetration_m <= 0.05e-3);
+}
+
+#[test]
+fn a_coaxial_run_is_bit_identical_when_repeated() {
+    let anatomy = arch_to_cow();
+    let plan = CoaxialPlan {
+        max_steps: 2500,
+        ..CoaxialPlan::for_target(&anatomy.graph, "LCCA").unwrap()
+    };
+    let a = run_coaxial_arch_to_cow(anatomy, &plan).unwrap();
+    let b = run_coaxial_arch_to_cow(anatomy, &plan).unwrap();
+    assert_eq!(a.steps, 2500);
+    assert_eq!(a.tip_position, b.tip_position);
+    assert_eq!(a.inserted_m, b.inserted_m);
+    assert_eq!(a.worst_penetration_m, b.worst_penetration_m);
 }
