@@ -52,6 +52,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             run.worst_penetration_m * 1e3,
             run.max_hand_force_n
         );
+        for (label, range) in [
+            ("first 5,000 steps (wire leads)", 0..5_000.min(times.len())),
+            (
+                "last 2,000 steps (microcatheter)",
+                run.step_times_s.len().saturating_sub(2_000)..run.step_times_s.len(),
+            ),
+        ] {
+            let mut part = run.step_times_s[range].to_vec();
+            part.sort_by(f64::total_cmp);
+            if part.is_empty() {
+                continue;
+            }
+            let pc = |p: f64| part[((part.len() - 1) as f64 * p).round() as usize] * 1e3;
+            println!("  {label}: p50 {:.3} ms, p99 {:.3} ms", pc(0.5), pc(0.99));
+        }
     }
     Ok(())
 }

@@ -640,3 +640,43 @@ fn a_coaxial_run_is_bit_identical_when_repeated() {
     assert_eq!(a.inserted_m, b.inserted_m);
     assert_eq!(a.worst_penetration_m, b.worst_penetration_m);
 }
+
+#[test]
+fn the_builtin_catalogue_is_valid_sourced_and_nests() {
+    use cathlab_physics::DeviceKind::*;
+    let catalogue = Catalogue::builtin();
+    assert!(catalogue.entries().len() >= 18);
+    for entry in catalogue.entries() {
+        assert!(
+            !entry.source.trim().is_empty(),
+            "{} has no source",
+            entry.id
+        );
+        entry.device.validate().unwrap();
+    }
+    let of = |kind| {
+        catalogue
+            .entries()
+            .iter()
+            .filter(move |e| e.kind == kind)
+            .map(|e| &e.device)
+    };
+    // The clinical stacks: every microwire in every microcatheter, every microcatheter in
+    // every distal-access catheter, those in the long sheath, 0.035" wires in 5 F catheters.
+    for (outer, inner) in [
+        (Microcatheter, Microwire),
+        (DistalAccess, Microcatheter),
+        (Sheath, DistalAccess),
+        (Guide, Catheter),
+        (Catheter, Guidewire),
+    ] {
+        for o in of(outer) {
+            for i in of(inner) {
+                cathlab_physics::stack::check_fit(o, i).unwrap_or_else(|e| panic!("{e}"));
+            }
+        }
+    }
+    // Shapes from the catalogue behave: the Simmons reverse curve turns back on itself.
+    let simmons = catalogue.device("catheter-5f-simmons-2").unwrap();
+    assert!(!simmons.sections.last().unwrap().rest_shape.is_straight());
+}
