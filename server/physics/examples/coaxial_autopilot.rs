@@ -59,13 +59,24 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 run.step_times_s.len().saturating_sub(2_000)..run.step_times_s.len(),
             ),
         ] {
-            let mut part = run.step_times_s[range].to_vec();
+            let mut part = run.step_times_s[range.clone()].to_vec();
             part.sort_by(f64::total_cmp);
             if part.is_empty() {
                 continue;
             }
             let pc = |p: f64| part[((part.len() - 1) as f64 * p).round() as usize] * 1e3;
-            println!("  {label}: p50 {:.3} ms, p99 {:.3} ms", pc(0.5), pc(0.99));
+            let stats = &run.step_stats[range.clone()];
+            let mean = |f: fn(&(usize, usize, usize)) -> usize| {
+                stats.iter().map(f).sum::<usize>() as f64 / stats.len().max(1) as f64
+            };
+            println!(
+                "  {label}: p50 {:.3} ms, p99 {:.3} ms; mean {:.1} sweeps, {:.1} active contacts, {:.0} elements",
+                pc(0.5),
+                pc(0.99),
+                mean(|s| s.0),
+                mean(|s| s.1),
+                mean(|s| s.2)
+            );
         }
     }
     Ok(())

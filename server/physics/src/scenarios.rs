@@ -427,6 +427,8 @@ pub struct CoaxialRun {
     pub tip_position: Vector3<f64>,
     /// Largest axial force any hand felt (N).
     pub max_hand_force_n: f64,
+    /// Gauss–Seidel sweeps, active contacts and elements of every step.
+    pub step_stats: Vec<(usize, usize, usize)>,
 }
 
 /// Drives `plan` through the real arch-to-cow anatomy with a merged coaxial stack.
@@ -434,6 +436,15 @@ pub fn run_coaxial_arch_to_cow(
     anatomy: &cathlab_anatomy::real::Anatomy,
     plan: &CoaxialPlan,
 ) -> Result<CoaxialRun> {
+    coaxial_arch_to_cow_stack(anatomy, plan).map(|(run, _)| run)
+}
+
+/// [`run_coaxial_arch_to_cow`], returning the stack in its final state too (the benchmarks'
+/// triaxial state).
+pub fn coaxial_arch_to_cow_stack<'a>(
+    anatomy: &'a cathlab_anatomy::real::Anatomy,
+    plan: &CoaxialPlan,
+) -> Result<(CoaxialRun, crate::stack::Stack<&'a cathlab_anatomy::Lumen>)> {
     use crate::autopilot::{Autopilot, AutopilotPhase};
     use crate::navigation::{Command, Insertion, NavigationSettings, Twist};
     use crate::stack::{InstrumentSpec, Stack};
@@ -611,8 +622,10 @@ pub fn run_coaxial_arch_to_cow(
             }
         }
         let started = std::time::Instant::now();
-        stack.step()?;
+        let report = stack.step()?;
         run.step_times_s.push(started.elapsed().as_secs_f64());
+        run.step_stats
+            .push((report.sweeps, report.active_contacts, report.elements));
         run.steps += 1;
         run.worst_penetration_m = run.worst_penetration_m.max(stack.max_penetration_m());
         for reaction in stack.proximal_reactions() {
@@ -637,5 +650,5 @@ pub fn run_coaxial_arch_to_cow(
         .nearest(&nalgebra::Point3::from(run.tip_position))
         .map(|l| anatomy.graph.branches[l.branch].name.clone())
         .unwrap_or_default();
-    Ok(run)
+    Ok((run, stack))
 }

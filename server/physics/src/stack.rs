@@ -16,8 +16,8 @@
 //! on the path where the strand already lies (a sliding instrument moves *through* them),
 //! every instrument tip inside the strand is a node, and the leading instrument's free shaped
 //! part is carried rigidly as it advances (follow the leader without straining a curved tip,
-//! as in [`crate::navigation`]). Spacing is the finest of the present instruments' (fine near
-//! each tip), refined where the strand bends or touches the wall. The outermost instrument
+//! as in [`crate::navigation`]). Spacing is that of the outermost instrument present (fine
+//! near its tip), refined where the strand bends or touches the wall. The outermost instrument
 //! present at a point takes the wall contact there with its radius and wall friction.
 
 use std::collections::HashMap;
@@ -1215,15 +1215,16 @@ fn around(instruments: &[Instrument], index: usize) -> Option<(f64, f64)> {
         .map(|k| (instruments[k].inserted_m, instruments[k].length_m))
 }
 
-/// Nominal node spacing at path coordinate `sigma`: the finest of the spacings of the
-/// instruments present there, each fine near its own tip.
+/// Nominal node spacing at path coordinate `sigma`: that of the outermost instrument present
+/// there, fine near its own tip (an inner instrument's tip inside another changes the
+/// composite's stiffness, which the tip node captures, not its shape).
 fn nominal_spacing(settings: &NavigationSettings, instruments: &[Instrument], sigma: f64) -> f64 {
     instruments
         .iter()
-        .filter(|i| i.inserted_m > sigma)
-        .map(|i| spacing(settings, i.inserted_m, sigma))
-        .fold(f64::INFINITY, f64::min)
-        .min(settings.shaft_element_m)
+        .find(|i| i.inserted_m > sigma)
+        .map_or(settings.tip_element_m, |i| {
+            spacing(settings, i.inserted_m, sigma)
+        })
 }
 
 /// Section properties of `instrument` at path coordinate `sigma`.
