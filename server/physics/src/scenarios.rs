@@ -519,8 +519,16 @@ pub fn coaxial_arch_to_cow_stack<'a>(
                     }
                 }
                 stack.set_command(1, command)?;
+                // The catheter follows the wire's tip; after an exchange it holds while the new
+                // wire travels up to its tip.
+                let catheter_l = stack.inserted_m(0).unwrap_or(0.0);
+                let goal = if wire_l < catheter_l {
+                    catheter_l
+                } else {
+                    (wire_l - plan.catheter_lag_m).max(0.01)
+                };
                 let follow = Command {
-                    insertion: Insertion::Target((wire_l - plan.catheter_lag_m).max(0.01)),
+                    insertion: Insertion::Target(goal),
                     twist: Twist::Target(stack.twist_rad(0).unwrap_or(0.0)),
                 };
                 stack.set_command(0, follow)?;
