@@ -688,15 +688,20 @@ async fn a_diverging_session_is_reset_and_reported_while_others_go_on() {
     let server = shared();
     let mut client = server.client().await;
     let healthy = create(&mut client).await;
-    // The coarse scene (100 Hz, 10/50 mm elements, loose contact) diverges when pushed and
-    // twisted hard; the default fidelity does not.
+    // The coarse scene (100 Hz, 10/50 mm elements, loose contact, a sharply hooked wire)
+    // diverges when pushed and twisted hard; the default fidelity does not.
     let coarse = std::fs::read_to_string(repo_root().join("scenes/arch_to_cow_lcca.toml"))
         .unwrap()
         .replace(
             "step_rate_hz = 500",
             "step_rate_hz = 100\ntip_element_mm = 10\nshaft_element_mm = 50\n\
              contact_tolerance = 0.5\nrefine = false",
-        );
+        )
+        // A 180° hook over 10 mm: one coarse element bent by 180°. (With the 90°-over-30 mm
+        // wire this scene stopped diverging once elements took the exact mean of the rest
+        // curvature instead of its mid-point value.)
+        .replace("bend_deg = 90.0", "bend_deg = 180.0")
+        .replace("bend_length_mm = 30.0", "bend_length_mm = 10.0");
     let fragile = client
         .create_session(pb::CreateSessionRequest {
             scene: Some(pb::create_session_request::Scene::SceneToml(coarse)),
