@@ -1127,26 +1127,9 @@ impl BeamModel {
         settings: &ContactSettings,
         warm_start: impl FnOnce(&[Contact]) -> Option<Vec<Vector3<f64>>>,
     ) -> Result<ContactStep> {
-        let gamma = match self.settings.mode {
-            StepMode::Incremental { gamma } => gamma,
-            StepMode::Converged { .. } => 1.0,
-        };
-        self.solve_free(gamma, true)?;
-        let mut free = self.rhs.clone();
-        if let Some((max_dx, max_dtheta)) = self.settings.max_step_increment {
-            // Step-size control on the free motion only: the contact solve then makes the end
-            // state feasible whatever the scale.
-            let (dx, dtheta) = free.iter().fold((0.0f64, 0.0f64), |(a, b), du| {
-                (
-                    a.max(du.fixed_rows::<3>(0).norm()),
-                    b.max(du.fixed_rows::<3>(3).norm()),
-                )
-            });
-            let scale = (max_dx / dx).min(max_dtheta / dtheta).min(1.0);
-            if scale < 1.0 {
-                free.iter_mut().for_each(|du| *du *= scale);
-            }
-        }
+        // Step-size control on the free motion only: the contact solve then makes the end
+        // state feasible whatever the scale.
+        let free = self.begin_coupled_step()?;
         let mut contacts = detect(&self.positions, &self.rotations, &free)?;
         let mut warm = if contacts.is_empty() {
             None
@@ -1225,6 +1208,65 @@ impl BeamModel {
             contacts,
             response,
             penetration_m: penetration,
+        })
+    }
+
+    /// The first half of a step whose contacts couple this chain to others (nested coaxial
+    /// instruments): assembles, factors, and returns the free increment of every unknown node
+    /// (step-size controlled as in [`Self::step_with_contacts`]), leaving the flexibility
+    /// blocks for the coupled contact solve. Nothing moves until [`Self::finish_coupled_step`].
+    pub(crate) fn begin_coupled_step(&mut self) -> Result<Vec<Vector6<f64>>> {
+        let gamma = match self.settings.mode {
+            StepMode::Incremental { gamma } => gamma,
+            StepMode::Converged { .. } => 1.0,
+        };
+        self.solve_free(gamma, true)?;
+        let mut free = self.rhs.clone();
+        if let Some((max_dx, max_dtheta)) = self.settings.max_step_increment {
+            let (dx, dtheta) = free.iter().fold((0.0f64, 0.0f64), |(a, b), du| {
+                (
+                    a.max(du.fixed_rows::<3>(0).norm()),
+                    b.max(du.fixed_rows::<3>(3).norm()),
+                )
+            });
+            let scale = (max_dx / dx).min(max_dtheta / dtheta).min(1.0);
+            if scale < 1.0 {
+                free.iter_mut().for_each(|du| *du *= scale);
+            }
+        }
+        Ok(free)
+    }
+
+    /// The increments of a coupled step: `free` plus K⁻¹ `loads` (contact loads per unknown
+    /// node, N and N·m), by one O(N) solve with the factorization of
+    /// [`Self::begin_coupled_step`].
+    pub(crate) fn coupled_increments(
+        &mut self,
+        free: &[Vector6<f64>],
+        loads: &[Vector6<f64>],
+    ) -> Vec<Vector6<f64>> {
+        let mut increments = loads.to_vec();
+        self.substructure.solve_in_place(&mut increments);
+        for (du, f) in increments.iter_mut().zip(free) {
+            *du += f;
+        }
+        increments
+    }
+
+    /// The second half of a coupled step: applies `increments` after the divergence checks
+    /// (nothing moves if one trips) and counts the step.
+    pub(crate) fn finish_coupled_step(
+        &mut self,
+        increments: &[Vector6<f64>],
+    ) -> Result<StepReport> {
+        let result = self.apply_increments(increments);
+        self.step_count += 1;
+        let (dx, dtheta) = result?;
+        Ok(StepReport {
+            iterations: 1,
+            converged: true,
+            last_translation_increment_m: dx,
+            last_rotation_increment_rad: dtheta,
         })
     }
 

@@ -162,15 +162,15 @@ struct Prepared {
     friction: f64,
 }
 
-fn translation(v: &Vector6<f64>) -> Vector3<f64> {
+pub(crate) fn translation(v: &Vector6<f64>) -> Vector3<f64> {
     Vector3::new(v[0], v[1], v[2])
 }
 
-fn force6(f: &Vector3<f64>) -> Vector6<f64> {
+pub(crate) fn force6(f: &Vector3<f64>) -> Vector6<f64> {
     Vector6::new(f.x, f.y, f.z, 0.0, 0.0, 0.0)
 }
 
-fn top_left(m: &Matrix6<f64>) -> Matrix3<f64> {
+pub(crate) fn top_left(m: &Matrix6<f64>) -> Matrix3<f64> {
     m.fixed_view::<3, 3>(0, 0).into_owned()
 }
 
@@ -254,7 +254,7 @@ pub fn solve_local(w: &Matrix3<f64>, b: &Vector3<f64>, gap: f64, mu: f64) -> Vec
 }
 
 /// [`solve_local`] with the inverse compliance supplied (computed once per solve).
-fn local_law(
+pub(crate) fn local_law(
     w: &Matrix3<f64>,
     w_inverse: Option<&Matrix3<f64>>,
     b: &Vector3<f64>,
@@ -396,7 +396,7 @@ fn local_law(
 
 /// The normal force that closes the gap with the tangential force `own.yz` held, the latter
 /// clipped to the cone of the new normal force.
-fn normal_with_fixed_tangent(
+pub(crate) fn normal_with_fixed_tangent(
     w: &Matrix3<f64>,
     b: &Vector3<f64>,
     gap: f64,
@@ -412,7 +412,11 @@ fn normal_with_fixed_tangent(
 
 /// The tip-ward part of the propagation, B_i = D_i F_i + H(i,i+1) B_{i+1} from the tip, into
 /// `out`: O(N).
-fn tip_ward_pass(flexibility: &Flexibility, loads: &[Vector6<f64>], out: &mut [Vector6<f64>]) {
+pub(crate) fn tip_ward_pass(
+    flexibility: &Flexibility,
+    loads: &[Vector6<f64>],
+    out: &mut [Vector6<f64>],
+) {
     let d = &flexibility.diagonal;
     let h = &flexibility.coupling;
     let mut next = Vector6::zeros();
@@ -565,7 +569,7 @@ fn accumulate_loads(prepared: &[Prepared], local: &[Vector3<f64>], loads: &mut [
 }
 
 /// Projects a local force onto the friction cone (λ_n ≥ 0, |λ_t| ≤ μ λ_n, radially).
-fn project_on_cone(l: &Vector3<f64>, mu: f64) -> Vector3<f64> {
+pub(crate) fn project_on_cone(l: &Vector3<f64>, mu: f64) -> Vector3<f64> {
     if l.x <= 0.0 {
         return Vector3::zeros();
     }
@@ -584,7 +588,7 @@ fn project_on_cone(l: &Vector3<f64>, mu: f64) -> Vector3<f64> {
 
 /// Anderson acceleration (type II) of a fixed-point iteration x ← G(x): mixes the last few
 /// iterates to minimise the linearized residual G(x) − x.
-struct Anderson {
+pub(crate) struct Anderson {
     depth: usize,
     /// Past G(x) values and residuals G(x) − x, flattened.
     values: std::collections::VecDeque<DVector<f64>>,
@@ -593,7 +597,7 @@ struct Anderson {
 }
 
 impl Anderson {
-    fn new(depth: usize, size: usize) -> Self {
+    pub(crate) fn new(depth: usize, size: usize) -> Self {
         Self {
             depth,
             values: Default::default(),
@@ -602,13 +606,13 @@ impl Anderson {
         }
     }
 
-    fn active(&self) -> bool {
+    pub(crate) fn active(&self) -> bool {
         self.depth > 0 && self.size > 0
     }
 
     /// Records the sweep `before → after` and replaces `after` by the mixed iterate; false when
     /// there is not yet enough history (or it was reset).
-    fn mix(&mut self, before: &[Vector3<f64>], after: &mut [Vector3<f64>]) -> bool {
+    pub(crate) fn mix(&mut self, before: &[Vector3<f64>], after: &mut [Vector3<f64>]) -> bool {
         let flat = |v: &[Vector3<f64>]| {
             DVector::from_iterator(self.size, v.iter().flat_map(|l| l.iter().copied()))
         };
@@ -662,7 +666,12 @@ impl Anderson {
 }
 
 /// Over-relaxes a local update and projects it onto the friction cone.
-fn relax(own: &Vector3<f64>, updated: Vector3<f64>, omega: f64, mu: f64) -> Vector3<f64> {
+pub(crate) fn relax(
+    own: &Vector3<f64>,
+    updated: Vector3<f64>,
+    omega: f64,
+    mu: f64,
+) -> Vector3<f64> {
     if omega == 1.0 {
         return updated;
     }

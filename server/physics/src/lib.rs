@@ -12,6 +12,7 @@ pub mod autopilot;
 pub mod beam;
 pub mod catalogue;
 pub mod contact;
+pub mod coupled;
 pub mod device;
 pub mod elastica;
 pub mod element;
@@ -34,6 +35,6 @@ pub use navigation::{
     Command, Insertion, Navigation, NavigationReport, NavigationSettings, Refinement, Twist,
 };
 pub use section::{BeamProperties, CircularSection, Material};
-pub use stack::{InstrumentSpec, InstrumentView, ProximalReaction, Stack, StackReport};
+pub use stack::{Coupling, InstrumentSpec, InstrumentView, ProximalReaction, Stack, StackReport};
 pub use substructure::{BlockTridiagonal, Flexibility, Substructure};
 pub use wall::{CappedTube, FreeSpace, RingTube, Wall, WallProbe};

@@ -22,6 +22,8 @@
 
 use std::collections::HashMap;
 
+mod nested;
+
 use nalgebra::{UnitQuaternion, Vector3};
 
 use crate::beam::{
@@ -33,7 +35,18 @@ use crate::navigation::{
     Command, Insertion, NavigationSettings, Sample, Twist, detect, material_of, spacing, warm_start,
 };
 use crate::section::BeamProperties;
-use crate::wall::Wall;
+use crate::wall::{FreeSpace, Wall};
+
+/// How a stack couples its instruments.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Coupling {
+    /// One composite beam where instruments overlap (the fast default).
+    #[default]
+    Merged,
+    /// Each instrument its own chain, an inner one in contact with the lumen of the one
+    /// around it (radial clearance, lumen friction): the reference, and a fidelity option.
+    Nested,
+}
 
 /// Most instruments in one stack.
 pub const MAX_INSTRUMENTS: usize = 4;
@@ -153,17 +166,26 @@ pub struct Stack<W: Wall> {
     last: Option<ContactStep>,
     /// Path coordinates and local forces of the last contacts (for warm starts).
     previous_contacts: Vec<(f64, Vector3<f64>)>,
+    coupling: Coupling,
+    /// Nested mode: each instrument's own chain (a one-instrument stack), `None` while it
+    /// lies within one tip element of the entry.
+    chains: Vec<Option<Stack<FreeSpace>>>,
+    /// Nested mode: the last step's contacts (for warm starts and the penetration check).
+    nested_last: nested::NestedStep,
 }
 
 /// Everything [`Stack::advance`] needs to undo a step.
-type Saved = (
-    crate::beam::BeamSnapshot,
-    Vec<Node>,
-    Vec<(ElementSpec, u64, u64)>,
-    Vec<Instrument>,
-    Vec<(f64, Vector3<f64>)>,
-    u64,
-);
+#[derive(Debug, Clone)]
+struct Saved {
+    model: crate::beam::BeamSnapshot,
+    nodes: Vec<Node>,
+    specs: Vec<(ElementSpec, u64, u64)>,
+    instruments: Vec<Instrument>,
+    previous_contacts: Vec<(f64, Vector3<f64>)>,
+    next_id: u64,
+    chains: Vec<Option<Stack<FreeSpace>>>,
+    nested_last: nested::NestedStep,
+}
 
 /// One instrument of a stack, as the autopilot steers it.
 #[derive(Debug, Clone, Copy)]
@@ -220,7 +242,7 @@ pub fn check_fit(outer: &Device, inner: &Device) -> Result<()> {
 }
 
 impl<W: Wall> Stack<W> {
-    /// A stack of `instruments` (outermost first) through the entry point at
+    /// A stack of `instruments` (outermost first) in merged mode through the entry point at
     /// `entry_position`, heading along `entry_direction`, in the composite rest shape.
     pub fn new(
         instruments: Vec<InstrumentSpec>,
@@ -228,6 +250,26 @@ impl<W: Wall> Stack<W> {
         entry_position: Vector3<f64>,
         entry_direction: Vector3<f64>,
         settings: NavigationSettings,
+    ) -> Result<Self> {
+        Self::with_coupling(
+            instruments,
+            wall,
+            entry_position,
+            entry_direction,
+            settings,
+            Coupling::Merged,
+        )
+    }
+
+    /// A stack as [`Self::new`] makes it, with the instruments coupled as `coupling` says. In
+    /// nested mode every instrument starts on the centre line of the one around it.
+    pub fn with_coupling(
+        instruments: Vec<InstrumentSpec>,
+        wall: W,
+        entry_position: Vector3<f64>,
+        entry_direction: Vector3<f64>,
+        settings: NavigationSettings,
+        coupling: Coupling,
     ) -> Result<Self> {
         if instruments.is_empty() || instruments.len() > MAX_INSTRUMENTS {
             return Err(PhysicsError::OutOfRange {
@@ -369,7 +411,7 @@ impl<W: Wall> Stack<W> {
                 .flatten()
                 .map(|n| n.id);
         }
-        Ok(Self {
+        let mut stack = Self {
             next_id: nodes.len() as u64,
             instruments: states,
             wall,
@@ -382,7 +424,19 @@ impl<W: Wall> Stack<W> {
             time_s: 0.0,
             last: None,
             previous_contacts: Vec::new(),
-        })
+            coupling,
+            chains: Vec::new(),
+            nested_last: nested::NestedStep::default(),
+        };
+        if coupling == Coupling::Nested {
+            stack.update_chains()?;
+        }
+        Ok(stack)
+    }
+
+    /// How the instruments are coupled.
+    pub fn coupling(&self) -> Coupling {
+        self.coupling
     }
 
     /// Number of instruments.
@@ -447,21 +501,79 @@ impl<W: Wall> Stack<W> {
         &self.wall
     }
 
-    /// The strand's beam model (merged mode: all instruments on one chain).
+    /// The strand's beam model (merged mode: all instruments on one chain; nested mode: the
+    /// outermost instrument's chain).
     pub fn model(&self) -> &BeamModel {
-        &self.model
+        match self.coupling {
+            Coupling::Merged => &self.model,
+            Coupling::Nested => self.chain(0).model(),
+        }
     }
 
     /// Mutable access to the strand's beam model, for loads and static solves in tests and
     /// benchmarks; the next [`Self::step`] rebuilds the discretization from the instruments
     /// and restores the navigation's solver settings and loads.
     pub fn model_mut(&mut self) -> &mut BeamModel {
-        &mut self.model
+        match self.coupling {
+            Coupling::Merged => &mut self.model,
+            Coupling::Nested => self.chains[0]
+                .as_mut()
+                .expect("the outermost chain is always present")
+                .model_mut(),
+        }
     }
 
-    /// Path coordinate of every node (m from the entry point), base to tip.
+    /// The beam model that carries instrument `index`: the strand in merged mode, its own
+    /// chain in nested mode (`None` there while it lies within one tip element of the entry).
+    pub fn instrument_model(&self, index: usize) -> Option<&BeamModel> {
+        match self.coupling {
+            Coupling::Merged => (index < self.instruments.len()).then_some(&self.model),
+            Coupling::Nested => self.chains.get(index)?.as_ref().map(|c| c.model()),
+        }
+    }
+
+    /// Path coordinate of every node (m from the entry point), base to tip (nested mode: of
+    /// the outermost instrument's chain).
     pub fn node_sigma_m(&self) -> Vec<f64> {
-        self.nodes.iter().map(|n| n.sigma).collect()
+        match self.coupling {
+            Coupling::Merged => self.nodes.iter().map(|n| n.sigma).collect(),
+            Coupling::Nested => self.chain(0).node_sigma_m(),
+        }
+    }
+
+    /// Nested mode: chain `index`, which must be present.
+    fn chain(&self, index: usize) -> &Stack<FreeSpace> {
+        self.chains[index]
+            .as_ref()
+            .expect("the chain asked for is present")
+    }
+
+    /// Position (m) and frame of instrument `index` at path coordinate `sigma` (m from the
+    /// entry point, clamped to its chain), with the twist (rad) its frames are measured from:
+    /// the strand's in merged mode; in nested mode the instrument's own chain, or that of the
+    /// innermost instrument around it while it has none.
+    fn frame_of(&self, index: usize, sigma: f64) -> ((Vector3<f64>, UnitQuaternion<f64>), f64) {
+        match self.coupling {
+            Coupling::Merged => (self.point_at(sigma), self.instruments[0].twist_rad),
+            Coupling::Nested => {
+                let k = (0..=index)
+                    .rev()
+                    .find(|&k| self.chains.get(k).is_some_and(Option::is_some))
+                    .unwrap_or(0);
+                (self.chain(k).point_at(sigma), self.instruments[k].twist_rad)
+            }
+        }
+    }
+
+    /// Position (m) and frame of instrument `index` at path coordinate `sigma` (m from the
+    /// entry point): on the strand in merged mode, on the instrument's own chain in nested
+    /// mode.
+    pub fn instrument_point(
+        &self,
+        index: usize,
+        sigma: f64,
+    ) -> Option<(Vector3<f64>, UnitQuaternion<f64>)> {
+        (index < self.instruments.len()).then(|| self.frame_of(index, sigma).0)
     }
 
     /// Simulated time (s).
@@ -469,7 +581,8 @@ impl<W: Wall> Stack<W> {
         self.time_s
     }
 
-    /// The contacts and forces of the last step.
+    /// The contacts and forces of the last step (merged mode; `None` in nested mode, whose
+    /// contacts join chains: see [`Self::nested_contacts`]).
     pub fn last_contacts(&self) -> Option<&ContactStep> {
         self.last.as_ref()
     }
@@ -478,12 +591,16 @@ impl<W: Wall> Stack<W> {
     /// the entry point.
     pub fn tip_position(&self, index: usize) -> Option<Vector3<f64>> {
         let l = self.instruments.get(index)?.inserted_m;
-        (l > 0.0).then(|| self.point_at(l).0)
+        (l > 0.0).then(|| self.frame_of(index, l).0.0)
     }
 
     /// Position (m) and frame of the strand at path coordinate `sigma` (m from the entry
-    /// point, clamped to the strand), on the smooth curve through the nodes.
+    /// point, clamped to the strand), on the smooth curve through the nodes (nested mode: of
+    /// the outermost instrument's chain).
     pub fn point_at(&self, sigma: f64) -> (Vector3<f64>, UnitQuaternion<f64>) {
+        if self.coupling == Coupling::Nested {
+            return self.chain(0).point_at(sigma);
+        }
         let positions = self.model.positions();
         let rotations = self.model.rotations();
         let k = self
@@ -503,6 +620,9 @@ impl<W: Wall> Stack<W> {
     /// The largest penetration of the strand into the wall in the current configuration (m;
     /// 0 when nothing penetrates), over the collision points.
     pub fn max_penetration_m(&self) -> f64 {
+        if self.coupling == Coupling::Nested {
+            return self.nested_max_penetration();
+        }
         let positions = self.model.positions();
         self.sample_layout()
             .iter()
@@ -517,9 +637,12 @@ impl<W: Wall> Stack<W> {
 
     /// What each instrument's hand feels (outermost first): the strand's base reaction along
     /// and about the entry axis, shared among the instruments at the entry in proportion to
-    /// their axial (force) and torsional (torque) stiffness. Instruments withdrawn proximal of
-    /// the entry feel nothing.
+    /// their axial (force) and torsional (torque) stiffness; in nested mode each instrument's
+    /// own chain's base reaction. Instruments withdrawn proximal of the entry feel nothing.
     pub fn proximal_reactions(&mut self) -> Vec<ProximalReaction> {
+        if self.coupling == Coupling::Nested {
+            return self.nested_proximal_reactions();
+        }
         let wrench = self.model.base_reaction();
         let axis = self.model.rotations()[0] * Vector3::x();
         let force = wrench.fixed_rows::<3>(0).dot(&axis);
@@ -563,7 +686,7 @@ impl<W: Wall> Stack<W> {
             .shaped_from_m
             .map_or(l, |s| l - instrument.length_m + s)
             .clamp(0.0, l);
-        Some(self.point_at(start).1 * Vector3::x())
+        Some(self.frame_of(index, start).0.1 * Vector3::x())
     }
 
     /// Unit world direction instrument `index`'s shaped tip bends to where it starts, across
@@ -579,11 +702,9 @@ impl<W: Wall> Stack<W> {
         let kappa = instrument.device.rest_curvature_at(shaped + 1e-9);
         let bend = kappa.cross(&Vector3::x()).try_normalize(1e-12)?;
         let start = (l - instrument.length_m + shaped).clamp(0.0, l);
-        let (_, q) = self.point_at(start);
-        let relative = UnitQuaternion::from_axis_angle(
-            &Vector3::x_axis(),
-            instrument.twist_rad - self.instruments[0].twist_rad,
-        );
+        let ((_, q), reference) = self.frame_of(index, start);
+        let relative =
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), instrument.twist_rad - reference);
         let tangent = q * Vector3::x();
         let side = q * (relative * bend);
         (side - tangent * tangent.dot(&side)).try_normalize(1e-12)
@@ -739,40 +860,50 @@ impl<W: Wall> Stack<W> {
     /// where that solve still penetrates the wall beyond the sub-step threshold, in two halves
     /// (up to [`MAX_SUBSTEP_DEPTH`] times).
     fn advance(&mut self, targets: &[(f64, f64)], depth: usize) -> Result<StackReport> {
-        let saved: Option<Saved> = (depth < MAX_SUBSTEP_DEPTH).then(|| {
-            (
-                self.model.snapshot(),
-                self.nodes.clone(),
-                self.specs.clone(),
-                self.instruments.clone(),
-                self.previous_contacts.clone(),
-                self.next_id,
-            )
+        let saved: Option<Saved> = (depth < MAX_SUBSTEP_DEPTH).then(|| Saved {
+            model: self.model.snapshot(),
+            nodes: self.nodes.clone(),
+            specs: self.specs.clone(),
+            instruments: self.instruments.clone(),
+            previous_contacts: self.previous_contacts.clone(),
+            next_id: self.next_id,
+            chains: self.chains.clone(),
+            nested_last: self.nested_last.clone(),
         });
-        let report = self.single_step(targets)?;
-        let penetration = self.last.as_ref().map_or(0.0, |s| s.penetration_m);
+        let report = match self.coupling {
+            Coupling::Merged => self.single_step(targets)?,
+            Coupling::Nested => self.nested_step(targets)?,
+        };
+        let penetration = match self.coupling {
+            Coupling::Merged => self.last.as_ref().map_or(0.0, |s| s.penetration_m),
+            Coupling::Nested => self.nested_last.penetration_m,
+        };
         if penetration > self.settings.substep_penetration_m
-            && let Some((model, nodes, specs, instruments, previous, next_id)) = saved
+            && let Some(saved) = saved
         {
-            self.model.restore(model);
-            self.nodes = nodes;
-            self.specs = specs;
-            self.previous_contacts = previous;
-            self.next_id = next_id;
-            let half: Vec<(f64, f64)> = instruments
+            self.model.restore(saved.model);
+            self.nodes = saved.nodes;
+            self.specs = saved.specs;
+            self.previous_contacts = saved.previous_contacts;
+            self.next_id = saved.next_id;
+            self.chains = saved.chains;
+            self.nested_last = saved.nested_last;
+            let half: Vec<(f64, f64)> = saved
+                .instruments
                 .iter()
                 .zip(targets)
                 .map(|(i, t)| (0.5 * (i.inserted_m + t.0), 0.5 * (i.twist_rad + t.1)))
                 .collect();
-            self.instruments = instruments;
+            self.instruments = saved.instruments;
             self.advance(&half, depth + 1)?;
             return self.advance(targets, depth + 1);
         }
         Ok(report)
     }
 
-    /// One solve: kinematic update, detection, beam solve with contacts.
-    fn single_step(&mut self, targets: &[(f64, f64)]) -> Result<StackReport> {
+    /// The kinematic part of a step: moves the instruments to `targets` and the nodes with
+    /// them, refines, rebuilds the model and places its base.
+    fn prepare(&mut self, targets: &[(f64, f64)]) -> Result<()> {
         self.sync_nodes();
         self.move_instruments(targets)?;
         self.refine();
@@ -780,7 +911,12 @@ impl<W: Wall> Stack<W> {
         let twist =
             UnitQuaternion::from_axis_angle(&Vector3::x_axis(), self.instruments[0].twist_rad);
         self.model
-            .place_base(self.entry_position, self.entry_rotation * twist)?;
+            .place_base(self.entry_position, self.entry_rotation * twist)
+    }
+
+    /// One solve: kinematic update, detection, beam solve with contacts.
+    fn single_step(&mut self, targets: &[(f64, f64)]) -> Result<StackReport> {
+        self.prepare(targets)?;
         let samples = self.sample_layout();
         let wall = &self.wall;
         let margin = self.settings.contact_margin_m;

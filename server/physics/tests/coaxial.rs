@@ -9,7 +9,7 @@ use std::f64::consts::PI;
 use cathlab_physics::navigation::{Command, Insertion, NavigationSettings, Twist};
 use cathlab_physics::scenarios::{CoaxialPlan, run_coaxial_arch_to_cow};
 use cathlab_physics::{
-    BeamModel, Catalogue, CircularSection, Device, FreeSpace, InstrumentSpec, Material,
+    BeamModel, Catalogue, CircularSection, Coupling, Device, FreeSpace, InstrumentSpec, Material,
     PhysicsError, RestArc, RestShape, Section, SolverSettings, Stack, StepMode, presets,
 };
 use nalgebra::{UnitQuaternion, Vector3};
@@ -679,4 +679,132 @@ fn the_builtin_catalogue_is_valid_sourced_and_nests() {
     // Shapes from the catalogue behave: the Simmons reverse curve turns back on itself.
     let simmons = catalogue.device("catheter-5f-simmons-2").unwrap();
     assert!(!simmons.sections.last().unwrap().rest_shape.is_straight());
+}
+
+/// A free-space stack in nested mode.
+fn nested_stack(devices: Vec<(Device, f64)>) -> Stack<FreeSpace> {
+    let settings = NavigationSettings::default();
+    let specs = devices
+        .into_iter()
+        .map(|(d, l)| InstrumentSpec::new(d, l, &settings))
+        .collect();
+    Stack::with_coupling(
+        specs,
+        FreeSpace,
+        Vector3::zeros(),
+        Vector3::x(),
+        settings,
+        Coupling::Nested,
+    )
+    .unwrap()
+}
+
+/// Steps a nested stack with its commands held until no node of any chain moves more than
+/// `tolerance_m` in a step; returns the steps taken.
+fn settle(stack: &mut Stack<FreeSpace>, tolerance_m: f64, max_steps: usize) -> usize {
+    // Every instrument's points every millimetre along the path (nodes come and go).
+    let snapshot = |stack: &Stack<FreeSpace>| -> Vec<Vector3<f64>> {
+        (0..stack.len())
+            .flat_map(|i| {
+                let l = stack.inserted_m(i).unwrap();
+                (0..(l * 1e3) as usize).map(move |k| (i, k as f64 * 1e-3))
+            })
+            .map(|(i, s)| stack.instrument_point(i, s).unwrap().0)
+            .collect()
+    };
+    for step in 1..=max_steps {
+        let before = snapshot(stack);
+        stack.step().unwrap();
+        let after = snapshot(stack);
+        if before.len() == after.len()
+            && before
+                .iter()
+                .zip(&after)
+                .all(|(a, b)| (a - b).norm() <= tolerance_m)
+        {
+            return step;
+        }
+    }
+    panic!("the nested stack did not settle in {max_steps} steps");
+}
+
+/// Curvature (1/m) of instrument `index` between path coordinates `a` < `b` from its frames.
+fn curvature_of_frames(stack: &Stack<FreeSpace>, index: usize, a: f64, b: f64) -> f64 {
+    let ta = stack.instrument_point(index, a).unwrap().1 * Vector3::x();
+    let tb = stack.instrument_point(index, b).unwrap().1 * Vector3::x();
+    ta.angle(&tb) / (b - a)
+}
+
+/// Largest distance (m) of instrument `inner`'s centre line from instrument `outer`'s, across
+/// the outer's tangent, sampled every 0.5 mm over path coordinates `a` to `b`.
+fn lateral_offset(stack: &Stack<FreeSpace>, inner: usize, outer: usize, a: f64, b: f64) -> f64 {
+    let count = ((b - a) / 0.5e-3) as usize;
+    (0..=count)
+        .map(|k| {
+            let s = a + (b - a) * k as f64 / count as f64;
+            let (p, _) = stack.instrument_point(inner, s).unwrap();
+            let (q, r) = stack.instrument_point(outer, s).unwrap();
+            let t = r * Vector3::x();
+            let d = p - q;
+            (d - t * t.dot(&d)).norm()
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Curvature (1/m) of instrument `index` between path coordinates `a` < `b`: the turn of its
+/// centre line's chord tangents (0.25 mm chords) over the arc length.
+fn instrument_curvature(stack: &Stack<FreeSpace>, index: usize, a: f64, b: f64) -> f64 {
+    let at = |s: f64| stack.instrument_point(index, s).unwrap().0;
+    let h = 0.125e-3;
+    let ta = at(a + h) - at(a - h);
+    let tb = at(b + h) - at(b - h);
+    ta.angle(&tb) / (b - a)
+}
+
+#[test]
+fn nested_j_wire_inside_a_tube_keeps_within_the_clearance_and_recovers_outside() {
+    // A soft tube with 0.31 mm of radial clearance around a 0.035" J wire (3 mm radius).
+    let tube = uniform("tube", 1.0, 2.0e-3, 1.5e-3, 0.3e9, RestShape::straight());
+    let wire = presets::guidewire_035();
+    let clearance = (1.5e-3 - 0.035 * 0.0254) / 2.0;
+    let radius = 0.003;
+    let j_length = radius * PI;
+    let (l_tube, l_wire) = (0.15, 0.14);
+    let mut stack = nested_stack(vec![(tube, l_tube), (wire, l_wire)]);
+    let steps = settle(&mut stack, 1e-6, 6000);
+    let ei_tube = ei(0.3e9, 2.0e-3, 1.5e-3);
+    let ei_wire = ei(2e9, 0.035 * 0.0254, 0.0);
+    let blend = ei_wire / (ei_wire + ei_tube) / radius;
+    let (a, b) = (l_wire - j_length + 0.5e-3, l_wire - 0.5e-3);
+    let wire_inside = instrument_curvature(&stack, 1, a, b);
+    let tube_there = instrument_curvature(&stack, 0, a, b);
+    let offset = lateral_offset(&stack, 1, 0, 0.0, l_wire);
+    let penetration = stack.max_penetration_m();
+    println!(
+        "nested J inside the tube (settled in {steps} steps): wire curvature {wire_inside:.2} 1/m, tube {tube_there:.2} 1/m, merged blend {blend:.2} 1/m (rest {:.2}); largest lateral offset {:.4} mm of {:.4} mm clearance; penetration {:.5} mm",
+        1.0 / radius,
+        offset * 1e3,
+        clearance * 1e3,
+        penetration * 1e3
+    );
+    // The clearance is visible (the J leans on the lumen) and bounds the offset.
+    let tolerance = NavigationSettings::default()
+        .contact
+        .penetration_tolerance_m;
+    assert!(offset <= clearance + tolerance, "offset {offset} m");
+    assert!(
+        offset >= 0.5 * clearance,
+        "offset {offset} m: the J does not lean on the lumen"
+    );
+    assert!(penetration <= tolerance, "penetration {penetration} m");
+    // The lumen holds the J much straighter than its rest shape.
+    assert!(wire_inside < 0.5 / radius, "J inside at {wire_inside} 1/m");
+    // Pushed 30 mm out of the tube: the free J is its rest shape.
+    run_to_targets(&mut stack, &[(1, Some(l_tube + 0.03), None)]);
+    settle(&mut stack, 1e-6, 6000);
+    let end = l_tube + 0.03;
+    let outside = curvature_of_frames(&stack, 1, end - j_length + 0.5e-3, end - 0.5e-3);
+    let error = (outside * radius - 1.0).abs();
+    println!("  pushed 30 mm out: curvature {outside:.6} 1/m, relative error {error:.1e}");
+    assert!(error < 1e-6, "recovered J error {error:e}");
 }

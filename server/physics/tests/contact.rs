@@ -1,8 +1,12 @@
 //! Contact response: the O(M + N) Gauss–Seidel against the explicit-Delassus projected
 //! Gauss–Seidel on random problems (with and without friction), the Signorini and Coulomb
-//! conditions checked on the result, and the analytic stick/slip threshold of a pressed wire.
+//! conditions checked on the result, the analytic stick/slip threshold of a pressed wire, and
+//! the coupled (several-chain) solver against its explicit Delassus matrix.
 
-use cathlab_physics::contact::{Contact, ContactSettings, dense_reference, gauss_seidel};
+use cathlab_physics::contact::{
+    Contact, ContactSettings, dense_reference, gauss_seidel, solve_local,
+};
+use cathlab_physics::coupled::{ChainPoint, CoupledContact, coupled_gauss_seidel};
 use cathlab_physics::{
     BeamModel, BeamProperties, CircularSection, Material, SolverSettings, Substructure,
 };
@@ -392,4 +396,180 @@ fn bad_contacts_give_clear_errors() {
     )
     .unwrap_err();
     assert!(err.to_string().contains("free displacement"), "{err}");
+}
+
+/// The coupled solver's brute-force reference: the explicit Delassus matrix of several chains
+/// (block-diagonal K⁻¹, each contact acting +R on its first side and −R on its second), then
+/// projected Gauss–Seidel with the same local law in the same order.
+fn coupled_dense(
+    k_dense: &[nalgebra::DMatrix<f64>],
+    free: &[Vec<Vector6<f64>>],
+    contacts: &[CoupledContact],
+    settings: &ContactSettings,
+) -> (
+    Vec<Vector3<f64>>,
+    bool,
+    nalgebra::DMatrix<f64>,
+    nalgebra::DVector<f64>,
+) {
+    let offsets: Vec<usize> = k_dense
+        .iter()
+        .scan(0, |at, k| {
+            let here = *at;
+            *at += k.nrows();
+            Some(here)
+        })
+        .collect();
+    let size: usize = k_dense.iter().map(|k| k.nrows()).sum();
+    let mut k_inv = nalgebra::DMatrix::<f64>::zeros(size, size);
+    for (k, &o) in k_dense.iter().zip(&offsets) {
+        let inv = k.clone().try_inverse().unwrap();
+        k_inv.view_mut((o, o), inv.shape()).copy_from(&inv);
+    }
+    let m = contacts.len();
+    let mut h = nalgebra::DMatrix::<f64>::zeros(3 * m, size);
+    for (i, c) in contacts.iter().enumerate() {
+        let frame_t = c.frame().transpose();
+        for (side, sign) in [(Some(c.first), 1.0), (c.second, -1.0)] {
+            let Some(p) = side else { continue };
+            for (node, weight) in [
+                (p.element.checked_sub(1), 1.0 - p.t),
+                (Some(p.element), p.t),
+            ] {
+                if let Some(node) = node {
+                    for r in 0..3 {
+                        for d in 0..3 {
+                            h[(3 * i + r, offsets[p.chain] + 6 * node + d)] +=
+                                sign * weight * frame_t[(r, d)];
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let u = nalgebra::DVector::from_iterator(
+        size,
+        free.iter().flatten().flat_map(|v| v.iter().copied()),
+    );
+    let w = &h * k_inv * h.transpose();
+    let delta_free = &h * u;
+    let mut lambda = nalgebra::DVector::<f64>::zeros(3 * m);
+    let mut converged = false;
+    for _ in 0..settings.max_iterations {
+        let (mut change, mut largest): (f64, f64) = (0.0, 0.0);
+        for (k, c) in contacts.iter().enumerate() {
+            let wkk = w.fixed_view::<3, 3>(3 * k, 3 * k).into_owned();
+            let own = Vector3::new(lambda[3 * k], lambda[3 * k + 1], lambda[3 * k + 2]);
+            let total = w.rows(3 * k, 3) * &lambda;
+            let b = Vector3::new(
+                delta_free[3 * k] + total[0],
+                delta_free[3 * k + 1] + total[1],
+                delta_free[3 * k + 2] + total[2],
+            ) - wkk * own;
+            let updated = solve_local(&wkk, &b, c.gap, c.friction);
+            change = change.max((updated - own).norm());
+            largest = largest.max(updated.norm());
+            for r in 0..3 {
+                lambda[3 * k + r] = updated[r];
+            }
+        }
+        if change <= settings.tolerance * largest {
+            converged = true;
+            break;
+        }
+    }
+    let local = (0..m)
+        .map(|k| Vector3::new(lambda[3 * k], lambda[3 * k + 1], lambda[3 * k + 2]))
+        .collect();
+    (local, converged, w, delta_free)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(40))]
+
+    /// Two chains side by side (an inner wire and the tube around it, different element
+    /// counts): wall contacts on either, lumen contacts joining them, in random order (so a
+    /// chain's contacts come out of order along it). The coupled O(M + N) sweep must run the
+    /// same iteration as the explicit-Delassus one.
+    #[test]
+    fn coupled_gauss_seidel_equals_the_explicit_delassus_solve(
+        elements in (3usize..16, 3usize..16),
+        raw in proptest::collection::vec((0.0f64..1.0, 0.0f64..1.0, -1.0f64..1.0, -0.5e-4f64..1e-4, 0.0f64..0.5, 0u8..3), 1..12),
+        with_friction in proptest::bool::ANY,
+        push in proptest::array::uniform3(-1.0f64..1.0),
+    ) {
+        let counts = [elements.0, elements.1];
+        let mut k_dense = Vec::new();
+        let mut flexibilities = Vec::new();
+        let mut free = Vec::new();
+        for (c, &n) in counts.iter().enumerate() {
+            let mut model = wire(n);
+            let k = model.tangent_stiffness().clone();
+            flexibilities.push(Substructure::new(&k).unwrap().flexibility());
+            let mut load = vec![Vector6::zeros(); n];
+            let sign = if c == 0 { 1.0 } else { -0.5 };
+            load[n - 1] = Vector6::new(push[0] * 0.05, push[1] * 0.002 * sign, push[2] * 0.002, 0.0, 0.0, 0.0);
+            free.push(Substructure::new(&k).unwrap().solve(&load));
+            k_dense.push(k.to_dense());
+        }
+        let point = |chain: usize, s: f64| {
+            let x = s * counts[chain] as f64;
+            let element = (x as usize).min(counts[chain] - 1);
+            ChainPoint { chain, element, t: (x - element as f64).clamp(0.0, 1.0) }
+        };
+        let contacts: Vec<CoupledContact> = raw
+            .iter()
+            .map(|&(s, _, spread, gap, mu, kind)| {
+                let angle = spread * std::f64::consts::PI;
+                let (first, second) = match kind {
+                    0 => (point(0, s), None),
+                    1 => (point(1, s), None),
+                    _ => (point(1, s), Some(point(0, s))),
+                };
+                CoupledContact {
+                    first,
+                    second,
+                    normal: Vector3::new(0.0, angle.cos(), angle.sin()),
+                    gap,
+                    friction: if with_friction { mu } else { 0.0 },
+                }
+            })
+            .collect();
+        let settings = ContactSettings { max_iterations: SWEEP_BUDGET, ..tight() };
+        let flex: Vec<_> = flexibilities.iter().collect();
+        let slices: Vec<&[Vector6<f64>]> = free.iter().map(Vec::as_slice).collect();
+        let fast = coupled_gauss_seidel(&flex, &slices, &contacts, &settings, None).unwrap();
+        let (dense, dense_converged, w, delta_free) = coupled_dense(&k_dense, &free, &contacts, &settings);
+        if with_friction && !dense_converged {
+            // A cycling Coulomb iteration: the fast solver must say so and still not penetrate.
+            prop_assert!(!fast.converged);
+            let lambda = nalgebra::DVector::from_iterator(3 * contacts.len(), fast.local.iter().flat_map(|l| l.iter().copied()));
+            let after = &delta_free + &w * &lambda;
+            let reach = contacts.iter().enumerate().map(|(i, c)| c.gap.abs() + delta_free[3 * i].abs()).fold(0.0, f64::max);
+            for (i, c) in contacts.iter().enumerate() {
+                prop_assert!(c.gap + after[3 * i] >= -1e-9 * reach);
+            }
+            return Ok(());
+        }
+        prop_assert_eq!(fast.converged, dense_converged, "sweeps {}", fast.iterations);
+        let scale = dense.iter().map(|l| l.norm()).fold(1e-12, f64::max);
+        for (a, b) in fast.local.iter().zip(&dense) {
+            prop_assert!((a - b).norm() <= 1e-6 * scale, "{a:?} vs {b:?}");
+        }
+        // The nodal loads are the contact forces put on each chain.
+        for (c, loads) in fast.nodal_loads.iter().enumerate() {
+            let total: Vector3<f64> = loads.iter().map(|l| Vector3::new(l[0], l[1], l[2])).sum();
+            let expected: Vector3<f64> = contacts
+                .iter()
+                .zip(&fast.local)
+                .map(|(k, l)| {
+                    let f = k.frame() * l;
+                    let on_first = if k.first.chain == c && k.first.element > 0 { 1.0 } else if k.first.chain == c { k.first.t } else { 0.0 };
+                    let on_second = k.second.filter(|p| p.chain == c).map_or(0.0, |p| if p.element > 0 { 1.0 } else { p.t });
+                    f * (on_first - on_second)
+                })
+                .sum();
+            prop_assert!((total - expected).norm() <= 1e-9 * scale.max(expected.norm()));
+        }
+    }
 }
