@@ -808,3 +808,53 @@ fn nested_j_wire_inside_a_tube_keeps_within_the_clearance_and_recovers_outside()
     println!("  pushed 30 mm out: curvature {outside:.6} 1/m, relative error {error:.1e}");
     assert!(error < 1e-6, "recovered J error {error:e}");
 }
+
+#[test]
+fn nested_twist_turns_one_instrument_and_not_the_other() {
+    // A soft tube with a 45° tip over 8 mm and 0.31 mm of radial clearance; a 0.035" wire with
+    // a 45°/10 mm tip leading 20 mm beyond it.
+    let tube = uniform(
+        "tube",
+        1.0,
+        2.0e-3,
+        1.5e-3,
+        0.3e9,
+        RestShape::angled(PI / 4.0, 0.008),
+    );
+    let wire = presets::guidewire_035_shaped(PI / 4.0, 0.010);
+    let (l_tube, l_wire) = (0.15, 0.17);
+    let direction = |stack: &Stack<FreeSpace>, index: usize, a: f64, b: f64| {
+        let ta = stack.instrument_point(index, a).unwrap().1 * Vector3::x();
+        let tb = stack.instrument_point(index, b).unwrap().1 * Vector3::x();
+        roll_angle(&(tb - ta * ta.dot(&tb)).normalize(), &ta)
+    };
+    let measure = |stack: &Stack<FreeSpace>| {
+        (
+            direction(stack, 0, l_tube - 0.012, l_tube - 0.001),
+            direction(stack, 1, l_wire - 0.011, l_wire),
+        )
+    };
+    for (turned, name) in [(0, "tube"), (1, "wire")] {
+        let mut stack = nested_stack(vec![(tube.clone(), l_tube), (wire.clone(), l_wire)]);
+        settle(&mut stack, 1e-6, 6000);
+        let (tube0, wire0) = measure(&stack);
+        run_to_targets(&mut stack, &[(turned, None, Some(PI / 2.0))]);
+        settle(&mut stack, 1e-6, 6000);
+        let (tube1, wire1) = measure(&stack);
+        let (dt, dw) = (wrap(tube1 - tube0), wrap(wire1 - wire0));
+        println!(
+            "nested, {name} turned 90°: tube curve turned {:.3}°, wire tip turned {:.3}°",
+            dt.to_degrees(),
+            dw.to_degrees()
+        );
+        let (expect_t, expect_w) = if turned == 0 {
+            (PI / 2.0, 0.0)
+        } else {
+            (0.0, PI / 2.0)
+        };
+        // Lumen friction couples the two a little; within a degree.
+        let tolerance = 1f64.to_radians();
+        assert!((dt - expect_t).abs() < tolerance, "tube curve turned {dt}");
+        assert!((dw - expect_w).abs() < tolerance, "wire tip turned {dw}");
+    }
+}
