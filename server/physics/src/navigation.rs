@@ -624,19 +624,13 @@ impl<W: Wall> Navigation<W> {
         for e in 0..elements {
             let (a, b) = (self.material[e], self.material[e + 1]);
             let (section, _) = self.device.section_at(0.5 * (a + b));
-            let radius = section.cross_section.outer_radius_m;
-            let friction = section.friction_coefficient;
-            let count = ((b - a) / self.settings.sample_spacing_m).ceil().max(1.0) as usize;
-            // t = 0 belongs to the element (node e); the tip (t = 1) only to the last element.
-            let last = if e + 1 == elements { count } else { count - 1 };
-            for j in 0..=last {
-                samples.push(Sample {
-                    element: e,
-                    t: j as f64 / count as f64,
-                    radius,
-                    friction,
-                });
-            }
+            push_element_samples(
+                &mut samples,
+                (e, elements),
+                b - a,
+                self.settings.sample_spacing_m,
+                section,
+            );
         }
         samples
     }
@@ -701,6 +695,28 @@ pub(crate) struct Sample {
     pub(crate) t: f64,
     pub(crate) radius: f64,
     pub(crate) friction: f64,
+}
+
+/// Appends the collision points of element `e` of `elements` (its length `length_m`, points
+/// about `spacing_m` apart) with the radius and wall friction of `section`. t = 0 belongs to
+/// the element (node e); the tip (t = 1) only to the last element.
+pub(crate) fn push_element_samples(
+    samples: &mut Vec<Sample>,
+    (e, elements): (usize, usize),
+    length_m: f64,
+    spacing_m: f64,
+    section: &crate::device::Section,
+) {
+    let count = (length_m / spacing_m).ceil().max(1.0) as usize;
+    let last = if e + 1 == elements { count } else { count - 1 };
+    for j in 0..=last {
+        samples.push(Sample {
+            element: e,
+            t: j as f64 / count as f64,
+            radius: section.cross_section.outer_radius_m,
+            friction: section.friction_coefficient,
+        });
+    }
 }
 
 /// Node spacing at material coordinate `s` (m from the proximal end) of a device of `length`.

@@ -32,7 +32,8 @@ use crate::beam::{
 use crate::device::Device;
 use crate::error::{PhysicsError, Result, require_finite, require_positive};
 use crate::navigation::{
-    Command, Insertion, NavigationSettings, Sample, Twist, detect, material_of, spacing, warm_start,
+    Command, Insertion, NavigationSettings, Sample, Twist, detect, material_of,
+    push_element_samples, spacing, warm_start,
 };
 use crate::section::BeamProperties;
 use crate::wall::{FreeSpace, Wall};
@@ -1258,18 +1259,13 @@ impl<W: Wall> Stack<W> {
             let (section, _) = outer
                 .device
                 .section_at(outer.length_m - outer.inserted_m + mid);
-            let radius = section.cross_section.outer_radius_m;
-            let friction = section.friction_coefficient;
-            let count = ((b - a) / self.settings.sample_spacing_m).ceil().max(1.0) as usize;
-            let last = if e + 1 == elements { count } else { count - 1 };
-            for j in 0..=last {
-                samples.push(Sample {
-                    element: e,
-                    t: j as f64 / count as f64,
-                    radius,
-                    friction,
-                });
-            }
+            push_element_samples(
+                &mut samples,
+                (e, elements),
+                b - a,
+                self.settings.sample_spacing_m,
+                section,
+            );
         }
         samples
     }
