@@ -161,6 +161,42 @@ fn annular_factor_matches_the_integrated_velocity_profile() {
     assert!((annulus_factor(1e-300) - 1.0).abs() < 1e-2);
 }
 
+#[test]
+fn a_catheter_never_lowers_a_steeply_tapered_vessels_resistance() {
+    // Regression (CI seed 346315): the annular resistance was one 5-point quadrature of
+    // 1 / (r⁴ f(κ)), which under-counts ∫ r⁻⁴ on a steep taper; a thin catheter there came out
+    // below the open vessel and a narrowing raised the network's inlet flow. Reference: composite
+    // Simpson's rule on 20 000 panels.
+    let eta = 3.5e-3;
+    for (r0, r1) in [(4e-3, 0.6e-3), (0.6e-3, 4e-3), (2e-3, 1.9e-3)] {
+        let vessel = Vessel::tapered("cone", 0, 1, 0.05, r0, r1);
+        for catheter in [1e-6, 0.1e-3, 0.4e-3, 0.55e-3] {
+            let open = vessel.resistance_between(eta, 0.0, 0.05);
+            let annular = vessel.annular_resistance_between(eta, 0.0, 0.05, catheter);
+            assert!(
+                annular >= open,
+                "{r0} → {r1}, catheter {catheter}: {annular} < {open}"
+            );
+            let integrand = |s: f64| {
+                let r = r0 + (r1 - r0) * s / 0.05;
+                let kappa = (catheter / r).min(0.99);
+                8.0 * eta / std::f64::consts::PI / (r.powi(4) * annulus_factor(kappa))
+            };
+            let n = 20_000;
+            let h = 0.05 / n as f64;
+            let mut sum = integrand(0.0) + integrand(0.05);
+            for i in 1..n {
+                sum += integrand(i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
+            }
+            let reference = sum * h / 3.0;
+            assert!(
+                relative(annular, reference) < 1e-4,
+                "{r0} → {r1}, catheter {catheter}: {annular} vs {reference}"
+            );
+        }
+    }
+}
+
 /// An independent dense nodal solve: K p = f with Dirichlet rows, via nalgebra's LU.
 fn dense_solve(network: &FlowNetwork, conductance: &[f64]) -> Vec<f64> {
     let n = network.node_count;
@@ -244,10 +280,24 @@ proptest! {
         for (a, b) in updated.pressure.iter().zip(&dense) {
             prop_assert!((a - b).abs() < 1e-9 * 100.0 * MMHG, "{a} vs {b}");
         }
-        // Narrowing only ever raises resistance: the inlet flow cannot grow.
-        solver.set_narrowings(&[]).unwrap();
+        // Narrowing only ever raises resistance, so with one pressure at every outlet (a
+        // two-terminal network, Rayleigh's monotonicity law) the inlet flow cannot grow. With
+        // outlets at different pressures it can: outlet-to-outlet backflow through a narrowed
+        // vessel is cut and more of the outlets' demand falls on the inlet (CI seed 346315).
+        let mut level = network.clone();
+        for outlet in &mut level.outlets {
+            outlet.pressure = 0.0;
+        }
+        let mut solver = FlowSolver::new(level).unwrap();
         let open = solver.solve(None).unwrap();
-        prop_assert!(updated.inlet_flow <= open.inlet_flow * (1.0 + 1e-12));
+        solver.set_narrowings(&narrowings).unwrap();
+        let narrowed = solver.solve(None).unwrap();
+        prop_assert!(
+            narrowed.inlet_flow <= open.inlet_flow * (1.0 + 1e-12),
+            "{} > {}",
+            narrowed.inlet_flow,
+            open.inlet_flow
+        );
     }
 }
 
