@@ -20,6 +20,17 @@ fn blood() -> Blood {
     Blood::default()
 }
 
+/// Composite Simpson's rule for `f` over `[a, b]` on 20 000 intervals.
+fn simpson(f: impl Fn(f64) -> f64, a: f64, b: f64) -> f64 {
+    let n = 20_000;
+    let h = (b - a) / n as f64;
+    let mut sum = f(a) + f(b);
+    for i in 1..n {
+        sum += f(a + i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
+    }
+    sum * h / 3.0
+}
+
 fn relative(a: f64, b: f64) -> f64 {
     (a - b).abs() / b.abs().max(f64::MIN_POSITIVE)
 }
@@ -117,14 +128,11 @@ fn tapered_resistance_matches_numerical_integration() {
     let v = Vessel::tapered("taper", 0, 1, 0.1, 3e-3, 1.2e-3);
     let exact = v.resistance_between(ETA, 0.0, 0.1);
     // Composite Simpson on 8·r(s)⁻⁴ η / π with 20,000 intervals.
-    let n = 20_000;
-    let h = 0.1 / n as f64;
-    let f = |s: f64| 8.0 * ETA / (std::f64::consts::PI * v.radius_at(s).powi(4));
-    let mut sum = f(0.0) + f(0.1);
-    for i in 1..n {
-        sum += f(i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
-    }
-    let numeric = sum * h / 3.0;
+    let numeric = simpson(
+        |s| 8.0 * ETA / (std::f64::consts::PI * v.radius_at(s).powi(4)),
+        0.0,
+        0.1,
+    );
     assert!(relative(exact, numeric) < 1e-10, "{exact} vs {numeric}");
     let volume = v.volume_between(0.0, 0.1);
     let cone =
@@ -142,14 +150,11 @@ fn annular_factor_matches_the_integrated_velocity_profile() {
             (r_outer * r_outer - rho * rho)
                 - (r_outer * r_outer - a * a) * (r_outer / rho).ln() / (r_outer / a).ln()
         };
-        let n = 20_000;
-        let h = (r_outer - a) / n as f64;
-        let g = |rho: f64| 2.0 * std::f64::consts::PI * rho * u(rho) / 4.0;
-        let mut sum = g(a) + g(r_outer);
-        for i in 1..n {
-            sum += g(a + i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
-        }
-        let q_annulus = sum * h / 3.0;
+        let q_annulus = simpson(
+            |rho| 2.0 * std::f64::consts::PI * rho * u(rho) / 4.0,
+            a,
+            r_outer,
+        );
         let q_open = std::f64::consts::PI * r_outer.powi(4) / 8.0;
         let numeric = q_annulus / q_open;
         assert!(
@@ -166,7 +171,7 @@ fn a_catheter_never_lowers_a_steeply_tapered_vessels_resistance() {
     // Regression (CI seed 346315): the annular resistance was one 5-point quadrature of
     // 1 / (r⁴ f(κ)), which under-counts ∫ r⁻⁴ on a steep taper; a thin catheter there came out
     // below the open vessel and a narrowing raised the network's inlet flow. Reference: composite
-    // Simpson's rule on 20 000 panels.
+    // Simpson's rule on 20 000 intervals.
     let eta = 3.5e-3;
     for (r0, r1) in [(4e-3, 0.6e-3), (0.6e-3, 4e-3), (2e-3, 1.9e-3)] {
         let vessel = Vessel::tapered("cone", 0, 1, 0.05, r0, r1);
@@ -182,13 +187,7 @@ fn a_catheter_never_lowers_a_steeply_tapered_vessels_resistance() {
                 let kappa = (catheter / r).min(0.99);
                 8.0 * eta / std::f64::consts::PI / (r.powi(4) * annulus_factor(kappa))
             };
-            let n = 20_000;
-            let h = 0.05 / n as f64;
-            let mut sum = integrand(0.0) + integrand(0.05);
-            for i in 1..n {
-                sum += integrand(i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
-            }
-            let reference = sum * h / 3.0;
+            let reference = simpson(integrand, 0.0, 0.05);
             assert!(
                 relative(annular, reference) < 1e-4,
                 "{r0} → {r1}, catheter {catheter}: {annular} vs {reference}"
