@@ -109,6 +109,15 @@ pub struct ContactSettings {
     pub polish: bool,
 }
 
+impl ContactSettings {
+    /// Whether a sweep whose largest force change was `change` (N), largest force `force` (N)
+    /// and largest gap violation `violation` (m) meets the tolerances.
+    pub(crate) fn sweep_converged(&self, change: f64, force: f64, violation: f64) -> bool {
+        change <= (self.tolerance * force).max(self.absolute_tolerance_n)
+            && violation <= self.violation_tolerance_m
+    }
+}
+
 impl Default for ContactSettings {
     fn default() -> Self {
         Self {
@@ -787,9 +796,7 @@ pub fn gauss_seidel(
         }
         sweep += 1;
         response.iterations = sweep;
-        if largest_change <= (settings.tolerance * largest_force).max(settings.absolute_tolerance_n)
-            && largest_violation <= settings.violation_tolerance_m
-        {
+        if settings.sweep_converged(largest_change, largest_force, largest_violation) {
             // Converged; with frozen friction only the normal forces are exact.
             response.converged = !frozen;
             break;

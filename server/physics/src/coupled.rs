@@ -322,9 +322,7 @@ pub fn coupled_gauss_seidel(
         }
         sweep += 1;
         response.iterations = sweep;
-        if largest_change <= (settings.tolerance * largest_force).max(settings.absolute_tolerance_n)
-            && largest_violation <= settings.violation_tolerance_m
-        {
+        if settings.sweep_converged(largest_change, largest_force, largest_violation) {
             response.converged = !frozen;
             break;
         }
