@@ -467,11 +467,9 @@ fn normal_displacement(p: &Prepared, u: &[Vector6<f64>]) -> f64 {
     p.frame.column(0).dot(&delta)
 }
 
-/// Active-set solve of the normal forces with the tangential forces held: the set starts from
-/// the contacts pushing or penetrating; each pass solves W_AA λ_A = −c_A exactly (W from K⁻¹
-/// by propagation, one O(N) solve per active contact), drops the most negative force or adds
-/// the most penetrated inactive contact, until neither exists. Returns false (leaving `local`
-/// alone) if it does not settle in 2M passes.
+/// Active-set solve of the normal forces with the tangential forces held, for the
+/// single-chain solver (W from K⁻¹ by propagation, one O(N) solve per active contact); see
+/// [`active_set_normals`].
 fn polish_normals(
     flexibility: &Flexibility,
     prepared: &[Prepared],
@@ -488,29 +486,44 @@ fn polish_normals(
         .iter()
         .map(|p| p.gap + p.free.x + normal_displacement(p, &u_t))
         .collect();
-    // Column j of W restricted to normal components, computed on demand.
-    let mut columns: Vec<Option<Vec<f64>>> = vec![None; m];
-    let mut column = |j: usize| -> Vec<f64> {
-        columns[j]
-            .get_or_insert_with(|| {
-                let mut unit = vec![Vector3::zeros(); m];
-                unit[j] = Vector3::x();
-                let mut loads = vec![Vector6::zeros(); n];
-                accumulate_loads(prepared, &unit, &mut loads);
-                let u = node_displacements(flexibility, &loads);
-                prepared
-                    .iter()
-                    .map(|p| normal_displacement(p, &u))
-                    .collect()
-            })
-            .clone()
+    let column = |j: usize| -> Vec<f64> {
+        let mut unit = vec![Vector3::zeros(); m];
+        unit[j] = Vector3::x();
+        let mut loads = vec![Vector6::zeros(); n];
+        accumulate_loads(prepared, &unit, &mut loads);
+        let u = node_displacements(flexibility, &loads);
+        prepared
+            .iter()
+            .map(|p| normal_displacement(p, &u))
+            .collect()
     };
+    active_set_normals(&c, column, local, |k| prepared[k].friction)
+}
+
+/// Active-set solve of the normal forces `local[k].x` with the tangential forces held: `c[k]`
+/// is contact k's gap with zero normal forces and `column(j)` the normal displacement of every
+/// contact under a unit normal force at j (W's column j). The set starts from the contacts
+/// pushing or penetrating; each pass solves W_AA λ_A = −c_A exactly, drops the most negative
+/// force or adds the most penetrated inactive contact, until neither exists; the tangential
+/// forces are then projected on the cones of the new normals. Returns false (leaving `local`
+/// alone) if it does not settle in 2M passes.
+pub(crate) fn active_set_normals(
+    c: &[f64],
+    mut column: impl FnMut(usize) -> Vec<f64>,
+    local: &mut [Vector3<f64>],
+    friction: impl Fn(usize) -> f64,
+) -> bool {
+    let m = c.len();
+    let mut columns: Vec<Option<Vec<f64>>> = vec![None; m];
     let tolerance = 1e-9;
     let scale = c.iter().fold(1e-12f64, |a, b| a.max(b.abs()));
     let mut active: Vec<bool> = (0..m).map(|k| local[k].x > 0.0 || c[k] < 0.0).collect();
     for _ in 0..2 * m.max(1) {
         let set: Vec<usize> = (0..m).filter(|&k| active[k]).collect();
-        let cols: Vec<Vec<f64>> = set.iter().map(|&j| column(j)).collect();
+        let cols: Vec<Vec<f64>> = set
+            .iter()
+            .map(|&j| columns[j].get_or_insert_with(|| column(j)).clone())
+            .collect();
         let lambda = if set.is_empty() {
             DVector::zeros(0)
         } else {
@@ -538,11 +551,10 @@ fn polish_normals(
             .filter(|&k| !active[k])
             .map(|k| {
                 let g = c[k]
-                    + set
+                    + cols
                         .iter()
-                        .zip(&cols)
                         .zip(lambda.iter())
-                        .map(|((_, col), l)| col[k] * l)
+                        .map(|(col, l)| col[k] * l)
                         .sum::<f64>();
                 (k, g)
             })
@@ -558,8 +570,8 @@ fn polish_normals(
         for (&k, l) in set.iter().zip(lambda.iter()) {
             local[k].x = *l;
         }
-        for (p, l) in prepared.iter().zip(local.iter_mut()) {
-            *l = project_on_cone(l, p.friction);
+        for (k, l) in local.iter_mut().enumerate() {
+            *l = project_on_cone(l, friction(k));
         }
         return true;
     }

@@ -16,8 +16,8 @@
 use nalgebra::{Matrix3, Vector3, Vector6};
 
 use crate::contact::{
-    Anderson, ContactSettings, force6, local_law, normal_with_fixed_tangent, perpendicular,
-    project_on_cone, relax, tip_ward_pass, top_left, translation,
+    Anderson, ContactSettings, active_set_normals, force6, local_law, normal_with_fixed_tangent,
+    perpendicular, project_on_cone, relax, tip_ward_pass, top_left, translation,
 };
 use crate::error::{PhysicsError, Result};
 use crate::substructure::Flexibility;
@@ -47,14 +47,34 @@ pub struct CoupledContact {
     pub gap: f64,
     /// Coulomb friction coefficient.
     pub friction: f64,
+    /// For a point inside a lumen, the lumen's geometry: the solver then keeps the exact
+    /// circular constraint by turning `normal` towards the point's solved offset at every
+    /// visit, instead of holding the half-plane of the detected normal.
+    pub lumen: Option<Lumen>,
+}
+
+/// The lumen a contact's first side lies in (its second side is the lumen's centre line).
+///
+/// The constraint is `‖x‖ ≤ clearance` with `x = across − (δ₁ − δ₂)⊥` the offset of the point
+/// from the centre line after the step (⊥: across `axis`). A fixed normal only keeps
+/// `n · x ≤ clearance`, which lets the point slide round the lumen and out by `d² / 2c` for a
+/// slide `d`: a 20 µm slide in a 38 µm clearance (a 0.035" wire in a 5 F catheter) is 5 µm
+/// out.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lumen {
+    /// Unit tangent of the lumen's centre line at the contact.
+    pub axis: Vector3<f64>,
+    /// From the point to the lumen's centre line, across `axis`, now (m).
+    pub across: Vector3<f64>,
+    /// Radial clearance: the lumen's radius less the inner instrument's (m).
+    pub clearance: f64,
 }
 
 impl CoupledContact {
-    /// The contact frame `[n t1 t2]`, tangents chosen as for a wall contact.
+    /// The contact frame `[n t1 t2]`: tangents chosen as for a wall contact, or for a lumen
+    /// contact `t2` along the lumen (its friction acts only there) and `t1` round it.
     pub fn frame(&self) -> Matrix3<f64> {
-        let n = self.normal;
-        let t1 = perpendicular(&n);
-        Matrix3::from_columns(&[n, t1, n.cross(&t1)])
+        frame_of(&self.normal, self.lumen.as_ref().map(|l| &l.axis))
     }
 
     /// The relative displacement `δ₁ − δ₂` of the contact's sides under per-chain node
@@ -65,6 +85,63 @@ impl CoupledContact {
         };
         at(&self.first) - self.second.as_ref().map_or(Vector3::zeros(), at)
     }
+}
+
+/// The frame `[n t1 t2]` of a contact with normal `n`, in a lumen along `axis` if any.
+fn frame_of(n: &Vector3<f64>, axis: Option<&Vector3<f64>>) -> Matrix3<f64> {
+    let along = axis
+        .map(|a| a - n * n.dot(a))
+        .filter(|a| a.norm() > 1e-6)
+        .map(|a| a.normalize());
+    let (t1, t2) = match along {
+        Some(a) => (a.cross(n), a),
+        None => {
+            let t1 = perpendicular(n);
+            (t1, n.cross(&t1))
+        }
+    };
+    Matrix3::from_columns(&[*n, t1, t2])
+}
+
+/// The local law of a lumen contact: normal force and friction along the lumen only (`t2`);
+/// sliding round the lumen is free. Stick closes the gap and stops the axial slip; slide puts
+/// the axial force on the cone's edge against the slip.
+fn lumen_law(w: &Matrix3<f64>, b: &Vector3<f64>, gap: f64, mu: f64) -> Vector3<f64> {
+    if w[(0, 0)].is_nan() || w[(0, 0)] <= 0.0 {
+        return Vector3::zeros();
+    }
+    let normal_only = -(b.x + gap) / w[(0, 0)];
+    if normal_only <= 0.0 {
+        return Vector3::zeros();
+    }
+    if mu == 0.0 {
+        return Vector3::new(normal_only, 0.0, 0.0);
+    }
+    // Stick: [W_nn W_na; W_an W_aa] (λn, λa) = (−gap − b_n, −b_a).
+    let (wnn, wna, wan, waa) = (w[(0, 0)], w[(0, 2)], w[(2, 0)], w[(2, 2)]);
+    let det = wnn * waa - wna * wan;
+    if det > 0.0 {
+        let (rn, ra) = (-gap - b.x, -b.z);
+        let ln = (waa * rn - wna * ra) / det;
+        let la = (wnn * ra - wan * rn) / det;
+        if ln > 0.0 && la.abs() <= mu * ln {
+            return Vector3::new(ln, 0.0, la);
+        }
+    }
+    // Slide: λa = σ μ λn against the slip, σ = ±1.
+    for sigma in [-b.z.signum(), b.z.signum()] {
+        let denominator = wnn + sigma * mu * wna;
+        if denominator <= 0.0 {
+            continue;
+        }
+        let ln = -(b.x + gap) / denominator;
+        let la = sigma * mu * ln;
+        let slip = b.z + wan * ln + waa * la;
+        if ln > 0.0 && slip * sigma <= 0.0 {
+            return Vector3::new(ln, 0.0, la);
+        }
+    }
+    Vector3::new(normal_only, 0.0, 0.0)
 }
 
 /// The solved forces of a coupled contact problem.
@@ -78,6 +155,12 @@ pub struct CoupledResponse {
     pub iterations: usize,
     /// Whether the tolerance was met with the full Coulomb law.
     pub converged: bool,
+    /// Whether the normal forces were finished by the active-set solve after Gauss–Seidel ran
+    /// out of sweeps (`ContactSettings::polish`).
+    pub polished: bool,
+    /// Per contact: the normal its forces are given in (a lumen contact's, turned towards the
+    /// solved offset) and the gap along it (m).
+    pub normals: Vec<(Vector3<f64>, f64)>,
 }
 
 /// One side of a contact with its fixed data.
@@ -101,7 +184,18 @@ struct ChainState<'a> {
     base_ward: Vector6<f64>,
 }
 
-impl ChainState<'_> {
+impl<'a> ChainState<'a> {
+    fn new(flexibility: &'a Flexibility) -> Self {
+        let n = flexibility.diagonal.len();
+        Self {
+            flexibility,
+            loads: vec![Vector6::zeros(); n],
+            tip_ward: vec![Vector6::zeros(); n],
+            cursor: 0,
+            base_ward: Vector6::zeros(),
+        }
+    }
+
     fn restart(&mut self) {
         tip_ward_pass(self.flexibility, &self.loads, &mut self.tip_ward);
         self.cursor = 0;
@@ -165,6 +259,59 @@ fn side_data(
     (w, delta * side.sign)
 }
 
+/// A contact's prepared data.
+struct Prepared {
+    sides: Vec<Side>,
+    /// `[n t1 t2]`.
+    frame: Matrix3<f64>,
+    /// Compliance of the relative displacement (world frame).
+    world: Matrix3<f64>,
+    /// Compliance in the contact frame, and its inverse.
+    compliance: Matrix3<f64>,
+    inverse: Option<Matrix3<f64>>,
+    /// Free relative displacement (world), and in the contact frame.
+    delta: Vector3<f64>,
+    free_local: Vector3<f64>,
+    gap: f64,
+}
+
+impl Prepared {
+    /// Sets the normal (and gap) the contact works along.
+    fn turn(&mut self, normal: Vector3<f64>, gap: f64, lumen: Option<&Lumen>) {
+        self.frame = frame_of(&normal, lumen.map(|l| &l.axis));
+        self.compliance = self.frame.transpose() * self.world * self.frame;
+        self.inverse = self.compliance.try_inverse();
+        self.free_local = self.frame.transpose() * self.delta;
+        self.gap = gap;
+    }
+}
+
+/// Every contact's normal relative displacement under contact forces `local` (their frames),
+/// by one propagation per chain in the contacts' order.
+fn normal_displacements(
+    prepared: &[Prepared],
+    flexibilities: &[&Flexibility],
+    local: &[Vector3<f64>],
+) -> Vec<f64> {
+    let mut chains: Vec<ChainState> = flexibilities.iter().map(|f| ChainState::new(f)).collect();
+    for (p, l) in prepared.iter().zip(local) {
+        for side in &p.sides {
+            chains[side.chain].add(side, &(p.frame * l * side.sign));
+        }
+    }
+    chains.iter_mut().for_each(ChainState::restart);
+    prepared
+        .iter()
+        .map(|p| {
+            let mut relative = Vector3::zeros();
+            for side in &p.sides {
+                relative += chains[side.chain].displacement(side) * side.sign;
+            }
+            p.frame.column(0).dot(&relative)
+        })
+        .collect()
+}
+
 /// Solves the coupled contact problem by projected Gauss–Seidel, sweeping the contacts in the
 /// order given. `flexibilities[c]` and `free[c]` are chain `c`'s flexibility blocks and free
 /// increment per unknown node; `warm_start` (local forces per contact) speeds up repeated
@@ -193,7 +340,7 @@ pub fn coupled_gauss_seidel(
         }
     }
     // Per contact: its sides, frame, compliance (its frame) and free displacement.
-    let mut prepared = Vec::with_capacity(contacts.len());
+    let mut prepared: Vec<Prepared> = Vec::with_capacity(contacts.len());
     for (k, c) in contacts.iter().enumerate() {
         let finite = c.gap.is_finite()
             && c.friction.is_finite()
@@ -237,7 +384,22 @@ pub fn coupled_gauss_seidel(
                 sides[0].chain
             )));
         }
-        let frame = c.frame();
+        if let Some(l) = c.lumen {
+            let fine = l.clearance.is_finite()
+                && l.clearance >= 0.0
+                && l.across.iter().all(|v| v.is_finite())
+                && (l.axis.norm() - 1.0).abs() <= 1e-6
+                && sides.len() == 2;
+            if !fine {
+                return Err(PhysicsError::OutOfRange {
+                    what: format!(
+                        "coupled contact {k}: lumen (axis, offset, clearance, two sides)"
+                    ),
+                    range: "a unit axis, a finite offset, clearance >= 0, between two chains",
+                    value: l.clearance,
+                });
+            }
+        }
         let mut w = Matrix3::zeros();
         let mut delta = Vector3::zeros();
         for side in &sides {
@@ -245,33 +407,27 @@ pub fn coupled_gauss_seidel(
             w += ws;
             delta += ds;
         }
-        let compliance = frame.transpose() * w * frame;
-        prepared.push((
+        let mut p = Prepared {
             sides,
-            frame,
-            compliance,
-            compliance.try_inverse(),
-            frame.transpose() * delta,
-        ));
+            frame: Matrix3::identity(),
+            world: w,
+            compliance: Matrix3::identity(),
+            inverse: None,
+            delta,
+            free_local: Vector3::zeros(),
+            gap: c.gap,
+        };
+        p.turn(c.normal, c.gap, c.lumen.as_ref());
+        prepared.push(p);
     }
     let mut local: Vec<Vector3<f64>> = match warm_start {
         Some(w) if w.len() == contacts.len() => w.to_vec(),
         _ => vec![Vector3::zeros(); contacts.len()],
     };
-    let mut chains: Vec<ChainState> = flexibilities
-        .iter()
-        .map(|f| ChainState {
-            flexibility: f,
-            loads: vec![Vector6::zeros(); f.diagonal.len()],
-            tip_ward: vec![Vector6::zeros(); f.diagonal.len()],
-            cursor: 0,
-            base_ward: Vector6::zeros(),
-        })
-        .collect();
-    for ((sides, frame, ..), l) in prepared.iter().zip(&local) {
-        for side in sides {
-            let df = frame * l * side.sign;
-            chains[side.chain].add(side, &df);
+    let mut chains: Vec<ChainState> = flexibilities.iter().map(|f| ChainState::new(f)).collect();
+    for (p, l) in prepared.iter().zip(&local) {
+        for side in &p.sides {
+            chains[side.chain].add(side, &(p.frame * l * side.sign));
         }
     }
     let with_friction = contacts.iter().any(|c| c.friction > 0.0);
@@ -284,35 +440,73 @@ pub fn coupled_gauss_seidel(
         if sweep == budget {
             anderson = Anderson::new(settings.acceleration_depth, 3 * contacts.len());
         }
-        let before = anderson.active().then(|| local.clone());
+        // Anderson mixes world-frame forces: a lumen contact's frame turns between sweeps.
+        let world = |prepared: &[Prepared], local: &[Vector3<f64>]| -> Vec<Vector3<f64>> {
+            prepared
+                .iter()
+                .zip(local)
+                .map(|(p, l)| p.frame * l)
+                .collect()
+        };
+        let before = anderson.active().then(|| world(&prepared, &local));
         chains.iter_mut().for_each(ChainState::restart);
         let mut largest_change: f64 = 0.0;
         let mut largest_force: f64 = 0.0;
         let mut largest_violation: f64 = 0.0;
-        for (k, (sides, frame, compliance, inverse, free_local)) in prepared.iter().enumerate() {
+        for (k, p) in prepared.iter_mut().enumerate() {
             let c = &contacts[k];
             let mut relative = Vector3::zeros();
-            for side in sides {
+            for side in &p.sides {
                 relative += chains[side.chain].displacement(side) * side.sign;
             }
+            if let Some(lumen) = c
+                .lumen
+                .as_ref()
+                .filter(|_| !frozen && std::env::var("NOTURN").is_err())
+            {
+                // Turn the normal towards where the point now sits in the lumen; the force
+                // keeps its world direction.
+                let moved = p.delta + relative;
+                let x = lumen.across - (moved - lumen.axis * lumen.axis.dot(&moved));
+                let offset = x.norm();
+                if offset > 1e-9 * lumen.clearance.max(1e-6) {
+                    let normal = x / offset;
+                    if (normal - p.frame.column(0)).norm() > 1e-12 {
+                        let force = p.frame * local[k];
+                        p.turn(
+                            normal,
+                            lumen.clearance - normal.dot(&lumen.across),
+                            Some(lumen),
+                        );
+                        local[k] = p.frame.transpose() * force;
+                    }
+                }
+            }
             let own = local[k];
-            let total = free_local + frame.transpose() * relative;
-            largest_violation = largest_violation.max(-(c.gap + total.x));
-            let b = total - compliance * own;
+            let total = p.free_local + p.frame.transpose() * relative;
+            largest_violation = largest_violation.max(-(p.gap + total.x));
+            let b = total - p.compliance * own;
             let updated = if frozen {
-                normal_with_fixed_tangent(compliance, &b, c.gap, &own, c.friction)
+                normal_with_fixed_tangent(&p.compliance, &b, p.gap, &own, c.friction)
+            } else if c.lumen.is_some() {
+                relax(
+                    &own,
+                    lumen_law(&p.compliance, &b, p.gap, c.friction),
+                    settings.relaxation,
+                    c.friction,
+                )
             } else {
                 relax(
                     &own,
-                    local_law(compliance, inverse.as_ref(), &b, c.gap, c.friction),
+                    local_law(&p.compliance, p.inverse.as_ref(), &b, p.gap, c.friction),
                     settings.relaxation,
                     c.friction,
                 )
             };
             let change = updated - own;
             if change != Vector3::zeros() {
-                let df = frame * change;
-                for side in sides {
+                let df = p.frame * change;
+                for side in &p.sides {
                     chains[side.chain].add(side, &(df * side.sign));
                 }
             }
@@ -329,21 +523,64 @@ pub fn coupled_gauss_seidel(
         if sweep == budget && !with_friction {
             break;
         }
-        if let Some(before) = before
-            && anderson.mix(&before, &mut local)
+        let mut mixed = before.as_ref().map(|_| world(&prepared, &local));
+        if let (Some(before), Some(mixed)) = (before, mixed.as_mut())
+            && anderson.mix(&before, mixed)
         {
             // The mixed iterate, projected on the cones, with every chain's loads rebuilt.
-            for (c, l) in contacts.iter().zip(local.iter_mut()) {
-                *l = project_on_cone(l, c.friction);
+            for (((c, p), l), f) in contacts
+                .iter()
+                .zip(&prepared)
+                .zip(local.iter_mut())
+                .zip(mixed.iter())
+            {
+                let mut mixed = p.frame.transpose() * f;
+                if c.lumen.is_some() {
+                    mixed.y = 0.0;
+                }
+                *l = project_on_cone(&mixed, c.friction);
             }
             for chain in &mut chains {
                 chain.loads.iter_mut().for_each(|l| l.fill(0.0));
             }
-            for ((sides, frame, ..), l) in prepared.iter().zip(&local) {
-                for side in sides {
-                    chains[side.chain].add(side, &(frame * l * side.sign));
+            for (p, l) in prepared.iter().zip(&local) {
+                for side in &p.sides {
+                    chains[side.chain].add(side, &(p.frame * l * side.sign));
                 }
             }
+        }
+    }
+    if !response.converged
+        && settings.polish
+        && !contacts.is_empty()
+        && std::env::var("NOPOLISH").is_err()
+    {
+        // Gauss–Seidel ran out of sweeps (two compliant chains pressed together make W
+        // ill-conditioned): solve the active set's normal forces directly.
+        let tangential: Vec<Vector3<f64>> =
+            local.iter().map(|l| Vector3::new(0.0, l.y, l.z)).collect();
+        let held = normal_displacements(&prepared, flexibilities, &tangential);
+        let c: Vec<f64> = contacts
+            .iter()
+            .zip(&prepared)
+            .zip(&held)
+            .map(|((_, p), u)| p.gap + p.free_local.x + u)
+            .collect();
+        let column = |j: usize| {
+            let mut unit = vec![Vector3::zeros(); contacts.len()];
+            unit[j] = Vector3::x();
+            normal_displacements(&prepared, flexibilities, &unit)
+        };
+        if active_set_normals(&c, column, &mut local, |k| contacts[k].friction) {
+            for chain in &mut chains {
+                chain.loads.iter_mut().for_each(|l| l.fill(0.0));
+            }
+            for (p, l) in prepared.iter().zip(&local) {
+                for side in &p.sides {
+                    chains[side.chain].add(side, &(p.frame * l * side.sign));
+                }
+            }
+            response.polished = true;
         }
     }
     if local.iter().any(|l| !l.iter().all(|v| v.is_finite())) {
@@ -353,6 +590,10 @@ pub fn coupled_gauss_seidel(
             step: 0,
         });
     }
+    response.normals = prepared
+        .iter()
+        .map(|p| (p.frame.column(0).into_owned(), p.gap))
+        .collect();
     response.local = local;
     response.nodal_loads = chains.into_iter().map(|c| c.loads).collect();
     Ok(response)

@@ -858,3 +858,66 @@ fn nested_twist_turns_one_instrument_and_not_the_other() {
         assert!((dw - expect_w).abs() < tolerance, "wire tip turned {dw}");
     }
 }
+
+#[test]
+#[ignore]
+fn scratch_small_clearance() {
+    let mut catheter = presets::diagnostic_catheter_5f();
+    catheter.sections[2].rest_shape = RestShape::straight();
+    let wire = presets::guidewire_035();
+    let (l_cath, l_wire) = (0.15, 0.14);
+    let mut settings = NavigationSettings::default();
+    settings.contact.polish = std::env::var("POLISH").is_ok();
+    if let Ok(v) = std::env::var("ANDERSON") {
+        settings.contact.acceleration_depth = v.parse().unwrap();
+    }
+    let specs = vec![
+        InstrumentSpec::new(catheter, l_cath, &settings),
+        InstrumentSpec::new(wire, l_wire, &settings),
+    ];
+    let mut stack = Stack::with_coupling(
+        specs,
+        FreeSpace,
+        Vector3::zeros(),
+        Vector3::x(),
+        settings,
+        Coupling::Nested,
+    )
+    .unwrap();
+    let snapshot = |stack: &Stack<FreeSpace>| -> Vec<Vector3<f64>> {
+        (0..stack.len())
+            .flat_map(|i| {
+                let l = stack.inserted_m(i).unwrap();
+                (0..(l * 1e3) as usize).map(move |k| (i, k as f64 * 1e-3))
+            })
+            .map(|(i, s)| stack.instrument_point(i, s).unwrap().0)
+            .collect()
+    };
+    let steps: usize = std::env::var("STEPS")
+        .map(|v| v.parse().unwrap())
+        .unwrap_or(400);
+    for step in 1..=steps {
+        let before = snapshot(&stack);
+        let t = std::time::Instant::now();
+        let r = stack.step().unwrap();
+        let dt = t.elapsed().as_secs_f64() * 1e3;
+        let after = snapshot(&stack);
+        let moved = before
+            .iter()
+            .zip(&after)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        if step % 100 == 0 || step < 3 {
+            println!(
+                "step {step}: moved {:.2} um, contacts {} active {} sweeps {} conv {} pen {:.4} mm, {dt:.1} ms, offset {:.4} mm",
+                moved * 1e6,
+                r.contacts,
+                r.active_contacts,
+                r.sweeps,
+                r.converged,
+                stack.max_penetration_m() * 1e3,
+                lateral_offset(&stack, 1, 0, 0.0, l_wire) * 1e3
+            );
+        }
+    }
+}

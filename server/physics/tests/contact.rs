@@ -532,6 +532,7 @@ proptest! {
                     normal: Vector3::new(0.0, angle.cos(), angle.sin()),
                     gap,
                     friction: if with_friction { mu } else { 0.0 },
+                    lumen: None,
                 }
             })
             .collect();

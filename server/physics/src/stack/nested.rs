@@ -13,7 +13,7 @@ use nalgebra::{UnitQuaternion, Vector3, Vector6};
 use super::{InstrumentSpec, ProximalReaction, Stack, StackReport};
 use crate::beam::hermite_point;
 use crate::contact::point_displacement;
-use crate::coupled::{ChainPoint, CoupledContact, coupled_gauss_seidel};
+use crate::coupled::{ChainPoint, CoupledContact, Lumen, coupled_gauss_seidel};
 use crate::error::Result;
 use crate::navigation::{Sample, detect};
 use crate::wall::{FreeSpace, Wall};
@@ -21,6 +21,9 @@ use crate::wall::{FreeSpace, Wall};
 /// A lumen contact is detected where the predicted gap is below this fraction of the
 /// clearance (or the contact margin, if smaller).
 const LUMEN_MARGIN_FRACTION: f64 = 0.5;
+/// A lumen contact is violated by at most this fraction of its clearance before another
+/// detection round runs (capped by the wall tolerance).
+const LUMEN_TOLERANCE_FRACTION: f64 = 0.1;
 
 /// Nested mode's record of the last step.
 #[derive(Debug, Clone, Default)]
@@ -151,6 +154,11 @@ impl<W: Wall> Stack<W> {
                     warm.as_deref(),
                 )?
             };
+            // Lumen contacts come back turned to where their points settled.
+            for (d, (normal, gap)) in detected.iter_mut().zip(&response.normals) {
+                d.contact.normal = *normal;
+                d.contact.gap = *gap;
+            }
             let mut increments: Vec<Vec<Vector6<f64>>> = vec![Vec::new(); count];
             for (c, chain) in self.chains.iter_mut().enumerate() {
                 if let Some(chain) = chain {
@@ -168,16 +176,23 @@ impl<W: Wall> Stack<W> {
                 break (increments, (detected, response));
             }
             let mut next = self.detect_nested(&increments);
-            penetration = next
-                .iter()
-                .map(|d| {
-                    -(d.contact.gap
-                        + d.contact
-                            .normal
-                            .dot(&d.contact.relative_displacement(&increments)))
-                })
-                .fold(0.0, f64::max);
-            if penetration <= settings.penetration_tolerance_m || round >= rounds {
+            // A lumen's tolerance is a tenth of its clearance at most.
+            let mut excess: f64 = 0.0;
+            penetration = 0.0;
+            for d in &next {
+                let v = violation(&d.contact, &increments);
+                let tolerance = d
+                    .contact
+                    .lumen
+                    .map_or(settings.penetration_tolerance_m, |l| {
+                        settings
+                            .penetration_tolerance_m
+                            .min(LUMEN_TOLERANCE_FRACTION * l.clearance)
+                    });
+                penetration = penetration.max(v);
+                excess = excess.max(v - tolerance);
+            }
+            if excess <= 0.0 || round >= rounds {
                 break (increments, (detected, response));
             }
             // Keep the earlier rounds' contacts, ordered along the path, their forces carried.
@@ -345,6 +360,7 @@ impl<W: Wall> Stack<W> {
                         normal: c.normal,
                         gap: c.gap,
                         friction: c.friction,
+                        lumen: None,
                     },
                 });
             }
@@ -406,6 +422,7 @@ impl<W: Wall> Stack<W> {
         let tangent = frame * Vector3::x();
         let v = (q + dq) - (p + dp);
         let across = v - tangent * tangent.dot(&v);
+        let now = q - p;
         let distance = across.norm();
         let around = &self.instruments[k];
         let (section, _) = around
@@ -435,6 +452,11 @@ impl<W: Wall> Stack<W> {
                     normal,
                     gap: predicted - normal.dot(&(dp - dq)),
                     friction: section.lumen_friction_coefficient,
+                    lumen: Some(Lumen {
+                        axis: tangent,
+                        across: now - tangent * tangent.dot(&now),
+                        clearance,
+                    }),
                 },
                 sigma_first: at,
                 sigma_second: Some(sigma_second),
@@ -478,6 +500,16 @@ impl<W: Wall> Stack<W> {
                 },
             })
             .collect()
+    }
+}
+
+/// How far (m) a contact is violated under per-chain `increments`: a lumen contact by the
+/// point's offset beyond the clearance, a wall contact along its normal.
+fn violation(contact: &CoupledContact, increments: &[Vec<Vector6<f64>>]) -> f64 {
+    let moved = contact.relative_displacement(increments);
+    match &contact.lumen {
+        Some(l) => (l.across - (moved - l.axis * l.axis.dot(&moved))).norm() - l.clearance,
+        None => -(contact.gap + contact.normal.dot(&moved)),
     }
 }
 
