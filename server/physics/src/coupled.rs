@@ -48,8 +48,8 @@ pub struct CoupledContact {
     /// Coulomb friction coefficient.
     pub friction: f64,
     /// For a point inside a lumen, the lumen's geometry: the solver then keeps the exact
-    /// circular constraint by turning `normal` towards the point's solved offset at every
-    /// visit, instead of holding the half-plane of the detected normal.
+    /// circular constraint, solving the contact's force and normal together at every visit
+    /// (`lumen_solve`), instead of holding the half-plane of the detected normal.
     pub lumen: Option<Lumen>,
 }
 
@@ -103,45 +103,93 @@ fn frame_of(n: &Vector3<f64>, axis: Option<&Vector3<f64>>) -> Matrix3<f64> {
     Matrix3::from_columns(&[*n, t1, t2])
 }
 
-/// The local law of a lumen contact: normal force and friction along the lumen only (`t2`);
-/// sliding round the lumen is free. Stick closes the gap and stops the axial slip; slide puts
-/// the axial force on the cone's edge against the slip.
-fn lumen_law(w: &Matrix3<f64>, b: &Vector3<f64>, gap: f64, mu: f64) -> Vector3<f64> {
-    if w[(0, 0)].is_nan() || w[(0, 0)] <= 0.0 {
-        return Vector3::zeros();
-    }
-    let normal_only = -(b.x + gap) / w[(0, 0)];
-    if normal_only <= 0.0 {
-        return Vector3::zeros();
-    }
-    if mu == 0.0 {
-        return Vector3::new(normal_only, 0.0, 0.0);
-    }
-    // Stick: [W_nn W_na; W_an W_aa] (λn, λa) = (−gap − b_n, −b_a).
-    let (wnn, wna, wan, waa) = (w[(0, 0)], w[(0, 2)], w[(2, 0)], w[(2, 2)]);
-    let det = wnn * waa - wna * wan;
-    if det > 0.0 {
-        let (rn, ra) = (-gap - b.x, -b.z);
-        let ln = (waa * rn - wna * ra) / det;
-        let la = (wnn * ra - wan * rn) / det;
-        if ln > 0.0 && la.abs() <= mu * ln {
-            return Vector3::new(ln, 0.0, la);
+/// The exact local solve of a lumen contact: the force `f` (world, N) on the point and the
+/// normal it acts along, given the contact's relative compliance `w` (world, m/N) and the
+/// relative displacement `without` (m) it would have under every other force.
+///
+/// The offset from the centre line is `x(f) = x₀ − P w f` (P: across the axis). Where
+/// `‖x₀‖ ≤ c` the contact is open. Otherwise the radial force is `α u` along the settled
+/// offset's direction `u = x / c`, so `(I + (α/c) A) x = x₀` with `A = P w P` (2×2, symmetric
+/// positive): `‖x(α)‖` falls monotonically in α and one Newton iteration from α = 0 (convex,
+/// decreasing) finds `‖x‖ = c`. Friction acts along the lumen only: the axial force sticks
+/// (no axial slip) if it can within `μ α`, else slides on the cone's edge; the radial and
+/// axial parts are alternated a few times for their (small) coupling.
+fn lumen_solve(
+    w: &Matrix3<f64>,
+    without: &Vector3<f64>,
+    lumen: &Lumen,
+    mu: f64,
+) -> (Vector3<f64>, Vector3<f64>) {
+    let a = lumen.axis;
+    let e1 = perpendicular(&a);
+    let e2 = a.cross(&e1);
+    let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
+    let plane = basis.transpose() * w * basis;
+    let eigen = nalgebra::SymmetricEigen::new(plane);
+    let c = lumen.clearance;
+    let offset_of = |moved: &Vector3<f64>| basis.transpose() * (lumen.across - moved);
+    // The radial solve given the axial force: (normal, α).
+    let radial_given = |axial: f64, normal: Vector3<f64>| -> (Vector3<f64>, f64) {
+        // The offset without radial force, in the eigenbasis of A.
+        let x0 = offset_of(&(without + w * (a * axial)));
+        let y = eigen.eigenvectors.transpose() * x0;
+        let lambda = eigen.eigenvalues.map(|l| l.max(0.0));
+        let settled = |alpha: f64| {
+            nalgebra::Vector2::new(
+                y[0] / (1.0 + alpha * lambda[0] / c),
+                y[1] / (1.0 + alpha * lambda[1] / c),
+            )
+        };
+        let mut alpha: f64 = 0.0;
+        if x0.norm() > c {
+            for _ in 0..100 {
+                // ‖x(α)‖ − c is convex and decreasing: Newton from the left never overshoots.
+                let z = settled(alpha);
+                let n = z.norm();
+                let d = -(z[0] * z[0] * lambda[0] / (1.0 + alpha * lambda[0] / c)
+                    + z[1] * z[1] * lambda[1] / (1.0 + alpha * lambda[1] / c))
+                    / (c * n);
+                if n - c <= 1e-12 * c || d >= 0.0 {
+                    break;
+                }
+                alpha -= (n - c) / d;
+            }
         }
-    }
-    // Slide: λa = σ μ λn against the slip, σ = ±1.
-    for sigma in [-b.z.signum(), b.z.signum()] {
-        let denominator = wnn + sigma * mu * wna;
-        if denominator <= 0.0 {
-            continue;
+        let x = eigen.eigenvectors * settled(alpha);
+        let n = x.norm();
+        (if n > 0.0 { basis * (x / n) } else { normal }, alpha)
+    };
+    let mut axial: f64 = 0.0;
+    let mut normal = {
+        let x = offset_of(without);
+        let n = x.norm();
+        if n > 0.0 { basis * (x / n) } else { e1 }
+    };
+    let mut alpha = 0.0;
+    // Radial and axial alternately until the axial force stands; the radial solve comes last,
+    // so the circle always holds.
+    for round in 0..50 {
+        (normal, alpha) = radial_given(axial, normal);
+        if round == 49 {
+            break;
         }
-        let ln = -(b.x + gap) / denominator;
-        let la = sigma * mu * ln;
-        let slip = b.z + wan * ln + waa * la;
-        if ln > 0.0 && slip * sigma <= 0.0 {
-            return Vector3::new(ln, 0.0, la);
+        let target = if mu == 0.0 || alpha == 0.0 {
+            0.0
+        } else {
+            let slip = a.dot(&(without + w * (normal * alpha)));
+            let waa = a.dot(&(w * a));
+            let stick = if waa > 0.0 { -slip / waa } else { 0.0 };
+            stick.clamp(-mu * alpha, mu * alpha)
+        };
+        if (target - axial).abs() <= 1e-12 * (target.abs() + mu * alpha) {
+            break;
         }
+        axial = target;
     }
-    Vector3::new(normal_only, 0.0, 0.0)
+    (
+        normal,
+        normal * alpha + a * axial.clamp(-mu * alpha, mu * alpha),
+    )
 }
 
 /// The solved forces of a coupled contact problem.
@@ -459,42 +507,30 @@ pub fn coupled_gauss_seidel(
             for side in &p.sides {
                 relative += chains[side.chain].displacement(side) * side.sign;
             }
-            if let Some(lumen) = c
-                .lumen
-                .as_ref()
-                .filter(|_| !frozen && std::env::var("NOTURN").is_err())
-            {
-                // Turn the normal towards where the point now sits in the lumen; the force
-                // keeps its world direction.
-                let moved = p.delta + relative;
-                let x = lumen.across - (moved - lumen.axis * lumen.axis.dot(&moved));
-                let offset = x.norm();
-                if offset > 1e-9 * lumen.clearance.max(1e-6) {
-                    let normal = x / offset;
-                    if (normal - p.frame.column(0)).norm() > 1e-12 {
-                        let force = p.frame * local[k];
-                        p.turn(
-                            normal,
-                            lumen.clearance - normal.dot(&lumen.across),
-                            Some(lumen),
-                        );
-                        local[k] = p.frame.transpose() * force;
-                    }
-                }
-            }
+            // A lumen contact is solved exactly on its circle: the force, its normal (towards
+            // where the point settles) and the axial friction together.
+            let exact = c.lumen.as_ref().filter(|_| !frozen).map(|lumen| {
+                let own_world = p.frame * local[k];
+                let without = p.delta + relative - p.world * own_world;
+                let (normal, force) = lumen_solve(&p.world, &without, lumen, c.friction);
+                p.turn(
+                    normal,
+                    lumen.clearance - normal.dot(&lumen.across),
+                    Some(lumen),
+                );
+                local[k] = p.frame.transpose() * own_world;
+                p.frame.transpose() * force
+            });
             let own = local[k];
             let total = p.free_local + p.frame.transpose() * relative;
             largest_violation = largest_violation.max(-(p.gap + total.x));
             let b = total - p.compliance * own;
             let updated = if frozen {
                 normal_with_fixed_tangent(&p.compliance, &b, p.gap, &own, c.friction)
-            } else if c.lumen.is_some() {
-                relax(
-                    &own,
-                    lumen_law(&p.compliance, &b, p.gap, c.friction),
-                    settings.relaxation,
-                    c.friction,
-                )
+            } else if let Some(exact) = exact {
+                let mut updated = relax(&own, exact, settings.relaxation, c.friction);
+                updated.y = 0.0;
+                updated
             } else {
                 relax(
                     &own,
@@ -550,11 +586,7 @@ pub fn coupled_gauss_seidel(
             }
         }
     }
-    if !response.converged
-        && settings.polish
-        && !contacts.is_empty()
-        && std::env::var("NOPOLISH").is_err()
-    {
+    if !response.converged && settings.polish && !contacts.is_empty() {
         // Gauss–Seidel ran out of sweeps (two compliant chains pressed together make W
         // ill-conditioned): solve the active set's normal forces directly.
         let tangential: Vec<Vector3<f64>> =
@@ -597,4 +629,57 @@ pub fn coupled_gauss_seidel(
     response.local = local;
     response.nodal_loads = chains.into_iter().map(|c| c.loads).collect();
     Ok(response)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// A symmetric positive definite 3×3 compliance from a random matrix (m/N).
+    fn compliance(entries: &[f64]) -> Matrix3<f64> {
+        let m = Matrix3::from_iterator(entries.iter().copied());
+        (m * m.transpose() + Matrix3::identity() * 0.05) * 1e-3
+    }
+
+    proptest! {
+        /// The exact lumen solve meets its own definition (Karush–Kuhn–Tucker conditions of
+        /// the circular constraint, checked directly): the settled offset is within the
+        /// clearance, the radial force is along it and non-negative, it is zero where the
+        /// point is off the wall, and the axial force is inside the cone and sticks where it is
+        /// inside.
+        #[test]
+        fn lumen_solve_meets_the_circular_constraint(
+            entries in proptest::collection::vec(-1.0..1.0f64, 9),
+            without in proptest::collection::vec(-2e-4..2e-4f64, 3),
+            across in proptest::collection::vec(-1e-4..1e-4f64, 2),
+            clearance in 1e-5..3e-4f64,
+            mu in prop_oneof![Just(0.0), 0.0..0.5f64],
+        ) {
+            let w = compliance(&entries);
+            let without = Vector3::from_column_slice(&without);
+            let lumen = Lumen {
+                axis: Vector3::x(),
+                across: Vector3::new(0.0, across[0], across[1]),
+                clearance,
+            };
+            let (normal, force) = lumen_solve(&w, &without, &lumen, mu);
+            let moved = without + w * force;
+            let x = lumen.across - Vector3::new(0.0, moved.y, moved.z);
+            let radial = Vector3::new(0.0, force.y, force.z);
+            let alpha = radial.dot(&normal);
+            prop_assert!((normal.norm() - 1.0).abs() < 1e-9 && normal.x.abs() < 1e-12);
+            prop_assert!(alpha >= 0.0 && (radial - normal * alpha).norm() <= 1e-9 * radial.norm().max(1e-12));
+            prop_assert!(x.norm() <= clearance * (1.0 + 1e-6), "offset {} of {}", x.norm(), clearance);
+            if alpha > 0.0 {
+                prop_assert!((x.norm() - clearance).abs() <= 1e-6 * clearance);
+                prop_assert!((x.normalize() - normal).norm() < 1e-6);
+            }
+            prop_assert!(force.x.abs() <= mu * alpha * (1.0 + 1e-12) + 1e-300);
+            if mu > 0.0 && alpha > 0.0 && force.x.abs() < 0.999 * mu * alpha {
+                // Inside the cone, the radial–axial alternation converged to stick.
+                prop_assert!(moved.x.abs() <= 1e-3 * moved.norm().max(1e-9), "axial slip {}", moved.x);
+            }
+        }
+    }
 }
