@@ -534,12 +534,17 @@ fn simmons() -> Device {
 /// Signed turning (rad) of a curve in the world x–y plane from path coordinate `a` to `b`,
 /// summed over 0.5 mm pieces (so that turns beyond 180° unwrap).
 fn turning(stack: &Stack<FreeSpace>, a: f64, b: f64) -> f64 {
+    turning_along(|s| stack.point_at(s).1, a, b)
+}
+
+/// [`turning`] along any curve given by its frame at path coordinate `s`.
+fn turning_along(frame: impl Fn(f64) -> UnitQuaternion<f64>, a: f64, b: f64) -> f64 {
     let pieces = ((b - a) / 0.5e-3).ceil() as usize;
     (0..pieces)
         .map(|k| {
             let s = |j: usize| a + (b - a) * j as f64 / pieces as f64;
-            let ta = stack.point_at(s(k)).1 * Vector3::x();
-            let tb = stack.point_at(s(k + 1)).1 * Vector3::x();
+            let ta = frame(s(k)) * Vector3::x();
+            let tb = frame(s(k + 1)) * Vector3::x();
             ta.cross(&tb).z.atan2(ta.dot(&tb))
         })
         .sum()
@@ -857,4 +862,90 @@ fn nested_twist_turns_one_instrument_and_not_the_other() {
         assert!((dt - expect_t).abs() < tolerance, "tube curve turned {dt}");
         assert!((dw - expect_w).abs() < tolerance, "wire tip turned {dw}");
     }
+}
+
+/// Turn (degrees, in the world x–y plane) between the centre-line chords of instrument `index`
+/// over path coordinates `a..a + 2 mm` and `b − 2 mm..b`: where the curve points, read off the
+/// positions (a frame at a free end turns with its rest shape between contacts).
+fn chord_turn(point: impl Fn(f64) -> Vector3<f64>, a: f64, b: f64) -> f64 {
+    let ta = (point(a + 2e-3) - point(a)).normalize();
+    let tb = (point(b) - point(b - 2e-3)).normalize();
+    ta.cross(&tb).z.atan2(ta.dot(&tb)).to_degrees()
+}
+
+#[test]
+fn a_stiff_wire_straightens_an_angled_catheter_in_both_modes() {
+    // A 5 F catheter with its 45°/8 mm tip over a 0.035" wire whose stiff shaft crosses the
+    // curve (tip 160 mm beyond): 38 µm of radial clearance in nested mode.
+    let catheter = presets::diagnostic_catheter_5f();
+    let wire = presets::guidewire_035();
+    let l_cath = 0.2;
+    let (a, b) = (l_cath - 0.012, l_cath - 0.001);
+    let clearance = (0.038 - 0.035) * 0.0254 / 2.0;
+    let stack_of = |coupling| {
+        let settings = NavigationSettings::default();
+        let specs = vec![
+            InstrumentSpec::new(catheter.clone(), l_cath, &settings),
+            InstrumentSpec::new(wire.clone(), l_cath + 0.16, &settings),
+        ];
+        Stack::with_coupling(
+            specs,
+            FreeSpace,
+            Vector3::zeros(),
+            Vector3::x(),
+            settings,
+            coupling,
+        )
+        .unwrap()
+    };
+    let mut merged = stack_of(Coupling::Merged);
+    static_solve(merged.model_mut());
+    let ei_cath = ei(0.15e9, 5e-3 / 3.0, 0.038 * 0.0254); // the 20 mm tip section
+    let ei_wire = ei(60e9, 0.035 * 0.0254, 0.0);
+    let rest = PI / 4.0;
+    let blend = ei_cath / (ei_cath + ei_wire) * rest;
+    let merged_frames = turning(&merged, l_cath - 0.012, l_cath);
+    assert!(
+        (merged_frames - blend).abs() < 1e-6,
+        "merged {merged_frames} vs blend {blend}"
+    );
+    let merged_chords = chord_turn(|s| merged.point_at(s).0, a, b);
+    // Nested: stepped (it does not settle to 1 µm a step at this clearance; see docs).
+    let mut nested = stack_of(Coupling::Nested);
+    let steps = 400;
+    let t = std::time::Instant::now();
+    for _ in 0..steps {
+        nested.step().unwrap();
+    }
+    let per_step = t.elapsed().as_secs_f64() / steps as f64;
+    let catheter_chords = chord_turn(|s| nested.instrument_point(0, s).unwrap().0, a, b);
+    let wire_chords = chord_turn(|s| nested.instrument_point(1, s).unwrap().0, a, b);
+    let penetration = nested.max_penetration_m();
+    println!(
+        "angled 5 F over a stiff 0.035\" wire: merged tip turns {:.4}° (blend formula {:.4}°, rest {:.0}°); chords {:.3}° merged, nested catheter {:.3}° / wire {:.3}° after {steps} steps ({:.1} ms/step); nested penetration {:.4} mm of {:.4} mm clearance",
+        merged_frames.to_degrees(),
+        blend.to_degrees(),
+        rest.to_degrees(),
+        merged_chords,
+        catheter_chords,
+        wire_chords,
+        per_step * 1e3,
+        penetration * 1e3,
+        clearance * 1e3
+    );
+    // Nested: the catheter's chords may tilt against the wire's by the clearance over a chord
+    // at each end (2c / 2 mm each); the wire straightens the curve to near the blend.
+    let play = (4.0 * clearance / 2e-3_f64).to_degrees();
+    assert!(
+        (catheter_chords - wire_chords).abs() <= play,
+        "catheter {catheter_chords}° vs wire {wire_chords}° beyond the play {play}°"
+    );
+    assert!(
+        (catheter_chords - merged_chords).abs() <= play + 1.0,
+        "nested {catheter_chords}° vs merged {merged_chords}°"
+    );
+    assert!(
+        penetration <= 0.1 * clearance,
+        "penetration {penetration} m"
+    );
 }

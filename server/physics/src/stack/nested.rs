@@ -21,6 +21,10 @@ use crate::wall::{FreeSpace, Wall};
 /// A lumen contact is detected where the predicted gap is below this fraction of the
 /// clearance (or the contact margin, if smaller).
 const LUMEN_MARGIN_FRACTION: f64 = 0.5;
+/// How far inside an outer instrument's tip (m) the inner chain gets a lumen point of its
+/// own.
+const TIP_INSET_M: f64 = 1e-4;
+
 /// A lumen contact is violated by at most this fraction of its clearance before another
 /// detection round runs (capped by the wall tolerance).
 const LUMEN_TOLERANCE_FRACTION: f64 = 0.1;
@@ -322,7 +326,34 @@ impl<W: Wall> Stack<W> {
             let mut outside: Vec<Sample> = Vec::new();
             // The deepest lumen contact per element half.
             let mut lumen: Vec<(usize, bool, f64, Detected)> = Vec::new();
-            for s in chain.sample_layout() {
+            let layout = chain.sample_layout();
+            // A point just inside each outer tip the chain passes: between two samples of a
+            // long inner element the outer's tip could bend off it.
+            let mut tips: Vec<Sample> = Vec::new();
+            for k in 0..i {
+                let tip = self.instruments[k].inserted_m - TIP_INSET_M;
+                let last = sigma.len() - 1;
+                if self.chains[k].is_none() || tip <= 0.0 || tip >= sigma[last] {
+                    continue;
+                }
+                let e = sigma
+                    .partition_point(|&x| x <= tip)
+                    .saturating_sub(1)
+                    .min(last - 1);
+                let t = (tip - sigma[e]) / (sigma[e + 1] - sigma[e]);
+                if let Some(like) = layout.iter().find(|s| s.element == e) {
+                    tips.push(Sample {
+                        element: e,
+                        t,
+                        ..*like
+                    });
+                }
+            }
+            for (s, is_tip) in layout
+                .iter()
+                .map(|s| (*s, false))
+                .chain(tips.into_iter().map(|s| (s, true)))
+            {
                 let at = sigma[s.element] + s.t * (sigma[s.element + 1] - sigma[s.element]);
                 let container = (0..i)
                     .rev()
@@ -339,6 +370,11 @@ impl<W: Wall> Stack<W> {
                 else {
                     continue;
                 };
+                if is_tip {
+                    // Its own contact, never merged with an element half's.
+                    lumen.push((usize::MAX, false, predicted, d));
+                    continue;
+                }
                 let half = s.t < 0.5;
                 match lumen.iter_mut().find(|e| e.0 == s.element && e.1 == half) {
                     Some(e) if predicted < e.2 => *e = (s.element, half, predicted, d),
