@@ -334,6 +334,18 @@ impl Prepared {
     }
 }
 
+/// Sets every chain's loads to the contacts' forces `local` (their frames).
+fn load_all(chains: &mut [ChainState], prepared: &[Prepared], local: &[Vector3<f64>]) {
+    for chain in chains.iter_mut() {
+        chain.loads.iter_mut().for_each(|l| l.fill(0.0));
+    }
+    for (p, l) in prepared.iter().zip(local) {
+        for side in &p.sides {
+            chains[side.chain].add(side, &(p.frame * l * side.sign));
+        }
+    }
+}
+
 /// Every contact's normal relative displacement under contact forces `local` (their frames),
 /// by one propagation per chain in the contacts' order.
 fn normal_displacements(
@@ -342,11 +354,7 @@ fn normal_displacements(
     local: &[Vector3<f64>],
 ) -> Vec<f64> {
     let mut chains: Vec<ChainState> = flexibilities.iter().map(|f| ChainState::new(f)).collect();
-    for (p, l) in prepared.iter().zip(local) {
-        for side in &p.sides {
-            chains[side.chain].add(side, &(p.frame * l * side.sign));
-        }
-    }
+    load_all(&mut chains, prepared, local);
     chains.iter_mut().for_each(ChainState::restart);
     prepared
         .iter()
@@ -473,11 +481,7 @@ pub fn coupled_gauss_seidel(
         _ => vec![Vector3::zeros(); contacts.len()],
     };
     let mut chains: Vec<ChainState> = flexibilities.iter().map(|f| ChainState::new(f)).collect();
-    for (p, l) in prepared.iter().zip(&local) {
-        for side in &p.sides {
-            chains[side.chain].add(side, &(p.frame * l * side.sign));
-        }
-    }
+    load_all(&mut chains, &prepared, &local);
     let with_friction = contacts.iter().any(|c| c.friction > 0.0);
     let budget = settings.max_iterations.max(1);
     let mut response = CoupledResponse::default();
@@ -576,14 +580,7 @@ pub fn coupled_gauss_seidel(
                 }
                 *l = project_on_cone(&mixed, c.friction);
             }
-            for chain in &mut chains {
-                chain.loads.iter_mut().for_each(|l| l.fill(0.0));
-            }
-            for (p, l) in prepared.iter().zip(&local) {
-                for side in &p.sides {
-                    chains[side.chain].add(side, &(p.frame * l * side.sign));
-                }
-            }
+            load_all(&mut chains, &prepared, &local);
         }
     }
     if !response.converged && settings.polish && !contacts.is_empty() {
@@ -604,14 +601,7 @@ pub fn coupled_gauss_seidel(
             normal_displacements(&prepared, flexibilities, &unit)
         };
         if active_set_normals(&c, column, &mut local, |k| contacts[k].friction) {
-            for chain in &mut chains {
-                chain.loads.iter_mut().for_each(|l| l.fill(0.0));
-            }
-            for (p, l) in prepared.iter().zip(&local) {
-                for side in &p.sides {
-                    chains[side.chain].add(side, &(p.frame * l * side.sign));
-                }
-            }
+            load_all(&mut chains, &prepared, &local);
             response.polished = true;
         }
     }

@@ -59,13 +59,26 @@ fn straight_pair() -> (Device, Device) {
     )
 }
 
-fn free_stack(devices: Vec<(Device, f64)>) -> Stack<FreeSpace> {
+/// A free-space stack entering along x at the origin, with default settings.
+fn coupled_stack(devices: Vec<(Device, f64)>, coupling: Coupling) -> Stack<FreeSpace> {
     let settings = NavigationSettings::default();
     let specs = devices
         .into_iter()
         .map(|(d, l)| InstrumentSpec::new(d, l, &settings))
         .collect();
-    Stack::new(specs, FreeSpace, Vector3::zeros(), Vector3::x(), settings).unwrap()
+    Stack::with_coupling(
+        specs,
+        FreeSpace,
+        Vector3::zeros(),
+        Vector3::x(),
+        settings,
+        coupling,
+    )
+    .unwrap()
+}
+
+fn free_stack(devices: Vec<(Device, f64)>) -> Stack<FreeSpace> {
+    coupled_stack(devices, Coupling::Merged)
 }
 
 /// Switches the strand's model to a converged static solve without drag.
@@ -256,26 +269,52 @@ fn twisting_one_instrument_turns_its_curve_and_not_the_others() {
         let (w, wt) = bend_direction(stack, l_wire - 0.011, l_wire);
         (roll_angle(&c, &ct), roll_angle(&w, &wt))
     };
-    for (turned, name) in [(0, "catheter"), (1, "wire")] {
-        let mut stack = free_stack(vec![(catheter.clone(), l_cath), (wire.clone(), l_wire)]);
-        static_solve(stack.model_mut());
-        let (cath0, wire0) = measure(&stack);
+    turn_each_alone(
+        ("", "catheter", 6),
+        || free_stack(vec![(catheter.clone(), l_cath), (wire.clone(), l_wire)]),
+        |stack| static_solve(stack.model_mut()),
+        measure,
+        1e-6,
+    );
+}
+
+/// Turns each of a two-instrument stack's instruments 90° on its own (a fresh stack each
+/// time, brought to rest by `solve` before and after) and checks that its curve turns 90° and
+/// the other's not, within `tolerance` (rad). `measure` gives the roll angles (rad) of the
+/// outer's curve and the wire's tip; `(label, outer, digits)` name them in the printout.
+fn turn_each_alone(
+    (label, outer, digits): (&str, &str, usize),
+    new_stack: impl Fn() -> Stack<FreeSpace>,
+    solve: impl Fn(&mut Stack<FreeSpace>),
+    measure: impl Fn(&Stack<FreeSpace>) -> (f64, f64),
+    tolerance: f64,
+) {
+    for (turned, name) in [(0, outer), (1, "wire")] {
+        let mut stack = new_stack();
+        solve(&mut stack);
+        let (outer0, wire0) = measure(&stack);
         run_to_targets(&mut stack, &[(turned, None, Some(PI / 2.0))]);
-        static_solve(stack.model_mut());
-        let (cath1, wire1) = measure(&stack);
-        let (dc, dw) = (wrap(cath1 - cath0), wrap(wire1 - wire0));
+        solve(&mut stack);
+        let (outer1, wire1) = measure(&stack);
+        let (d_outer, d_wire) = (wrap(outer1 - outer0), wrap(wire1 - wire0));
         println!(
-            "{name} turned 90°: catheter curve turned {:.6}°, wire tip turned {:.6}°",
-            dc.to_degrees(),
-            dw.to_degrees()
+            "{label}{name} turned 90°: {outer} curve turned {:.digits$}°, wire tip turned {:.digits$}°",
+            d_outer.to_degrees(),
+            d_wire.to_degrees()
         );
-        let (expect_c, expect_w) = if turned == 0 {
+        let (expect_outer, expect_wire) = if turned == 0 {
             (PI / 2.0, 0.0)
         } else {
             (0.0, PI / 2.0)
         };
-        assert!((dc - expect_c).abs() < 1e-6, "catheter curve turned {dc}");
-        assert!((dw - expect_w).abs() < 1e-6, "wire tip turned {dw}");
+        assert!(
+            (d_outer - expect_outer).abs() < tolerance,
+            "{outer} curve turned {d_outer}"
+        );
+        assert!(
+            (d_wire - expect_wire).abs() < tolerance,
+            "wire tip turned {d_wire}"
+        );
     }
 }
 
@@ -688,20 +727,7 @@ fn the_builtin_catalogue_is_valid_sourced_and_nests() {
 
 /// A free-space stack in nested mode.
 fn nested_stack(devices: Vec<(Device, f64)>) -> Stack<FreeSpace> {
-    let settings = NavigationSettings::default();
-    let specs = devices
-        .into_iter()
-        .map(|(d, l)| InstrumentSpec::new(d, l, &settings))
-        .collect();
-    Stack::with_coupling(
-        specs,
-        FreeSpace,
-        Vector3::zeros(),
-        Vector3::x(),
-        settings,
-        Coupling::Nested,
-    )
-    .unwrap()
+    coupled_stack(devices, Coupling::Nested)
 }
 
 /// Steps a nested stack with its commands held until no node of any chain moves more than
@@ -839,29 +865,16 @@ fn nested_twist_turns_one_instrument_and_not_the_other() {
             direction(stack, 1, l_wire - 0.011, l_wire),
         )
     };
-    for (turned, name) in [(0, "tube"), (1, "wire")] {
-        let mut stack = nested_stack(vec![(tube.clone(), l_tube), (wire.clone(), l_wire)]);
-        settle(&mut stack, 1e-6, 6000);
-        let (tube0, wire0) = measure(&stack);
-        run_to_targets(&mut stack, &[(turned, None, Some(PI / 2.0))]);
-        settle(&mut stack, 1e-6, 6000);
-        let (tube1, wire1) = measure(&stack);
-        let (dt, dw) = (wrap(tube1 - tube0), wrap(wire1 - wire0));
-        println!(
-            "nested, {name} turned 90°: tube curve turned {:.3}°, wire tip turned {:.3}°",
-            dt.to_degrees(),
-            dw.to_degrees()
-        );
-        let (expect_t, expect_w) = if turned == 0 {
-            (PI / 2.0, 0.0)
-        } else {
-            (0.0, PI / 2.0)
-        };
-        // Lumen friction couples the two a little; within a degree.
-        let tolerance = 1f64.to_radians();
-        assert!((dt - expect_t).abs() < tolerance, "tube curve turned {dt}");
-        assert!((dw - expect_w).abs() < tolerance, "wire tip turned {dw}");
-    }
+    // Lumen friction couples the two a little; within a degree.
+    turn_each_alone(
+        ("nested, ", "tube", 3),
+        || nested_stack(vec![(tube.clone(), l_tube), (wire.clone(), l_wire)]),
+        |stack| {
+            settle(stack, 1e-6, 6000);
+        },
+        measure,
+        1f64.to_radians(),
+    );
 }
 
 /// Turn (degrees, in the world x–y plane) between the centre-line chords of instrument `index`
@@ -882,23 +895,8 @@ fn a_stiff_wire_straightens_an_angled_catheter_in_both_modes() {
     let l_cath = 0.2;
     let (a, b) = (l_cath - 0.012, l_cath - 0.001);
     let clearance = (0.038 - 0.035) * 0.0254 / 2.0;
-    let stack_of = |coupling| {
-        let settings = NavigationSettings::default();
-        let specs = vec![
-            InstrumentSpec::new(catheter.clone(), l_cath, &settings),
-            InstrumentSpec::new(wire.clone(), l_cath + 0.16, &settings),
-        ];
-        Stack::with_coupling(
-            specs,
-            FreeSpace,
-            Vector3::zeros(),
-            Vector3::x(),
-            settings,
-            coupling,
-        )
-        .unwrap()
-    };
-    let mut merged = stack_of(Coupling::Merged);
+    let devices = vec![(catheter, l_cath), (wire, l_cath + 0.16)];
+    let mut merged = free_stack(devices.clone());
     static_solve(merged.model_mut());
     let ei_cath = ei(0.15e9, 5e-3 / 3.0, 0.038 * 0.0254); // the 20 mm tip section
     let ei_wire = ei(60e9, 0.035 * 0.0254, 0.0);
@@ -911,7 +909,7 @@ fn a_stiff_wire_straightens_an_angled_catheter_in_both_modes() {
     );
     let merged_chords = chord_turn(|s| merged.point_at(s).0, a, b);
     // Nested: stepped (it does not settle to 1 µm a step at this clearance; see docs).
-    let mut nested = stack_of(Coupling::Nested);
+    let mut nested = nested_stack(devices);
     let steps = 400;
     let t = std::time::Instant::now();
     for _ in 0..steps {
