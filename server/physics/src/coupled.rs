@@ -22,6 +22,13 @@ use crate::contact::{
 use crate::error::{PhysicsError, Result};
 use crate::substructure::Flexibility;
 
+/// Active-set solves at most after Gauss–Seidel runs out of sweeps, each after turning the
+/// lumen contacts' normals to where their points settled.
+const LUMEN_POLISH_PASSES: usize = 6;
+/// The passes stop when every active lumen point is on its circle to this fraction of the
+/// clearance.
+const LUMEN_POLISH_TOLERANCE: f64 = 1e-3;
+
 /// Where a contact acts on one chain: between model nodes `element` and `element + 1` of
 /// chain `chain`, at parameter `t` ∈ [0, 1].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -110,10 +117,13 @@ fn frame_of(n: &Vector3<f64>, axis: Option<&Vector3<f64>>) -> Matrix3<f64> {
 /// The offset from the centre line is `x(f) = x₀ − P w f` (P: across the axis). Where
 /// `‖x₀‖ ≤ c` the contact is open. Otherwise the radial force is `α u` along the settled
 /// offset's direction `u = x / c`, so `(I + (α/c) A) x = x₀` with `A = P w P` (2×2, symmetric
-/// positive): `‖x(α)‖` falls monotonically in α and one Newton iteration from α = 0 (convex,
-/// decreasing) finds `‖x‖ = c`. Friction acts along the lumen only: the axial force sticks
-/// (no axial slip) if it can within `μ α`, else slides on the cone's edge; the radial and
-/// axial parts are alternated a few times for their (small) coupling.
+/// positive): `‖x(α)‖` falls monotonically in α and Newton from α = 0 (convex, decreasing)
+/// finds `‖x‖ = c` ([`radial_solve`]). Friction acts along the lumen only. Sticking (no
+/// axial slip) is tried first, exactly: the axial force that cancels the slip is eliminated,
+/// which leaves the radial problem on the Schur complement `w − (w a)(w a)ᵀ / aᵀw a`. If that
+/// force lies outside `μ α`, the contact slides on the cone's edge, `t = s μ α`, and the
+/// settled normal is `u(α) = (c I + α A)⁻¹ (x₀ − α s μ P w a)` with `‖u(α)‖ = 1`, a scalar
+/// equation solved by bisection.
 fn lumen_solve(
     w: &Matrix3<f64>,
     without: &Vector3<f64>,
@@ -121,75 +131,131 @@ fn lumen_solve(
     mu: f64,
 ) -> (Vector3<f64>, Vector3<f64>) {
     let a = lumen.axis;
-    let e1 = perpendicular(&a);
-    let e2 = a.cross(&e1);
+    let (e1, e2) = {
+        let e1 = perpendicular(&a);
+        (e1, a.cross(&e1))
+    };
     let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
-    let plane = basis.transpose() * w * basis;
-    let eigen = nalgebra::SymmetricEigen::new(plane);
     let c = lumen.clearance;
-    let offset_of = |moved: &Vector3<f64>| basis.transpose() * (lumen.across - moved);
-    // The radial solve given the axial force: (normal, α).
-    let radial_given = |axial: f64, normal: Vector3<f64>| -> (Vector3<f64>, f64) {
-        // The offset without radial force, in the eigenbasis of A.
-        let x0 = offset_of(&(without + w * (a * axial)));
-        let y = eigen.eigenvectors.transpose() * x0;
-        let lambda = eigen.eigenvalues.map(|l| l.max(0.0));
-        let settled = |alpha: f64| {
-            nalgebra::Vector2::new(
-                y[0] / (1.0 + alpha * lambda[0] / c),
-                y[1] / (1.0 + alpha * lambda[1] / c),
-            )
-        };
-        let mut alpha: f64 = 0.0;
-        if x0.norm() > c {
-            for _ in 0..100 {
-                // ‖x(α)‖ − c is convex and decreasing: Newton from the left never overshoots.
-                let z = settled(alpha);
-                let n = z.norm();
-                let d = -(z[0] * z[0] * lambda[0] / (1.0 + alpha * lambda[0] / c)
-                    + z[1] * z[1] * lambda[1] / (1.0 + alpha * lambda[1] / c))
-                    / (c * n);
-                if n - c <= 1e-12 * c || d >= 0.0 {
-                    break;
-                }
-                alpha -= (n - c) / d;
-            }
-        }
-        let x = eigen.eigenvectors * settled(alpha);
-        let n = x.norm();
-        (if n > 0.0 { basis * (x / n) } else { normal }, alpha)
+    let x0 = basis.transpose() * (lumen.across - without);
+    let fallback = if x0.norm() > 0.0 {
+        basis * x0.normalize()
+    } else {
+        e1
     };
-    let mut axial: f64 = 0.0;
-    let mut normal = {
-        let x = offset_of(without);
-        let n = x.norm();
-        if n > 0.0 { basis * (x / n) } else { e1 }
-    };
-    let mut alpha = 0.0;
-    // Radial and axial alternately until the axial force stands; the radial solve comes last,
-    // so the circle always holds.
-    for round in 0..50 {
-        (normal, alpha) = radial_given(axial, normal);
-        if round == 49 {
-            break;
-        }
-        let target = if mu == 0.0 || alpha == 0.0 {
-            0.0
-        } else {
-            let slip = a.dot(&(without + w * (normal * alpha)));
-            let waa = a.dot(&(w * a));
-            let stick = if waa > 0.0 { -slip / waa } else { 0.0 };
-            stick.clamp(-mu * alpha, mu * alpha)
-        };
-        if (target - axial).abs() <= 1e-12 * (target.abs() + mu * alpha) {
-            break;
-        }
-        axial = target;
+    if x0.norm() <= c {
+        // Open: no radial force, hence no friction either.
+        return (fallback, Vector3::zeros());
     }
-    (
-        normal,
-        normal * alpha + a * axial.clamp(-mu * alpha, mu * alpha),
-    )
+    let wa = w * a;
+    let waa = a.dot(&wa);
+    if mu == 0.0 || waa <= 0.0 {
+        let (normal, alpha) = radial_solve(w, without, lumen, &basis, fallback);
+        return (normal, normal * alpha);
+    }
+    // Sticking: the axial force t = −aᵀ(without + w u α) / aᵀw a cancels the slip.
+    let stuck = w - wa * wa.transpose() / waa;
+    let stuck_without = without - wa * (a.dot(without) / waa);
+    let (normal, alpha) = radial_solve(&stuck, &stuck_without, lumen, &basis, fallback);
+    let axial = -a.dot(&(without + w * (normal * alpha))) / waa;
+    if axial.abs() <= mu * alpha {
+        return (normal, normal * alpha + a * axial);
+    }
+    // Sliding on the cone's edge, t = s μ α: find α with ‖u(α)‖ = 1.
+    let drift = basis.transpose() * wa * (axial.signum() * mu);
+    let plane = basis.transpose() * w * basis;
+    let direction = |alpha: f64| -> Option<nalgebra::Vector2<f64>> {
+        (nalgebra::Matrix2::identity() * c + plane * alpha)
+            .lu()
+            .solve(&(x0 - drift * alpha))
+    };
+    let excess = |alpha: f64| direction(alpha).map_or(f64::NAN, |u| u.norm() - 1.0);
+    // ‖u(0)‖ = ‖x₀‖ / c > 1 (the contact is closed); widen until it falls below 1.
+    let frictionless = radial_solve(w, without, lumen, &basis, fallback);
+    let scale = [alpha, frictionless.1]
+        .into_iter()
+        .filter(|s| s.is_finite())
+        .fold(f64::MIN_POSITIVE, f64::max);
+    let (mut lo, mut hi) = (0.0, scale);
+    let mut bracketed = false;
+    // Doubling from the smallest positive float reaches the largest in about 2,100 steps.
+    for _ in 0..2200 {
+        let e = excess(hi);
+        if e <= 0.0 {
+            bracketed = true;
+            break;
+        }
+        if !e.is_finite() {
+            break;
+        }
+        lo = hi;
+        hi *= 2.0;
+    }
+    if !bracketed {
+        // No sliding state on the circle: keep the frictionless radial force.
+        let (normal, alpha) = frictionless;
+        return (normal, normal * alpha);
+    }
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if mid <= lo || mid >= hi {
+            break;
+        }
+        if excess(mid) > 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let alpha = hi;
+    let normal = match direction(alpha) {
+        Some(u) if u.norm() > 0.0 => basis * u.normalize(),
+        _ => fallback,
+    };
+    (normal, normal * alpha + a * (axial.signum() * mu * alpha))
+}
+
+/// The frictionless radial solve of a lumen contact with compliance `w` (m/N) and relative
+/// displacement `without` (m): the unit normal (world) across the lumen and the force α ≥ 0
+/// (N) along it that settles the offset on the circle of radius `lumen.clearance`, or α = 0
+/// and the offset's own direction (`fallback` at the centre) where it is already inside.
+fn radial_solve(
+    w: &Matrix3<f64>,
+    without: &Vector3<f64>,
+    lumen: &Lumen,
+    basis: &nalgebra::Matrix3x2<f64>,
+    fallback: Vector3<f64>,
+) -> (Vector3<f64>, f64) {
+    let c = lumen.clearance;
+    let x0 = basis.transpose() * (lumen.across - without);
+    let eigen = nalgebra::SymmetricEigen::new(basis.transpose() * w * basis);
+    // The offset without radial force, in the eigenbasis of A.
+    let y = eigen.eigenvectors.transpose() * x0;
+    let lambda = eigen.eigenvalues.map(|l| l.max(0.0));
+    let settled = |alpha: f64| {
+        nalgebra::Vector2::new(
+            y[0] / (1.0 + alpha * lambda[0] / c),
+            y[1] / (1.0 + alpha * lambda[1] / c),
+        )
+    };
+    let mut alpha: f64 = 0.0;
+    if x0.norm() > c {
+        for _ in 0..100 {
+            // ‖x(α)‖ − c is convex and decreasing: Newton from the left never overshoots.
+            let z = settled(alpha);
+            let n = z.norm();
+            let d = -(z[0] * z[0] * lambda[0] / (1.0 + alpha * lambda[0] / c)
+                + z[1] * z[1] * lambda[1] / (1.0 + alpha * lambda[1] / c))
+                / (c * n);
+            if n - c <= 1e-12 * c || d >= 0.0 {
+                break;
+            }
+            alpha -= (n - c) / d;
+        }
+    }
+    let x = eigen.eigenvectors * settled(alpha);
+    let n = x.norm();
+    (if n > 0.0 { basis * (x / n) } else { fallback }, alpha)
 }
 
 /// The solved forces of a coupled contact problem.
@@ -346,25 +412,37 @@ fn load_all(chains: &mut [ChainState], prepared: &[Prepared], local: &[Vector3<f
     }
 }
 
-/// Every contact's normal relative displacement under contact forces `local` (their frames),
-/// by one propagation per chain in the contacts' order.
-fn normal_displacements(
+/// Every contact's relative displacement (world, m) under contact forces `local` (their
+/// frames), by one propagation per chain in the contacts' order.
+fn relative_displacements(
     prepared: &[Prepared],
     flexibilities: &[&Flexibility],
     local: &[Vector3<f64>],
-) -> Vec<f64> {
+) -> Vec<Vector3<f64>> {
     let mut chains: Vec<ChainState> = flexibilities.iter().map(|f| ChainState::new(f)).collect();
     load_all(&mut chains, prepared, local);
     chains.iter_mut().for_each(ChainState::restart);
     prepared
         .iter()
         .map(|p| {
-            let mut relative = Vector3::zeros();
-            for side in &p.sides {
-                relative += chains[side.chain].displacement(side) * side.sign;
-            }
-            p.frame.column(0).dot(&relative)
+            p.sides
+                .iter()
+                .map(|side| chains[side.chain].displacement(side) * side.sign)
+                .sum()
         })
+        .collect()
+}
+
+/// Every contact's normal relative displacement (m) under contact forces `local`.
+fn normal_displacements(
+    prepared: &[Prepared],
+    flexibilities: &[&Flexibility],
+    local: &[Vector3<f64>],
+) -> Vec<f64> {
+    relative_displacements(prepared, flexibilities, local)
+        .iter()
+        .zip(prepared)
+        .map(|(u, p)| p.frame.column(0).dot(u))
         .collect()
 }
 
@@ -585,24 +663,59 @@ pub fn coupled_gauss_seidel(
     }
     if !response.converged && settings.polish && !contacts.is_empty() {
         // Gauss–Seidel ran out of sweeps (two compliant chains pressed together make W
-        // ill-conditioned): solve the active set's normal forces directly.
-        let tangential: Vec<Vector3<f64>> =
-            local.iter().map(|l| Vector3::new(0.0, l.y, l.z)).collect();
-        let held = normal_displacements(&prepared, flexibilities, &tangential);
-        let c: Vec<f64> = contacts
-            .iter()
-            .zip(&prepared)
-            .zip(&held)
-            .map(|((_, p), u)| p.gap + p.free_local.x + u)
-            .collect();
-        let column = |j: usize| {
-            let mut unit = vec![Vector3::zeros(); contacts.len()];
-            unit[j] = Vector3::x();
-            normal_displacements(&prepared, flexibilities, &unit)
-        };
-        if active_set_normals(&c, column, &mut local, |k| contacts[k].friction) {
+        // ill-conditioned): solve the active set's normal forces directly. A lumen contact's
+        // normal is then turned to where its point settled and the solve repeated, until the
+        // points lie on their circles (the linear solve along a fixed normal leaves them off
+        // it by the square of the sideways slip).
+        for _ in 0..LUMEN_POLISH_PASSES {
+            let tangential: Vec<Vector3<f64>> =
+                local.iter().map(|l| Vector3::new(0.0, l.y, l.z)).collect();
+            let held = normal_displacements(&prepared, flexibilities, &tangential);
+            let c: Vec<f64> = contacts
+                .iter()
+                .zip(&prepared)
+                .zip(&held)
+                .map(|((_, p), u)| p.gap + p.free_local.x + u)
+                .collect();
+            let column = |j: usize| {
+                let mut unit = vec![Vector3::zeros(); contacts.len()];
+                unit[j] = Vector3::x();
+                normal_displacements(&prepared, flexibilities, &unit)
+            };
+            if !active_set_normals(&c, column, &mut local, |k| contacts[k].friction) {
+                break;
+            }
             load_all(&mut chains, &prepared, &local);
             response.polished = true;
+            let moved = relative_displacements(&prepared, flexibilities, &local);
+            let mut off_circle: f64 = 0.0;
+            for ((p, l), (c, moved)) in prepared
+                .iter_mut()
+                .zip(local.iter_mut())
+                .zip(contacts.iter().zip(&moved))
+            {
+                let Some(lumen) = &c.lumen else { continue };
+                let settled = moved + p.delta;
+                let x = lumen.across - (settled - lumen.axis * lumen.axis.dot(&settled));
+                if l.x <= 0.0 || x.norm() == 0.0 {
+                    continue;
+                }
+                off_circle = off_circle.max((x.norm() - lumen.clearance).abs() / lumen.clearance);
+                // The force keeps its world radial size and axial part, along the new normal.
+                let world = p.frame * *l;
+                let radial = (world - lumen.axis * lumen.axis.dot(&world)).norm();
+                let normal = x.normalize();
+                p.turn(
+                    normal,
+                    lumen.clearance - normal.dot(&lumen.across),
+                    Some(lumen),
+                );
+                *l = Vector3::new(radial, 0.0, lumen.axis.dot(&world));
+            }
+            load_all(&mut chains, &prepared, &local);
+            if off_circle <= LUMEN_POLISH_TOLERANCE {
+                break;
+            }
         }
     }
     if local.iter().any(|l| !l.iter().all(|v| v.is_finite())) {
@@ -666,9 +779,14 @@ mod tests {
                 prop_assert!((x.normalize() - normal).norm() < 1e-6);
             }
             prop_assert!(force.x.abs() <= mu * alpha * (1.0 + 1e-12) + 1e-300);
-            if mu > 0.0 && alpha > 0.0 && force.x.abs() < 0.999 * mu * alpha {
-                // Inside the cone, the radial–axial alternation converged to stick.
-                prop_assert!(moved.x.abs() <= 1e-3 * moved.norm().max(1e-9), "axial slip {}", moved.x);
+            if mu > 0.0 && alpha > 0.0 {
+                if force.x.abs() < (1.0 - 1e-9) * mu * alpha {
+                    // Inside the cone the contact sticks: no axial slip.
+                    prop_assert!(moved.x.abs() <= 1e-9 * moved.norm().max(1e-12), "axial slip {}", moved.x);
+                } else {
+                    // On the cone's edge it slides against the axial force.
+                    prop_assert!(force.x * moved.x <= 1e-9 * (force.x * moved.norm()).abs(), "slip {} with force {}", moved.x, force.x);
+                }
             }
         }
     }

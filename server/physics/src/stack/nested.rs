@@ -27,7 +27,7 @@ const TIP_INSET_M: f64 = 1e-4;
 
 /// A lumen contact is violated by at most this fraction of its clearance before another
 /// detection round runs (capped by the wall tolerance).
-const LUMEN_TOLERANCE_FRACTION: f64 = 0.1;
+const LUMEN_TOLERANCE_FRACTION: f64 = 0.05;
 
 /// Nested mode's record of the last step.
 #[derive(Debug, Clone, Default)]
