@@ -171,6 +171,10 @@ fn main() {
         ("paper mode (one solve per step)".into(), c, RED),
     ];
 
+    // 5. Coaxial stacks: merged mode against the nested reference, one to four instruments,
+    //    pushed from the femoral access up the descending aorta into the arch.
+    let (coax_cost, coax_error) = coaxial(full);
+
     for s in &error_series {
         record("tip_error_vs_n", s);
     }
@@ -182,6 +186,12 @@ fn main() {
     }
     for s in &roll_series {
         record("rollup_vs_load_steps", s);
+    }
+    for s in &coax_cost {
+        record("coaxial_cost_vs_instruments", s);
+    }
+    for s in &coax_error {
+        record("coaxial_merge_error_vs_instruments", s);
     }
     print!("{csv}");
     if !full {
@@ -217,6 +227,94 @@ fn main() {
         "distance / L",
         &roll_series,
     );
+    log_chart(
+        &dir.join("coaxial_cost_vs_instruments.svg"),
+        "Coaxial stack in arch-to-cow: median time per step",
+        "instruments",
+        "ms per step",
+        &coax_cost,
+    );
+    log_chart(
+        &dir.join("coaxial_merge_error_vs_instruments.svg"),
+        "Merged mode against nested: tip distance over the run",
+        "instruments",
+        "tip distance (mm)",
+        &coax_error,
+    );
     std::fs::write(dir.join("charts.csv"), csv).unwrap();
     println!("charts written to {}", dir.display());
+}
+
+/// Merged and nested runs of the same scripted push with 1 to 4 instruments (sheath, distal
+/// access catheter, 0.021" microcatheter, 0.014" microwire, each tip 10 mm ahead of the one
+/// around it): the median cost of a step in each mode, and the distance between the two
+/// modes' tips (the outermost's and the leading one's, largest over the run).
+fn coaxial(full: bool) -> (Vec<Series>, Vec<Series>) {
+    use cathlab_physics::Coupling;
+    use cathlab_physics::scenarios::{ScriptedStack, run_scripted_stack};
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/anatomy/arch-to-cow");
+    let anatomy = cathlab_anatomy::real::load_arch_to_cow(&dir).unwrap();
+    let catalogue = cathlab_physics::Catalogue::builtin();
+    let devices: Vec<_> = [
+        "sheath-088-90",
+        "distal-access-071-132",
+        "microcatheter-021-160",
+        "microwire-014-angled",
+    ]
+    .iter()
+    .map(|id| catalogue.device(id).unwrap())
+    .collect();
+    let (counts, steps) = if full { (1..=4, 3000) } else { (2..=2, 40) };
+    let (mut merged_cost, mut nested_cost) = (Vec::new(), Vec::new());
+    let (mut outer_error, mut lead_error) = (Vec::new(), Vec::new());
+    for n in counts {
+        let script = ScriptedStack {
+            devices: devices[..n].to_vec(),
+            start_m: 0.02,
+            lead_m: 0.01,
+            speed_m_s: 0.04,
+            settle_steps: 20,
+            steps,
+            sample_every: 20,
+        };
+        let merged = run_scripted_stack(&anatomy, &script, Coupling::Merged).unwrap();
+        let nested = run_scripted_stack(&anatomy, &script, Coupling::Nested).unwrap();
+        let deviation = merged.tip_deviation_m(&nested);
+        let x = n as f64;
+        merged_cost.push((x, merged.median_step_s() * 1e3));
+        nested_cost.push((x, nested.median_step_s() * 1e3));
+        outer_error.push((x, deviation[0].0 * 1e3));
+        lead_error.push((x, deviation[n - 1].0 * 1e3));
+        let force = |run: &cathlab_physics::scenarios::ScriptedStackRun| {
+            run.hand_forces_n
+                .iter()
+                .flat_map(|f| f.iter().map(|v| v.abs()))
+                .fold(0.0, f64::max)
+        };
+        println!(
+            "coaxial, {n} instrument(s), {steps} steps at 40 mm/s: merged {:.3} ms/step, nested {:.3} ms/step; tip distance merged–nested: outermost {:.2} mm (rms {:.2}), leading {:.2} mm (rms {:.2}); largest hand force merged {:.3} N, nested {:.3} N; worst penetration merged {:.4} mm, nested {:.4} mm; unconverged steps {} / {}",
+            merged.median_step_s() * 1e3,
+            nested.median_step_s() * 1e3,
+            deviation[0].0 * 1e3,
+            deviation[0].1 * 1e3,
+            deviation[n - 1].0 * 1e3,
+            deviation[n - 1].1 * 1e3,
+            force(&merged),
+            force(&nested),
+            merged.worst_penetration_m * 1e3,
+            nested.worst_penetration_m * 1e3,
+            merged.unconverged_steps,
+            nested.unconverged_steps,
+        );
+    }
+    (
+        vec![
+            ("merged".into(), merged_cost, BLUE),
+            ("nested".into(), nested_cost, RED),
+        ],
+        vec![
+            ("outermost tip".into(), outer_error, BLUE),
+            ("leading tip".into(), lead_error, RED),
+        ],
+    )
 }

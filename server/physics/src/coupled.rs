@@ -374,6 +374,7 @@ fn side_data(
 }
 
 /// A contact's prepared data.
+#[derive(Clone)]
 struct Prepared {
     sides: Vec<Side>,
     /// `[n t1 t2]`.
@@ -667,6 +668,9 @@ pub fn coupled_gauss_seidel(
         // normal is then turned to where its point settled and the solve repeated, until the
         // points lie on their circles (the linear solve along a fixed normal leaves them off
         // it by the square of the sideways slip).
+        // The pass whose points lie nearest their circles is kept (the turned normals need
+        // not converge when the active set changes between passes).
+        let mut best: Option<(f64, Vec<Prepared>, Vec<Vector3<f64>>)> = None;
         for _ in 0..LUMEN_POLISH_PASSES {
             let tangential: Vec<Vector3<f64>> =
                 local.iter().map(|l| Vector3::new(0.0, l.y, l.z)).collect();
@@ -685,23 +689,42 @@ pub fn coupled_gauss_seidel(
             if !active_set_normals(&c, column, &mut local, |k| contacts[k].friction) {
                 break;
             }
-            load_all(&mut chains, &prepared, &local);
-            response.polished = true;
+            // Where each lumen point settled: pressed ones belong on their circles, the others
+            // inside them.
             let moved = relative_displacements(&prepared, flexibilities, &local);
-            let mut off_circle: f64 = 0.0;
-            for ((p, l), (c, moved)) in prepared
+            let settled: Vec<Option<Vector3<f64>>> = contacts
+                .iter()
+                .zip(&prepared)
+                .zip(local.iter().zip(&moved))
+                .map(|((c, p), (l, moved))| {
+                    let lumen = c.lumen.as_ref()?;
+                    let settled = moved + p.delta;
+                    let x = lumen.across - (settled - lumen.axis * lumen.axis.dot(&settled));
+                    (x.norm() > 0.0 && (l.x > 0.0 || x.norm() > lumen.clearance)).then_some(x)
+                })
+                .collect();
+            let off_circle = settled
+                .iter()
+                .zip(contacts)
+                .filter_map(|(x, c)| Some((x.as_ref()?.norm() / c.lumen?.clearance - 1.0).abs()))
+                .fold(0.0, f64::max);
+            if best.as_ref().is_some_and(|b| off_circle >= b.0) {
+                break;
+            }
+            best = Some((off_circle, prepared.clone(), local.clone()));
+            if off_circle <= LUMEN_POLISH_TOLERANCE {
+                break;
+            }
+            // Turn each pressed or violated lumen normal to its settled point; the force keeps
+            // its world radial size and axial part.
+            for ((p, l), (c, x)) in prepared
                 .iter_mut()
                 .zip(local.iter_mut())
-                .zip(contacts.iter().zip(&moved))
+                .zip(contacts.iter().zip(&settled))
             {
-                let Some(lumen) = &c.lumen else { continue };
-                let settled = moved + p.delta;
-                let x = lumen.across - (settled - lumen.axis * lumen.axis.dot(&settled));
-                if l.x <= 0.0 || x.norm() == 0.0 {
+                let (Some(lumen), Some(x)) = (&c.lumen, x) else {
                     continue;
-                }
-                off_circle = off_circle.max((x.norm() - lumen.clearance).abs() / lumen.clearance);
-                // The force keeps its world radial size and axial part, along the new normal.
+                };
                 let world = p.frame * *l;
                 let radial = (world - lumen.axis * lumen.axis.dot(&world)).norm();
                 let normal = x.normalize();
@@ -712,10 +735,12 @@ pub fn coupled_gauss_seidel(
                 );
                 *l = Vector3::new(radial, 0.0, lumen.axis.dot(&world));
             }
+        }
+        if let Some((_, kept, forces)) = best {
+            prepared = kept;
+            local = forces;
             load_all(&mut chains, &prepared, &local);
-            if off_circle <= LUMEN_POLISH_TOLERANCE {
-                break;
-            }
+            response.polished = true;
         }
     }
     if local.iter().any(|l| !l.iter().all(|v| v.is_finite())) {

@@ -660,3 +660,142 @@ pub fn coaxial_arch_to_cow_stack<'a>(
         .unwrap_or_default();
     Ok((run, stack))
 }
+
+/// A scripted open-loop stack run through the real arch-to-cow anatomy: the instruments
+/// (outermost first) start from the femoral access with each inner tip `lead_m` ahead of the
+/// one around it and are all pushed at `speed_m_s`, so the innermost leads and the others
+/// follow at a fixed lag. The same commands drive either coupling, so the runs compare the
+/// two modes.
+#[derive(Debug, Clone)]
+pub struct ScriptedStack {
+    /// The instruments, outermost first.
+    pub devices: Vec<crate::device::Device>,
+    /// Inserted length of the outermost instrument at the start (m).
+    pub start_m: f64,
+    /// How far each inner tip leads the one around it (m).
+    pub lead_m: f64,
+    /// Push speed of every hand (m/s).
+    pub speed_m_s: f64,
+    /// Steps with the hands held before the push, for the straight start to relax (not
+    /// recorded).
+    pub settle_steps: usize,
+    /// Steps to take pushing.
+    pub steps: usize,
+    /// Record the tips and hand forces every this many steps.
+    pub sample_every: usize,
+}
+
+/// The record of a [`ScriptedStack`] run.
+#[derive(Debug, Clone, Default)]
+pub struct ScriptedStackRun {
+    /// Per sample: every instrument's tip position (m), outermost first.
+    pub tips: Vec<Vec<Vector3<f64>>>,
+    /// Per sample: every hand's axial force (N), outermost first.
+    pub hand_forces_n: Vec<Vec<f64>>,
+    /// Wall-clock time of every step (s).
+    pub step_times_s: Vec<f64>,
+    /// Worst penetration into the wall (or a lumen) over all steps (m).
+    pub worst_penetration_m: f64,
+    /// Steps whose Gauss–Seidel did not meet its tolerance.
+    pub unconverged_steps: usize,
+}
+
+impl ScriptedStackRun {
+    /// Median wall time of a step (s).
+    pub fn median_step_s(&self) -> f64 {
+        let mut t = self.step_times_s.clone();
+        t.sort_by(f64::total_cmp);
+        t.get(t.len() / 2).copied().unwrap_or(0.0)
+    }
+
+    /// Per instrument, the largest and the root-mean-square distance (m) between its tip here
+    /// and in `reference` over the common samples.
+    pub fn tip_deviation_m(&self, reference: &Self) -> Vec<(f64, f64)> {
+        let count = self.tips.first().map_or(0, Vec::len);
+        (0..count)
+            .map(|k| {
+                let d: Vec<f64> = self
+                    .tips
+                    .iter()
+                    .zip(&reference.tips)
+                    .map(|(a, b)| (a[k] - b[k]).norm())
+                    .collect();
+                let largest = d.iter().copied().fold(0.0, f64::max);
+                let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len().max(1) as f64).sqrt();
+                (largest, rms)
+            })
+            .collect()
+    }
+}
+
+/// Runs `script` in the arch-to-cow anatomy with the instruments coupled as `coupling` says.
+pub fn run_scripted_stack(
+    anatomy: &cathlab_anatomy::real::Anatomy,
+    script: &ScriptedStack,
+    coupling: crate::stack::Coupling,
+) -> Result<ScriptedStackRun> {
+    use crate::navigation::{Command, Insertion, NavigationSettings, Twist};
+    use crate::stack::{InstrumentSpec, Stack};
+    let access = nalgebra::Point3::from(cathlab_anatomy::real::ARCH_TO_COW_ACCESS_M);
+    let path = anatomy
+        .graph
+        .path_to(&access, "LCCA")
+        .map_err(|e| crate::error::PhysicsError::Anatomy(e.to_string()))?;
+    let route = anatomy.graph.sample_path(&path, 1e-3);
+    let ahead = route[10.min(route.len() - 1)].0;
+    let (entry, direction) = (route[0].0.coords, (ahead - route[0].0).normalize());
+    let settings = NavigationSettings::default();
+    let specs = script
+        .devices
+        .iter()
+        .enumerate()
+        .map(|(k, d)| {
+            InstrumentSpec::new(
+                d.clone(),
+                script.start_m + k as f64 * script.lead_m,
+                &settings,
+            )
+        })
+        .collect();
+    let mut stack =
+        Stack::with_coupling(specs, &anatomy.lumen, entry, direction, settings, coupling)?;
+    let push = |stack: &mut Stack<_>, speed| -> Result<()> {
+        for k in 0..stack.len() {
+            let command = Command {
+                insertion: Insertion::Velocity(speed),
+                twist: Twist::Rate(0.0),
+            };
+            stack.set_command(k, command)?;
+        }
+        Ok(())
+    };
+    push(&mut stack, 0.0)?;
+    for _ in 0..script.settle_steps {
+        stack.step()?;
+    }
+    push(&mut stack, script.speed_m_s)?;
+    let mut run = ScriptedStackRun::default();
+    let every = script.sample_every.max(1);
+    for step in 1..=script.steps {
+        let started = std::time::Instant::now();
+        let report = stack.step()?;
+        run.step_times_s.push(started.elapsed().as_secs_f64());
+        run.unconverged_steps += usize::from(!report.converged);
+        run.worst_penetration_m = run.worst_penetration_m.max(stack.max_penetration_m());
+        if step % every == 0 {
+            run.tips.push(
+                (0..stack.len())
+                    .map(|k| stack.tip_position(k).unwrap_or(entry))
+                    .collect(),
+            );
+            run.hand_forces_n.push(
+                stack
+                    .proximal_reactions()
+                    .iter()
+                    .map(|r| r.axial_force_n)
+                    .collect(),
+            );
+        }
+    }
+    Ok(run)
+}
