@@ -264,7 +264,7 @@ fn coaxial(full: bool) -> (Vec<Series>, Vec<Series>) {
     .iter()
     .map(|id| catalogue.device(id).unwrap())
     .collect();
-    let (counts, steps) = if full { (1..=4, 3000) } else { (2..=2, 40) };
+    let (counts, steps) = if full { (1..=4, 1200) } else { (2..=2, 40) };
     let (mut merged_cost, mut nested_cost) = (Vec::new(), Vec::new());
     let (mut outer_error, mut lead_error) = (Vec::new(), Vec::new());
     for n in counts {
