@@ -250,8 +250,7 @@ fn main() {
 /// around it): the median cost of a step in each mode, and the distance between the two
 /// modes' tips (the outermost's and the leading one's, largest over the run).
 fn coaxial(full: bool) -> (Vec<Series>, Vec<Series>) {
-    use cathlab_physics::Coupling;
-    use cathlab_physics::scenarios::{ScriptedStack, run_scripted_stack};
+    use cathlab_physics::scenarios::{ScriptedStack, compare_couplings};
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/anatomy/arch-to-cow");
     let anatomy = cathlab_anatomy::real::load_arch_to_cow(&dir).unwrap();
     let catalogue = cathlab_physics::Catalogue::builtin();
@@ -268,44 +267,14 @@ fn coaxial(full: bool) -> (Vec<Series>, Vec<Series>) {
     let (mut merged_cost, mut nested_cost) = (Vec::new(), Vec::new());
     let (mut outer_error, mut lead_error) = (Vec::new(), Vec::new());
     for n in counts {
-        let script = ScriptedStack {
-            devices: devices[..n].to_vec(),
-            start_m: 0.02,
-            lead_m: 0.01,
-            speed_m_s: 0.04,
-            settle_steps: 20,
-            steps,
-            sample_every: 20,
-        };
-        let merged = run_scripted_stack(&anatomy, &script, Coupling::Merged).unwrap();
-        let nested = run_scripted_stack(&anatomy, &script, Coupling::Nested).unwrap();
-        let deviation = merged.tip_deviation_m(&nested);
+        let script = ScriptedStack::up_the_aorta(devices[..n].to_vec(), steps);
+        let comparison = compare_couplings(&anatomy, &script).unwrap();
         let x = n as f64;
-        merged_cost.push((x, merged.median_step_s() * 1e3));
-        nested_cost.push((x, nested.median_step_s() * 1e3));
-        outer_error.push((x, deviation[0].0 * 1e3));
-        lead_error.push((x, deviation[n - 1].0 * 1e3));
-        let force = |run: &cathlab_physics::scenarios::ScriptedStackRun| {
-            run.hand_forces_n
-                .iter()
-                .flat_map(|f| f.iter().map(|v| v.abs()))
-                .fold(0.0, f64::max)
-        };
-        println!(
-            "coaxial, {n} instrument(s), {steps} steps at 40 mm/s: merged {:.3} ms/step, nested {:.3} ms/step; tip distance merged–nested: outermost {:.2} mm (rms {:.2}), leading {:.2} mm (rms {:.2}); largest hand force merged {:.3} N, nested {:.3} N; worst penetration merged {:.4} mm, nested {:.4} mm; unconverged steps {} / {}",
-            merged.median_step_s() * 1e3,
-            nested.median_step_s() * 1e3,
-            deviation[0].0 * 1e3,
-            deviation[0].1 * 1e3,
-            deviation[n - 1].0 * 1e3,
-            deviation[n - 1].1 * 1e3,
-            force(&merged),
-            force(&nested),
-            merged.worst_penetration_m * 1e3,
-            nested.worst_penetration_m * 1e3,
-            merged.unconverged_steps,
-            nested.unconverged_steps,
-        );
+        merged_cost.push((x, comparison.merged.median_step_s() * 1e3));
+        nested_cost.push((x, comparison.nested.median_step_s() * 1e3));
+        outer_error.push((x, comparison.tip_distance_m[0].0 * 1e3));
+        lead_error.push((x, comparison.tip_distance_m[n - 1].0 * 1e3));
+        println!("coaxial, {n} instrument(s), {steps} steps at 40 mm/s: {comparison}");
     }
     (
         vec![

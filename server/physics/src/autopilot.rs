@@ -148,9 +148,7 @@ impl<'g> Autopilot<'g> {
     /// Entry point and direction for [`Navigation::new`]: the route's first sample and its
     /// direction over the next 10 samples.
     pub fn entry(&self) -> (Vector3<f64>, Vector3<f64>) {
-        let start = self.route[0].0;
-        let ahead = self.route[10.min(self.route.len() - 1)].0;
-        (start.coords, (ahead - start).normalize())
+        route_entry(&self.route)
     }
 
     /// The path it follows.
@@ -238,4 +236,12 @@ fn hold(navigation: &impl Steered) -> Command {
         insertion: Insertion::Velocity(0.0),
         twist: Twist::Target(navigation.twist_rad()),
     }
+}
+
+/// Entry point (m) and unit direction of a sampled route (non-empty): its first sample and
+/// its direction over the next 10 samples.
+pub fn route_entry(route: &[(Point3<f64>, f64)]) -> (Vector3<f64>, Vector3<f64>) {
+    let start = route[0].0;
+    let ahead = route[10.min(route.len() - 1)].0;
+    (start.coords, (ahead - start).normalize())
 }

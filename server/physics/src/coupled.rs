@@ -77,6 +77,19 @@ pub struct Lumen {
     pub clearance: f64,
 }
 
+impl Lumen {
+    /// The part of `v` across the lumen's axis.
+    pub fn across_axis(&self, v: &Vector3<f64>) -> Vector3<f64> {
+        v - self.axis * self.axis.dot(v)
+    }
+
+    /// The point's offset from the centre line (m) after a relative displacement `moved`
+    /// (m) of its sides: `across − moved⊥`.
+    pub fn offset(&self, moved: &Vector3<f64>) -> Vector3<f64> {
+        self.across - self.across_axis(moved)
+    }
+}
+
 impl CoupledContact {
     /// The contact frame `[n t1 t2]`: tangents chosen as for a wall contact, or for a lumen
     /// contact `t2` along the lumen (its friction acts only there) and `t1` round it.
@@ -399,6 +412,16 @@ impl Prepared {
         self.free_local = self.frame.transpose() * self.delta;
         self.gap = gap;
     }
+
+    /// Turns a lumen contact to work along `normal` (unit, across the lumen): the gap along
+    /// it is the clearance less the point's present offset.
+    fn turn_in_lumen(&mut self, normal: Vector3<f64>, lumen: &Lumen) {
+        self.turn(
+            normal,
+            lumen.clearance - normal.dot(&lumen.across),
+            Some(lumen),
+        );
+    }
 }
 
 /// Sets every chain's loads to the contacts' forces `local` (their frames).
@@ -596,11 +619,7 @@ pub fn coupled_gauss_seidel(
                 let own_world = p.frame * local[k];
                 let without = p.delta + relative - p.world * own_world;
                 let (normal, force) = lumen_solve(&p.world, &without, lumen, c.friction);
-                p.turn(
-                    normal,
-                    lumen.clearance - normal.dot(&lumen.across),
-                    Some(lumen),
-                );
+                p.turn_in_lumen(normal, lumen);
                 local[k] = p.frame.transpose() * own_world;
                 p.frame.transpose() * force
             });
@@ -667,9 +686,9 @@ pub fn coupled_gauss_seidel(
         // ill-conditioned): solve the active set's normal forces directly. A lumen contact's
         // normal is then turned to where its point settled and the solve repeated, until the
         // points lie on their circles (the linear solve along a fixed normal leaves them off
-        // it by the square of the sideways slip).
-        // The pass whose points lie nearest their circles is kept (the turned normals need
-        // not converge when the active set changes between passes).
+        // it by the square of the sideways slip). The pass whose points lie nearest their
+        // circles is kept: the turned normals need not converge when the active set changes
+        // between passes.
         let mut best: Option<(f64, Vec<Prepared>, Vec<Vector3<f64>>)> = None;
         for _ in 0..LUMEN_POLISH_PASSES {
             let tangential: Vec<Vector3<f64>> =
@@ -698,8 +717,7 @@ pub fn coupled_gauss_seidel(
                 .zip(local.iter().zip(&moved))
                 .map(|((c, p), (l, moved))| {
                     let lumen = c.lumen.as_ref()?;
-                    let settled = moved + p.delta;
-                    let x = lumen.across - (settled - lumen.axis * lumen.axis.dot(&settled));
+                    let x = lumen.offset(&(moved + p.delta));
                     (x.norm() > 0.0 && (l.x > 0.0 || x.norm() > lumen.clearance)).then_some(x)
                 })
                 .collect();
@@ -726,13 +744,8 @@ pub fn coupled_gauss_seidel(
                     continue;
                 };
                 let world = p.frame * *l;
-                let radial = (world - lumen.axis * lumen.axis.dot(&world)).norm();
-                let normal = x.normalize();
-                p.turn(
-                    normal,
-                    lumen.clearance - normal.dot(&lumen.across),
-                    Some(lumen),
-                );
+                let radial = lumen.across_axis(&world).norm();
+                p.turn_in_lumen(x.normalize(), lumen);
                 *l = Vector3::new(radial, 0.0, lumen.axis.dot(&world));
             }
         }

@@ -685,6 +685,23 @@ pub struct ScriptedStack {
     pub sample_every: usize,
 }
 
+impl ScriptedStack {
+    /// The comparison push: `devices` (outermost first) from 20 mm in, each inner tip 10 mm
+    /// ahead of the one around it, 20 steps to relax, then `steps` steps at 40 mm/s, sampled
+    /// every 20 steps.
+    pub fn up_the_aorta(devices: Vec<crate::device::Device>, steps: usize) -> Self {
+        Self {
+            devices,
+            start_m: 0.02,
+            lead_m: 0.01,
+            speed_m_s: 0.04,
+            settle_steps: 20,
+            steps,
+            sample_every: 20,
+        }
+    }
+}
+
 /// The record of a [`ScriptedStack`] run.
 #[derive(Debug, Clone, Default)]
 pub struct ScriptedStackRun {
@@ -726,6 +743,67 @@ impl ScriptedStackRun {
             })
             .collect()
     }
+
+    /// The largest axial force any hand felt over the samples (N).
+    pub fn largest_hand_force_n(&self) -> f64 {
+        self.hand_forces_n
+            .iter()
+            .flat_map(|f| f.iter().map(|v| v.abs()))
+            .fold(0.0, f64::max)
+    }
+}
+
+/// One [`ScriptedStack`] run in both couplings, nested mode the reference.
+#[derive(Debug, Clone)]
+pub struct CouplingComparison {
+    /// The merged run.
+    pub merged: ScriptedStackRun,
+    /// The nested run.
+    pub nested: ScriptedStackRun,
+    /// Per instrument, outermost first: the largest and the RMS distance (m) between its tips
+    /// in the two runs.
+    pub tip_distance_m: Vec<(f64, f64)>,
+}
+
+impl std::fmt::Display for CouplingComparison {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (m, n) = (&self.merged, &self.nested);
+        write!(
+            f,
+            "merged {:.3} ms/step, nested {:.3} ms/step; tip distance merged–nested, outermost first:",
+            m.median_step_s() * 1e3,
+            n.median_step_s() * 1e3
+        )?;
+        for (largest, rms) in &self.tip_distance_m {
+            write!(f, " {:.2} mm (rms {:.2})", largest * 1e3, rms * 1e3)?;
+        }
+        write!(
+            f,
+            "; largest hand force merged {:.3} N, nested {:.3} N; worst penetration merged {:.4} mm, nested {:.4} mm; unconverged steps {} / {}",
+            m.largest_hand_force_n(),
+            n.largest_hand_force_n(),
+            m.worst_penetration_m * 1e3,
+            n.worst_penetration_m * 1e3,
+            m.unconverged_steps,
+            n.unconverged_steps
+        )
+    }
+}
+
+/// Runs `script` in the arch-to-cow anatomy in merged and in nested mode.
+pub fn compare_couplings(
+    anatomy: &cathlab_anatomy::real::Anatomy,
+    script: &ScriptedStack,
+) -> Result<CouplingComparison> {
+    use crate::stack::Coupling;
+    let merged = run_scripted_stack(anatomy, script, Coupling::Merged)?;
+    let nested = run_scripted_stack(anatomy, script, Coupling::Nested)?;
+    let tip_distance_m = merged.tip_deviation_m(&nested);
+    Ok(CouplingComparison {
+        merged,
+        nested,
+        tip_distance_m,
+    })
 }
 
 /// Runs `script` in the arch-to-cow anatomy with the instruments coupled as `coupling` says.
@@ -742,8 +820,7 @@ pub fn run_scripted_stack(
         .path_to(&access, "LCCA")
         .map_err(|e| crate::error::PhysicsError::Anatomy(e.to_string()))?;
     let route = anatomy.graph.sample_path(&path, 1e-3);
-    let ahead = route[10.min(route.len() - 1)].0;
-    let (entry, direction) = (route[0].0.coords, (ahead - route[0].0).normalize());
+    let (entry, direction) = crate::autopilot::route_entry(&route);
     let settings = NavigationSettings::default();
     let specs = script
         .devices

@@ -953,34 +953,17 @@ fn merged_and_nested_follow_the_same_scripted_push_up_the_aorta() {
     // The wire leads 10 mm ahead of a 5 F catheter, both pushed at 40 mm/s from the femoral
     // access; the same commands in both modes. (The chart command runs 3000 steps with one to
     // four instruments.)
-    use cathlab_physics::scenarios::{ScriptedStack, run_scripted_stack};
+    use cathlab_physics::scenarios::{ScriptedStack, compare_couplings};
     let dir =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/anatomy/arch-to-cow");
     let anatomy = cathlab_anatomy::real::load_arch_to_cow(&dir).unwrap();
-    let script = ScriptedStack {
-        devices: vec![presets::diagnostic_catheter_5f(), presets::guidewire_035()],
-        start_m: 0.02,
-        lead_m: 0.01,
-        speed_m_s: 0.04,
-        settle_steps: 20,
-        steps: 400,
-        sample_every: 20,
-    };
-    let merged = run_scripted_stack(&anatomy, &script, Coupling::Merged).unwrap();
-    let nested = run_scripted_stack(&anatomy, &script, Coupling::Nested).unwrap();
-    let deviation = merged.tip_deviation_m(&nested);
-    println!(
-        "scripted push, 5 F over 0.035\": merged {:.3} ms/step, nested {:.3} ms/step; tip distance catheter {:.3} mm (rms {:.3}), wire {:.3} mm (rms {:.3}); worst penetration {:.4} / {:.4} mm",
-        merged.median_step_s() * 1e3,
-        nested.median_step_s() * 1e3,
-        deviation[0].0 * 1e3,
-        deviation[0].1 * 1e3,
-        deviation[1].0 * 1e3,
-        deviation[1].1 * 1e3,
-        merged.worst_penetration_m * 1e3,
-        nested.worst_penetration_m * 1e3,
+    let script = ScriptedStack::up_the_aorta(
+        vec![presets::diagnostic_catheter_5f(), presets::guidewire_035()],
+        400,
     );
-    for run in [&merged, &nested] {
+    let comparison = compare_couplings(&anatomy, &script).unwrap();
+    println!("scripted push, 5 F over 0.035\": {comparison}");
+    for run in [&comparison.merged, &comparison.nested] {
         assert!(
             run.worst_penetration_m <= 0.05e-3,
             "{}",

@@ -180,7 +180,7 @@ impl<W: Wall> Stack<W> {
                 break (increments, (detected, response));
             }
             let mut next = self.detect_nested(&increments);
-            // A lumen's tolerance is a tenth of its clearance at most.
+            // A lumen's tolerance is at most `LUMEN_TOLERANCE_FRACTION` of its clearance.
             let mut excess: f64 = 0.0;
             penetration = 0.0;
             for d in &next {
@@ -544,7 +544,7 @@ impl<W: Wall> Stack<W> {
 fn violation(contact: &CoupledContact, increments: &[Vec<Vector6<f64>>]) -> f64 {
     let moved = contact.relative_displacement(increments);
     match &contact.lumen {
-        Some(l) => (l.across - (moved - l.axis * l.axis.dot(&moved))).norm() - l.clearance,
+        Some(l) => l.offset(&moved).norm() - l.clearance,
         None => -(contact.gap + contact.normal.dot(&moved)),
     }
 }
