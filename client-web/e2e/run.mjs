@@ -219,6 +219,12 @@ try {
       els.filter((e) => !e.disabled).length,
     );
     assert(enabled === 0, `${enabled} controls enabled in the observer view`);
+    // "connected" can show before the first device state fills the HUD.
+    await observer.waitForFunction(
+      () => Number.isFinite(Number.parseFloat(document.querySelector("#hud-inserted")?.textContent ?? "")),
+      null,
+      { timeout: 15_000 },
+    );
     const before = millimetres(await observer.textContent("#hud-inserted"));
     await observer.click("#xray");
     await observer.keyboard.down("ArrowUp");
