@@ -358,8 +358,10 @@ impl CoaxialPlan {
     /// following 50 mm behind a shaped 0.035" wire, then a 0.017" microcatheter over a 0.014"
     /// microwire 30 mm beyond the catheter's tip:
     /// - `LCCA`: the 90°-over-30 mm wire of the single-wire plan all the way;
-    /// - `RVA`: that wire to the aortic arch (where the route enters the brachiocephalic
-    ///   trunk), then exchanged for the 90°-over-10 mm wire that selects the vertebral.
+    /// - `RVA`: that wire, aimed 50 mm ahead, into the brachiocephalic trunk; the catheter
+    ///   tracked over it to 15 mm behind its tip; the wire withdrawn and exchanged for the
+    ///   90°-over-10 mm wire of the single-wire RVA plan, which leaves the parked catheter
+    ///   and selects the vertebral while the catheter follows.
     pub fn for_target(graph: &cathlab_anatomy::VesselGraph, target: &str) -> Result<Self> {
         use crate::device::presets::{
             diagnostic_catheter_5f, guidewire_035_shaped, micro_catheter, micro_guidewire_014,
@@ -372,16 +374,18 @@ impl CoaxialPlan {
             let path = graph
                 .path_to(&access, target)
                 .map_err(|e| crate::error::PhysicsError::Anatomy(e.to_string()))?;
-            // Past the left subclavian origin, where the arch goes on to the LCCA and the
-            // brachiocephalic trunk.
+            // 45 mm into the brachiocephalic trunk (5 mm short of its end): the wide 90° bend
+            // finds the arch's turn and the trunk; the catheter, tracked over it there, gives
+            // the small bend the support to select the vertebral. Exchanged 20–30 mm into the
+            // trunk, the stack buckles back into the arch when the new wire is pushed.
             let mut along = 0.0;
             for leg in &path.legs {
-                if graph.branches[leg.branch].name == "arch_to_LCCA+RCCA+RVA" {
+                if graph.branches[leg.branch].name == "arch_to_RCCA+RVA" {
                     break;
                 }
                 along += (leg.to_arc - leg.from_arc).abs();
             }
-            along + 0.01
+            along + 0.045
         } else {
             0.0
         };
@@ -394,7 +398,12 @@ impl CoaxialPlan {
             exchange: right_vertebral
                 .then(|| (exchange_at, single.device.clone(), single.autopilot)),
             autopilot: if right_vertebral {
-                arch.autopilot
+                // Aimed 50 mm ahead, past the left common carotid's origin (aimed 20 mm ahead,
+                // the wide bend takes the carotid or falls back into the left subclavian).
+                crate::autopilot::AutopilotSettings {
+                    lookahead_m: 0.05,
+                    ..arch.autopilot
+                }
             } else {
                 single.autopilot
             },
@@ -409,6 +418,8 @@ impl CoaxialPlan {
 pub struct CoaxialRun {
     /// Step at which the wire tip reached the target, if it did.
     pub reached_at_step: Option<usize>,
+    /// Step at which the first wire, withdrawn to the hub, was exchanged for the second.
+    pub exchanged_at_step: Option<usize>,
     /// Step at which the microcatheter was `micro_beyond_m` past the catheter's tip.
     pub micro_done_at_step: Option<usize>,
     /// Steps taken.
@@ -496,11 +507,25 @@ pub fn coaxial_arch_to_cow_stack<'a>(
         twist: Twist::Target(twist),
     };
     let mut catheter_park = None;
+    // A new wire is being loaded up to the catheter's tip.
+    let mut loading = false;
     for step in 0..plan.max_steps {
         let wire_l = stack.inserted_m(1).unwrap_or(0.0);
         match phase {
             Phase::Lead => {
-                let command = pilot.command(&stack.instrument(1).expect("a wire"));
+                let catheter_l = stack.inserted_m(0).unwrap_or(0.0);
+                // A new wire runs inside the catheter up to its tip at the hand's full speed.
+                if wire_l >= catheter_l {
+                    loading = false;
+                }
+                let command = if loading {
+                    Command {
+                        insertion: Insertion::Target(catheter_l),
+                        twist: Twist::Target(stack.twist_rad(1).unwrap_or(0.0)),
+                    }
+                } else {
+                    pilot.command(&stack.instrument(1).expect("a wire"))
+                };
                 if !exchanged
                     && let Some((at, _, _)) = &plan.exchange
                     && along_route(&stack.tip_position(1).unwrap_or(entry)) >= *at
@@ -519,13 +544,11 @@ pub fn coaxial_arch_to_cow_stack<'a>(
                     }
                 }
                 stack.set_command(1, command)?;
-                // The catheter follows the wire's tip; after an exchange it holds while the new
-                // wire travels up to its tip.
-                let catheter_l = stack.inserted_m(0).unwrap_or(0.0);
-                let goal = if wire_l < catheter_l {
-                    catheter_l
-                } else {
-                    (wire_l - plan.catheter_lag_m).max(0.01)
+                // The catheter follows the wire's tip; after an exchange it holds where it was
+                // parked while the new wire travels up to its tip and leads on.
+                let goal = match catheter_park {
+                    Some(park) => (wire_l - plan.catheter_lag_m).max(park),
+                    None => (wire_l - plan.catheter_lag_m).max(0.01),
                 };
                 let follow = Command {
                     insertion: Insertion::Target(goal),
@@ -574,6 +597,8 @@ pub fn coaxial_arch_to_cow_stack<'a>(
                         std::mem::swap(&mut pilot, &mut next);
                         run.retries += next.retries();
                         exchanged = true;
+                        run.exchanged_at_step = Some(step);
+                        loading = true;
                         phase = Phase::Lead;
                     } else if let Some((microcatheter, microwire, _)) = &plan.micro {
                         stack.pop_instrument()?;

@@ -643,13 +643,16 @@ fn arch_to_cow() -> &'static cathlab_anatomy::real::Anatomy {
     })
 }
 
-#[test]
-fn two_hands_take_a_catheter_over_a_wire_to_the_lcca_and_a_microcatheter_beyond() {
+/// Runs the two-hand plan to `target` and checks it: the wire reaches the target, the
+/// microcatheter goes 30 mm beyond the catheter, the leading tip ends in the target branch and
+/// no node went more than 0.05 mm into the wall.
+fn two_hands_reach(target: &str) {
     let anatomy = arch_to_cow();
-    let plan = CoaxialPlan::for_target(&anatomy.graph, "LCCA").unwrap();
+    let plan = CoaxialPlan::for_target(&anatomy.graph, target).unwrap();
     let run = run_coaxial_arch_to_cow(anatomy, &plan).unwrap();
     println!(
-        "LCCA: wire reached at step {:?}, microcatheter 30 mm beyond the catheter at step {:?}, {} pull-backs, worst penetration {:.4} mm, inserted {:?} mm, tip in {}",
+        "{target}: wire exchanged at step {:?}, reached at step {:?}, microcatheter 30 mm beyond the catheter at step {:?}, {} pull-backs, worst penetration {:.4} mm, inserted {:?} mm, tip in {}",
+        run.exchanged_at_step,
         run.reached_at_step,
         run.micro_done_at_step,
         run.retries,
@@ -660,26 +663,46 @@ fn two_hands_take_a_catheter_over_a_wire_to_the_lcca_and_a_microcatheter_beyond(
             .collect::<Vec<_>>(),
         run.tip_branch
     );
-    assert!(run.reached_at_step.is_some(), "the wire reached the LCCA");
+    assert!(
+        run.reached_at_step.is_some(),
+        "the wire reached the {target}"
+    );
     assert!(
         run.micro_done_at_step.is_some(),
         "the microcatheter went through"
     );
-    assert_eq!(run.tip_branch, "LCCA");
+    assert_eq!(run.tip_branch, target);
     assert!(run.inserted_m[1] - run.inserted_m[0] >= 0.03 - 1e-9);
     assert!(run.worst_penetration_m <= 0.05e-3);
 }
 
 #[test]
+fn two_hands_take_a_catheter_over_a_wire_to_the_lcca_and_a_microcatheter_beyond() {
+    two_hands_reach("LCCA");
+}
+
+#[test]
+fn two_hands_take_a_catheter_over_exchanged_wires_to_the_right_vertebral_and_a_microcatheter_beyond()
+ {
+    // No parked guide: the wide-bend wire leads into the brachiocephalic trunk, the catheter
+    // tracks over it, the wire is exchanged for a small bend that selects the vertebral.
+    two_hands_reach("RVA");
+}
+
+#[test]
 fn a_coaxial_run_is_bit_identical_when_repeated() {
     let anatomy = arch_to_cow();
+    // 14,000 steps of the RVA plan: the wire leads, the catheter tracks, the wire is withdrawn
+    // and exchanged, and the new one loaded.
     let plan = CoaxialPlan {
-        max_steps: 2500,
-        ..CoaxialPlan::for_target(&anatomy.graph, "LCCA").unwrap()
+        max_steps: 14_000,
+        ..CoaxialPlan::for_target(&anatomy.graph, "RVA").unwrap()
     };
     let a = run_coaxial_arch_to_cow(anatomy, &plan).unwrap();
     let b = run_coaxial_arch_to_cow(anatomy, &plan).unwrap();
-    assert_eq!(a.steps, 2500);
+    // A phase change takes a loop turn without a step.
+    assert!(a.steps > 13_990 && a.steps == b.steps);
+    assert!(a.exchanged_at_step.is_some(), "the wire was exchanged");
     assert_eq!(a.tip_position, b.tip_position);
     assert_eq!(a.inserted_m, b.inserted_m);
     assert_eq!(a.worst_penetration_m, b.worst_penetration_m);
