@@ -131,11 +131,15 @@ try {
     assert((await trainee.textContent("#scene")).includes("arch_to_cow_lcca"), "scene name shown");
     assert((await trainee.$$eval("#device option", (o) => o.length)) === 3, "the scene's three devices listed");
     assert(new URL(trainee.url()).searchParams.get("session") === sessionId, "session kept in the URL for reloads");
+    // Before the pedal: a prompt saying what to press, not a broken image.
+    assert(await trainee.isVisible("#prompt"), "the fluoroscopy prompt shows before the pedal");
+    assert((await trainee.textContent("#prompt")).includes("F"), "the prompt names the key");
+    assert(!(await trainee.isVisible("#xray")), "no empty image before the first exposure");
   });
 
   await test("fluoroscopy_frames_render_and_change_after_a_push", async () => {
     await trainee.bringToFront();
-    await trainee.click("#xray"); // focus the page, not a form field
+    await trainee.click("#screen"); // focus the page, not a form field
     await trainee.keyboard.down("f");
     await nextFrame(trainee);
     await nextFrame(trainee);
@@ -164,6 +168,11 @@ try {
     assert(wallForce > 0, "the HUD shows the wall contact force");
     assert(moved > 3 * noise && moved > 10, `the image changed after the push: ${moved} vs noise ${noise}`);
     assert((await trainee.textContent("#mode")).startsWith("FLUORO"), "fluoroscopy mode shown");
+    assert(!(await trainee.isVisible("#prompt")), "the prompt is gone once frames arrive");
+    const dose = await trainee.textContent("#dose");
+    console.log(`  dose display: ${dose}`);
+    const kerma = Number.parseFloat(/Ka,r ([0-9.]+) mGy/.exec(dose)?.[1] ?? "NaN");
+    assert(kerma > 0, `the dose display shows the accumulated reference air kerma: ${dose}`);
     await trainee.screenshot({ path: join(artifacts, "trainee.png") });
     await trainee.keyboard.up("f");
   });
@@ -179,6 +188,24 @@ try {
     await trainee.waitForTimeout(300);
     const after = millimetres(await trainee.textContent("#hud-inserted"));
     assert(before - after > 10, `the pull button withdrew ${before - after} mm`);
+  });
+
+  await test("keys_drive_the_device_with_a_slider_or_a_dropdown_focused", async () => {
+    for (const control of ["#primary", "#pulse"]) {
+      await trainee.focus(control);
+      const value = await trainee.$eval(control, (e) => e.value);
+      const before = millimetres(await trainee.textContent("#hud-inserted"));
+      await trainee.keyboard.down("ArrowUp");
+      await trainee.waitForTimeout(1000);
+      await trainee.keyboard.up("ArrowUp");
+      await trainee.waitForTimeout(300);
+      const after = millimetres(await trainee.textContent("#hud-inserted"));
+      console.log(`  ${control} focused: ↑ moved the device ${before} → ${after} mm`);
+      assert(after - before > 10, `↑ with ${control} focused advanced ${after - before} mm`);
+      assert((await trainee.$eval(control, (e) => e.value)) === value, `${control} kept its value`);
+      assert(await trainee.$eval(control, (e) => document.activeElement === e), `${control} kept the focus`);
+    }
+    await trainee.click("#screen");
   });
 
   let observer;
@@ -199,6 +226,15 @@ try {
     await dashboard.waitForFunction(
       () => [...document.querySelectorAll("#timeline li.imaging")].some((li) => li.textContent.includes("fluoroscopy on")),
       null,
+      { timeout: 10_000 },
+    );
+    // Reset starts a new attempt, and the dashboard counts it.
+    await trainee.bringToFront();
+    await trainee.click("#reset");
+    await dashboard.bringToFront();
+    await dashboard.waitForFunction(
+      (c) => /Resets\s*1\b/.test(document.querySelector(`${c} dl`)?.textContent ?? ""),
+      card,
       { timeout: 10_000 },
     );
     await dashboard.screenshot({ path: join(artifacts, "dashboard.png") });
@@ -226,7 +262,7 @@ try {
       { timeout: 15_000 },
     );
     const before = millimetres(await observer.textContent("#hud-inserted"));
-    await observer.click("#xray");
+    await observer.click("#screen");
     await observer.keyboard.down("ArrowUp");
     await observer.waitForTimeout(1500);
     await observer.keyboard.up("ArrowUp");

@@ -1,7 +1,21 @@
 import { describe, expect, it } from "vitest";
-import { DEAD_ZONE, DriveCommands, PUSH_MM_S, TWIST_DEG_S, combine, deadZone, gamepadDemand, keyboardDemand } from "./controls.js";
+import {
+  DEAD_ZONE,
+  DriveCommands,
+  PUSH_MM_S,
+  TWIST_DEG_S,
+  combine,
+  deadZone,
+  gamepadDemand,
+  isDriveKey,
+  keyboardDemand,
+} from "./controls.js";
 
 describe("keyboard", () => {
+  it("takes the arrows and F as drive keys, and nothing else", () => {
+    for (const k of ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight", "f", "F"]) expect(isDriveKey(k)).toBe(true);
+    for (const k of ["Tab", "Enter", " ", "PageUp", "g", "1"]) expect(isDriveKey(k)).toBe(false);
+  });
   it("maps the arrows to push/pull and twist, opposite keys cancelling", () => {
     expect(keyboardDemand(new Set(["ArrowUp"]))).toEqual({ push: 1, twist: 0 });
     expect(keyboardDemand(new Set(["ArrowDown", "ArrowLeft"]))).toEqual({ push: -1, twist: -1 });

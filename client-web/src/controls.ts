@@ -15,6 +15,11 @@ export interface Demand {
   twist: number;
 }
 
+/** The keys that drive the device (arrows) and the fluoroscopy pedal (F). */
+export function isDriveKey(key: string): boolean {
+  return key === "ArrowUp" || key === "ArrowDown" || key === "ArrowLeft" || key === "ArrowRight" || key === "f" || key === "F";
+}
+
 /** Keys held → demand: ↑ pushes, ↓ pulls, → twists clockwise, ← counter-clockwise. */
 export function keyboardDemand(held: ReadonlySet<string>): Demand {
   const axis = (plus: string, minus: string) => (held.has(plus) ? 1 : 0) - (held.has(minus) ? 1 : 0);

@@ -1,11 +1,35 @@
 import { create } from "@bufbuild/protobuf";
 import { describe, expect, it } from "vitest";
 import { DeviceStateSchema, MetricsSchema } from "./gen/cathlab/v1/simulator_pb.js";
-import { WALL_FORCE_WARNING_N, clock, hudLines, largestWallForce, metricRows } from "./hud.js";
+import {
+  WALL_FORCE_WARNING_N,
+  clock,
+  doseLine,
+  hudLines,
+  largestWallForce,
+  metricRows,
+  resetsLine,
+  twistLine,
+} from "./hud.js";
 
 const contact = (x: number, y: number, z: number) => ({ force: { x, y, z } });
 
 describe("HUD", () => {
+  it("reads the twist in whole degrees with its sign", () => {
+    expect(twistLine(0)).toBe("0°");
+    expect(twistLine(89.6)).toBe("+90°");
+    expect(twistLine(-450.2)).toBe("−450°");
+    expect(hudLines(create(DeviceStateSchema, { twistDeg: 30 }), undefined, "").twist).toBe("+30°");
+  });
+  it("shows the cumulative reference air kerma and DAP as a dose display does", () => {
+    expect(doseLine({ referenceAirKermaMgy: 0, kermaAreaProductGyCm2: 0 })).toBe("Ka,r 0.00 mGy · DAP 0.00 Gy·cm²");
+    expect(doseLine({ referenceAirKermaMgy: 3.456, kermaAreaProductGyCm2: 0.789 })).toBe(
+      "Ka,r 3.46 mGy · DAP 0.79 Gy·cm²",
+    );
+    expect(doseLine({ referenceAirKermaMgy: 123.4, kermaAreaProductGyCm2: 45.67 })).toBe(
+      "Ka,r 123 mGy · DAP 45.7 Gy·cm²",
+    );
+  });
   it("formats times as m:ss", () => {
     expect(clock(0)).toBe("0:00");
     expect(clock(59.99)).toBe("0:59");
@@ -25,6 +49,19 @@ describe("HUD", () => {
     expect(lines.warning).toBe(true);
     expect(lines.target).toBe("lcca");
   });
+  it("times the target from the attempt's start and counts the trainee's resets apart", () => {
+    const m = create(MetricsSchema, {
+      targetReached: true,
+      targetReachedAtS: 130,
+      attemptStartedAtS: 100,
+      operatorResets: 2,
+      divergenceResets: 0,
+    });
+    expect(hudLines(undefined, m, "rva").target).toBe("rva reached in 0:30");
+    expect(Object.fromEntries(metricRows(m))).toMatchObject({ Target: "reached in 0:30", Resets: "2" });
+    m.divergenceResets = 1;
+    expect(resetsLine(m)).toBe("2 (+1 after divergence)");
+  });
   it("shows fluoroscopy time, contrast and when the target was reached", () => {
     const metrics = create(MetricsSchema, {
       fluoroscopyTimeS: 75.2,
@@ -33,7 +70,7 @@ describe("HUD", () => {
       targetReachedAtS: 130,
     });
     const lines = hudLines(undefined, metrics, "lcca");
-    expect(lines).toMatchObject({ inserted: "—", fluoroscopy: "1:15", contrast: "12.3 mL", target: "lcca reached at 2:10" });
-    expect(Object.fromEntries(metricRows(metrics))).toMatchObject({ Fluoro: "1:15", Target: "reached at 2:10" });
+    expect(lines).toMatchObject({ inserted: "—", fluoroscopy: "1:15", contrast: "12.3 mL", target: "lcca reached in 2:10" });
+    expect(Object.fromEntries(metricRows(metrics))).toMatchObject({ Fluoro: "1:15", Target: "reached in 2:10" });
   });
 });

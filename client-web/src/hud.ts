@@ -1,5 +1,5 @@
 //! The heads-up display's figures: formatting and the wall-force warning.
-import type { DeviceState, Metrics } from "./gen/cathlab/v1/simulator_pb.js";
+import type { DeviceState, Metrics, XrayFrame } from "./gen/cathlab/v1/simulator_pb.js";
 
 /** Wall force (N) above which the HUD warns: a training threshold (a tenth of a newton on
  *  a wire tip is a hard push), not a clinical limit. */
@@ -24,6 +24,7 @@ export function clock(seconds: number): string {
 /** The HUD lines, in the order shown. */
 export interface HudLines {
   inserted: string;
+  twist: string;
   fluoroscopy: string;
   contrast: string;
   wallForce: string;
@@ -36,13 +37,14 @@ export function hudLines(state: DeviceState | undefined, metrics: Metrics | unde
   const reached = metrics?.targetReached ?? false;
   return {
     inserted: state ? `${state.insertedMm.toFixed(1)} mm` : "—",
+    twist: state ? twistLine(state.twistDeg) : "—",
     fluoroscopy: clock(metrics?.fluoroscopyTimeS ?? 0),
     contrast: `${(metrics?.contrastVolumeMl ?? 0).toFixed(1)} mL`,
     wallForce: `${(force * 1000).toFixed(0)} mN`,
     warning: force > WALL_FORCE_WARNING_N,
     target: target
       ? reached
-        ? `${target} reached at ${clock(metrics?.targetReachedAtS ?? 0)}`
+        ? `${target} reached in ${clock(attemptTime(metrics))}`
         : target
       : "—",
   };
@@ -56,8 +58,39 @@ export function metricRows(m: Metrics | undefined): [string, string][] {
     ["Contrast", `${(m?.contrastVolumeMl ?? 0).toFixed(1)} mL`],
     ["Max wall force", `${((m?.maxWallForceN ?? 0) * 1000).toFixed(0)} mN`],
     ["Tip path", `${(m?.tipPathLengthMm ?? 0).toFixed(0)} mm`],
-    ["Target", m?.targetReached ? `reached at ${clock(m.targetReachedAtS)}` : "not yet"],
-    ["Resets", String(m?.divergenceResets ?? 0)],
+    ["Target", m?.targetReached ? `reached in ${clock(attemptTime(m))}` : "not yet"],
+    ["Resets", resetsLine(m)],
   ];
 }
 
+
+/** The dose display of an angio system's monitor: cumulative air kerma at the interventional
+ *  reference point and kerma–area product, from the latest frame. */
+export function doseLine(frame: Pick<XrayFrame, "referenceAirKermaMgy" | "kermaAreaProductGyCm2">): string {
+  const kerma = frame.referenceAirKermaMgy;
+  const dap = frame.kermaAreaProductGyCm2;
+  const mgy = kerma < 10 ? kerma.toFixed(2) : kerma.toFixed(0);
+  const gycm2 = dap < 10 ? dap.toFixed(2) : dap.toFixed(1);
+  return `Ka,r ${mgy} mGy · DAP ${gycm2} Gy·cm²`;
+}
+
+/** The operator's twist at the hub (degrees, clockwise positive as seen from the operator),
+ *  with whole turns counted: "+450°" reads as one and a quarter turns clockwise. */
+export function twistLine(degrees: number): string {
+  const rounded = Math.round(degrees);
+  const sign = rounded > 0 ? "+" : rounded < 0 ? "−" : "";
+  return `${sign}${Math.abs(rounded)}°`;
+}
+
+/** Time from the current attempt's start (the session's, or the last reset's) to reaching the
+ *  target (s). */
+export function attemptTime(m: Pick<Metrics, "targetReachedAtS" | "attemptStartedAtS"> | undefined): number {
+  return Math.max(0, (m?.targetReachedAtS ?? 0) - (m?.attemptStartedAtS ?? 0));
+}
+
+/** The trainee's resets, and the simulator's own after a divergence when there were any. */
+export function resetsLine(m: Pick<Metrics, "operatorResets" | "divergenceResets"> | undefined): string {
+  const own = m?.operatorResets ?? 0;
+  const diverged = m?.divergenceResets ?? 0;
+  return diverged > 0 ? `${own} (+${diverged} after divergence)` : String(own);
+}

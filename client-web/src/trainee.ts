@@ -2,7 +2,7 @@
 import { type MessageInitShape, create } from "@bufbuild/protobuf";
 import { Code, ConnectError } from "@connectrpc/connect";
 import { type SimulatorClient, serverUrl, simulatorClient } from "./api.js";
-import { DriveCommands, combine, gamepadDemand, keyboardDemand } from "./controls.js";
+import { DriveCommands, combine, gamepadDemand, isDriveKey, keyboardDemand } from "./controls.js";
 import {
   type Command,
   CommandSchema,
@@ -12,7 +12,7 @@ import {
   PulseRate,
 } from "./gen/cathlab/v1/simulator_pb.js";
 import { showFrames } from "./frames.js";
-import { hudLines } from "./hud.js";
+import { doseLine, hudLines } from "./hud.js";
 import { type ConnectionStatus, keepOpen } from "./reconnect.js";
 
 const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
@@ -68,8 +68,11 @@ function showStatus(status: ConnectionStatus, detail?: string) {
   el.title = detail ?? "";
 }
 
-function say(text: string) {
-  $("message").textContent = text;
+/** A line under the image: a warning or error by default, a success styled as one. */
+function say(text: string, kind: "warning" | "success" = "warning") {
+  const el = $("message");
+  el.textContent = text;
+  el.dataset.kind = kind;
 }
 
 function describe(e: unknown): string {
@@ -112,6 +115,7 @@ async function main() {
       hudPending = false;
       const lines = hudLines(state, metrics, target);
       $("hud-inserted").textContent = lines.inserted;
+      $("hud-twist").textContent = lines.twist;
       $("hud-fluoro").textContent = lines.fluoroscopy;
       $("hud-contrast").textContent = lines.contrast;
       $("hud-force").textContent = lines.wallForce;
@@ -143,7 +147,7 @@ async function main() {
         if (metrics && metrics.divergenceResets > resets) {
           say("The simulation diverged and the device was put back at its start.");
         }
-        if (metrics?.targetReached && !reached) say(`Target ${target} reached.`);
+        if (metrics?.targetReached && !reached) say(`Target ${target} reached.`, "success");
         resets = metrics?.divergenceResets ?? 0;
         reached = metrics?.targetReached ?? false;
         redraw();
@@ -162,6 +166,8 @@ async function main() {
         frame.mode === ImagingMode.SUBTRACTION ? "DSA" : frame.mode === ImagingMode.ROADMAP ? "ROADMAP" : "FLUORO";
       $("mode").textContent = frame.held ? `${mode} · last image hold` : mode;
       $("frame-info").textContent = `frame ${frame.index} · t ${frame.timeS.toFixed(2)} s`;
+      $("dose").textContent = doseLine(frame);
+      $("prompt").hidden = true;
     },
   });
 
@@ -209,24 +215,34 @@ function controls(client: SimulatorClient, sessionId: string) {
     $("pedal").classList.toggle("held", down);
     void command({ case: "fluoroscopy", value: down });
   };
-  const typing = (e: Event) => e.target instanceof HTMLInputElement || e.target instanceof HTMLSelectElement;
-  window.addEventListener("keydown", (e) => {
-    if (typing(e)) return;
-    if (e.key === "f" || e.key === "F") {
-      setPedal(true);
+  // The drive keys drive the device wherever focus is: listened to in the capture phase and
+  // kept from the focused control (an arrow on a focused slider would turn the C-arm).
+  window.addEventListener(
+    "keydown",
+    (e) => {
+      if (!isDriveKey(e.key)) return;
       e.preventDefault();
-    } else if (Object.values(HOLD_KEYS).includes(e.key)) {
-      e.preventDefault();
-      if (!held.has(e.key)) {
+      e.stopPropagation();
+      if (e.key === "f" || e.key === "F") {
+        setPedal(true);
+      } else if (!held.has(e.key)) {
         held.add(e.key);
         update();
       }
-    }
-  });
-  window.addEventListener("keyup", (e) => {
-    if (e.key === "f" || e.key === "F") setPedal(false);
-    else if (held.delete(e.key)) update();
-  });
+    },
+    { capture: true },
+  );
+  window.addEventListener(
+    "keyup",
+    (e) => {
+      if (!isDriveKey(e.key)) return;
+      e.preventDefault();
+      e.stopPropagation();
+      if (e.key === "f" || e.key === "F") setPedal(false);
+      else if (held.delete(e.key)) update();
+    },
+    { capture: true },
+  );
   // Losing focus lets go of everything: a device must never run on unattended.
   window.addEventListener("blur", () => {
     held.clear();

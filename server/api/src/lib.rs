@@ -225,6 +225,8 @@ pub fn metrics_to_wire(m: &Metrics) -> pb::Metrics {
         target_reached_at_s: m.target_reached_at_s.unwrap_or(0.0),
         steps: m.steps,
         divergence_resets: m.divergence_resets,
+        operator_resets: m.operator_resets,
+        attempt_started_at_s: m.attempt_started_at_s,
     }
 }
 

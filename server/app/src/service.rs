@@ -570,6 +570,8 @@ impl Simulator for SimulatorService {
                             held: frame.frame.held,
                             last_seq: frame.last_seq,
                             skipped,
+                            reference_air_kerma_mgy: frame.dose.reference_air_kerma_mgy,
+                            kerma_area_product_gy_cm2: frame.dose.kerma_area_product_gy_cm2,
                         }),
                         Ok(Err(e)) => Err(engine_status(e)),
                         Err(e) => Err(Status::internal(e.to_string())),

@@ -20,8 +20,13 @@ pub struct Metrics {
     pub mean_wall_force_n: f64,
     /// Distance travelled by the tip (m).
     pub tip_path_length_m: f64,
-    /// Simulated time at which the target was first reached (s).
+    /// Simulated time at which the target was reached in the current attempt (s); a reset
+    /// starts a new attempt.
     pub target_reached_at_s: Option<f64>,
+    /// Simulated time at which the current attempt started (s): 0, or the last reset.
+    pub attempt_started_at_s: f64,
+    /// Resets the operator asked for.
+    pub operator_resets: u32,
     /// Physics steps taken.
     pub steps: u64,
     /// Physics resets after divergence.

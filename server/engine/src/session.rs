@@ -11,7 +11,10 @@ use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use cathlab_xray::{Fluoroscope, FluoroscopeSettings, Frame, ImagingMode, Layers};
+use cathlab_xray::{
+    DoseTally, EdgeEnhancement, Fluoroscope, FluoroscopeSettings, Frame, ImagingMode, Layers,
+    ScatterSettings,
+};
 use parking_lot::Mutex;
 use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, oneshot, watch};
@@ -82,6 +85,8 @@ pub struct RenderedFrame {
     pub last_seq: u64,
     /// Step of that snapshot.
     pub step: u64,
+    /// Dose accumulated by the session's exposures up to this frame.
+    pub dose: DoseTally,
 }
 
 /// Session threads' knobs.
@@ -328,6 +333,17 @@ pub fn fluoroscope_settings(assets: &SceneAssets) -> FluoroscopeSettings {
     settings.detector.noise = f.noise;
     settings.detector.seed = f.seed;
     settings.detector.auto_window = true;
+    settings.dose.automatic = f.automatic_exposure;
+    settings.recursive_weight = f.recursive_weight;
+    settings.mask_frames = f.dsa_mask_frames;
+    settings.scatter = (f.scatter_to_primary > 0.0).then(|| ScatterSettings {
+        scatter_to_primary: f.scatter_to_primary,
+        ..ScatterSettings::default()
+    });
+    settings.edge_enhancement = (f.edge_enhancement > 0.0).then(|| EdgeEnhancement {
+        amount: f.edge_enhancement,
+        ..EdgeEnhancement::default()
+    });
     settings
 }
 
@@ -525,6 +541,7 @@ fn render_loop(mut r: RenderLoop) {
                         frame: frame.clone(),
                         last_seq: snapshot.last_seq,
                         step: snapshot.step,
+                        dose: r.fluoroscope.dose(),
                     })));
                 }
             }

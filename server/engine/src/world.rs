@@ -425,7 +425,11 @@ impl World {
             }
             Command::Reset => {
                 self.restart_device(self.active_device)?;
-                self.event(EventKind::Reset, "scene reset");
+                // A new attempt: the target is to be reached again.
+                self.metrics.operator_resets += 1;
+                self.metrics.target_reached_at_s = None;
+                self.metrics.attempt_started_at_s = self.metrics.procedure_time_s;
+                self.event(EventKind::Reset, "scene reset: a new attempt");
             }
         }
         self.last_seq = seq;
@@ -713,8 +717,9 @@ impl World {
             m.wall_force_sum_n,
             m.tip_path_length_m,
             m.target_reached_at_s.unwrap_or(-1.0),
+            m.attempt_started_at_s,
         ]);
-        h.u64(m.divergence_resets as u64);
+        h.u64(m.divergence_resets as u64 | (m.operator_resets as u64) << 32);
         h.finish()
     }
 }

@@ -356,4 +356,31 @@ fn the_target_metric_agrees_with_an_autopilot_that_reaches_the_lcca() {
         m.tip_path_length_m
     );
     assert!(m.max_wall_force_n > 0.0 && m.mean_wall_force_n > 0.0);
+
+    // Reset starts a new attempt: the target is to be reached again, and the reset counts.
+    let reset_at = world.metrics().procedure_time_s;
+    world.apply(1, &Command::Reset).unwrap();
+    let m = world.metrics();
+    assert_eq!(m.operator_resets, 1);
+    assert_eq!(m.target_reached_at_s, None);
+    assert_eq!(m.attempt_started_at_s, reset_at);
+    let mut again = Autopilot::new(
+        &a.anatomy.graph,
+        a.route.clone(),
+        0.0,
+        cathlab_physics::autopilot::AutopilotSettings {
+            reach_m: a.spec.target.reach_mm * 1e-3,
+            ..plan.autopilot
+        },
+    )
+    .unwrap();
+    world
+        .follow_autopilot(&mut again, plan.max_steps, 1)
+        .unwrap()
+        .expect("the second attempt reaches the LCCA");
+    let m = world.metrics();
+    let second = m.target_reached_at_s.expect("reached again") - m.attempt_started_at_s;
+    println!("second attempt: reached {second:.3} s after the reset (first {at:.3} s)");
+    // The device restarts where it started: the same run, the same time to the target.
+    assert!((second - at).abs() < 2.0 * dt, "{second} vs {at}");
 }

@@ -1,13 +1,16 @@
 //! The imaging chain over time: a renderer, the background cached per pose and volume,
-//! pulsed fluoroscopy (7.5/15/30 pulses per second), last-image hold, digital subtraction
-//! angiography (mask subtraction, peak opacification) and roadmap.
+//! pulsed fluoroscopy (7.5/15/30 pulses per second) with automatic exposure control, dose
+//! accounting and recursive (temporal) filtering, last-image hold, digital subtraction
+//! angiography (a mask averaged over the run's first frames, peak opacification) and roadmap.
 
 use std::sync::Arc;
 
 use crate::detector::{self, DetectorSettings};
+use crate::dose::{self, DoseSettings, DoseTally, ExposureDose};
 use crate::error::{Result, XrayError};
 use crate::geometry::CArm;
 use crate::layers::Layers;
+use crate::processing::{self, ScatterSettings};
 use crate::render::{MarchSettings, PathImage, Renderer};
 
 use crate::spectrum::Spectrum;
@@ -112,6 +115,37 @@ pub struct FluoroscopeSettings {
     /// Roadmap vessel-map depth (line-integral units): the DSA peak opacity is capped here,
     /// so that vessels show as an even light plateau and devices stay dark on top of it.
     pub roadmap_vessel_depth: f64,
+    /// Dose per mode and automatic exposure control.
+    pub dose: DoseSettings,
+    /// Recursive filter weight α ∈ (0, 1] of live fluoroscopy and roadmap: each shown image
+    /// is α·new + (1 − α)·previous, which divides the variance of still parts by
+    /// (2 − α)/α (3 at α = 0.5) and lags moving ones by (1 − α)/α frames. 1 is off.
+    pub recursive_weight: f64,
+    /// How many exposures open a DSA run and are averaged into its mask (their noise
+    /// variance in the subtraction falls as 1/k); they show as an empty subtraction.
+    pub mask_frames: u32,
+    /// Patient scatter and the anti-scatter grid; `None` leaves only primary radiation.
+    pub scatter: Option<ScatterSettings>,
+    /// Unsharp-mask edge enhancement of live fluoroscopy and roadmap images; `None` is off.
+    pub edge_enhancement: Option<EdgeEnhancement>,
+}
+
+/// Unsharp-mask edge enhancement: `x + amount·(x − G_σ ⊛ x)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EdgeEnhancement {
+    /// σ of the blur subtracted (pixels).
+    pub sigma_px: f64,
+    /// How much of the difference is added back.
+    pub amount: f64,
+}
+
+impl Default for EdgeEnhancement {
+    fn default() -> Self {
+        Self {
+            sigma_px: 2.0,
+            amount: 0.6,
+        }
+    }
 }
 
 impl Default for FluoroscopeSettings {
@@ -123,6 +157,11 @@ impl Default for FluoroscopeSettings {
             pulse_rate: PulseRate::Hz15,
             subtraction_window: 1.5,
             roadmap_vessel_depth: 0.35,
+            dose: DoseSettings::default(),
+            recursive_weight: 1.0,
+            mask_frames: 1,
+            scatter: None,
+            edge_enhancement: None,
         }
     }
 }
@@ -145,8 +184,17 @@ struct CachedBackground {
 
 struct SubtractionMasks {
     carm: CArm,
+    /// The mean of the first `frames` exposures of the run.
     mask: Vec<f32>,
+    frames: u32,
     peak_opacity: Vec<f32>,
+}
+
+/// The recursive filter's memory: the last shown image of a mode at a pose.
+struct Recursion {
+    carm: CArm,
+    mode: ImagingMode,
+    shown: Vec<f32>,
 }
 
 /// The imaging chain: call [`Fluoroscope::update`] every simulation tick.
@@ -158,6 +206,9 @@ pub struct Fluoroscope {
     last: Option<Frame>,
     next_pulse_s: Option<f64>,
     masks: Option<SubtractionMasks>,
+    recursion: Option<Recursion>,
+    dose: DoseTally,
+    quanta_per_mm2_per_ugy: f64,
     stats: FluoroscopeStats,
 }
 
@@ -166,6 +217,40 @@ impl Fluoroscope {
     pub fn new(renderer: Box<dyn Renderer>, settings: FluoroscopeSettings) -> Result<Self> {
         settings.march.validate()?;
         settings.detector.validate()?;
+        settings.dose.validate()?;
+        if let Some(scatter) = &settings.scatter {
+            scatter.validate()?;
+        }
+        if let Some(edge) = &settings.edge_enhancement
+            && !(edge.sigma_px.is_finite()
+                && (0.3..=20.0).contains(&edge.sigma_px)
+                && edge.amount.is_finite()
+                && (0.0..=5.0).contains(&edge.amount))
+        {
+            return Err(XrayError::OutOfRange {
+                what: "edge enhancement σ (px) or amount".into(),
+                range: "0.3 ≤ σ ≤ 20 px, 0 ≤ amount ≤ 5",
+                value: if (0.3..=20.0).contains(&edge.sigma_px) {
+                    edge.amount
+                } else {
+                    edge.sigma_px
+                },
+            });
+        }
+        if !(settings.recursive_weight > 0.0 && settings.recursive_weight <= 1.0) {
+            return Err(XrayError::OutOfRange {
+                what: "recursive filter weight".into(),
+                range: "0 < α ≤ 1",
+                value: settings.recursive_weight,
+            });
+        }
+        if !(1..=64).contains(&settings.mask_frames) {
+            return Err(XrayError::OutOfRange {
+                what: "DSA mask frames".into(),
+                range: "1 to 64",
+                value: f64::from(settings.mask_frames),
+            });
+        }
         for (what, value) in [
             ("subtraction window width", settings.subtraction_window),
             ("roadmap vessel depth", settings.roadmap_vessel_depth),
@@ -178,6 +263,7 @@ impl Fluoroscope {
                 });
             }
         }
+        let quanta_per_mm2_per_ugy = dose::quanta_per_mm2_per_ugy(&settings.spectrum);
         Ok(Self {
             renderer,
             settings,
@@ -186,6 +272,9 @@ impl Fluoroscope {
             last: None,
             next_pulse_s: None,
             masks: None,
+            recursion: None,
+            dose: DoseTally::default(),
+            quanta_per_mm2_per_ugy,
             stats: FluoroscopeStats::default(),
         })
     }
@@ -203,6 +292,11 @@ impl Fluoroscope {
     /// Work counters.
     pub fn stats(&self) -> FluoroscopeStats {
         self.stats
+    }
+
+    /// Dose accumulated since the chain started.
+    pub fn dose(&self) -> DoseTally {
+        self.dose
     }
 
     /// The current mode.
@@ -291,20 +385,62 @@ impl Fluoroscope {
             Some(self.renderer.project_layers(scene.layers, scene.carm)?)
         };
         let geometry = &scene.carm.detector;
-        let transmitted = detector::transmission(
+        let mut transmitted = detector::transmission(
             &self.settings.spectrum,
             self.cache.as_ref().map(|c| &c.image),
             layers.as_ref(),
             geometry.width_px,
             geometry.height_px,
         );
+        if let Some(scatter) = &self.settings.scatter {
+            processing::add_scatter(
+                &mut transmitted,
+                geometry.width_px,
+                geometry.height_px,
+                geometry.pixel_pitch_m(),
+                scatter,
+            );
+        }
         let index = self.stats.exposures;
         self.stats.exposures += 1;
-        let mut values = detector::expose(&transmitted, geometry, &self.settings.detector, index);
-        let d = &self.settings.detector;
+        let subtraction = self.mode == ImagingMode::Subtraction;
+        let mut detector_settings = self.settings.detector;
+        let dose_settings = &self.settings.dose;
+        if dose_settings.automatic {
+            let aim = if subtraction {
+                dose_settings.subtraction_detector_ugy
+            } else {
+                dose_settings.fluoroscopy_detector_ugy
+            };
+            if let Some(t) = dose::measuring_field_transmission(
+                &transmitted,
+                geometry.width_px,
+                geometry.height_px,
+            ) {
+                detector_settings.photons_per_pixel = dose::controlled_photons_per_pixel(
+                    aim,
+                    t,
+                    geometry.pixel_pitch_m(),
+                    self.quanta_per_mm2_per_ugy,
+                    dose_settings.max_photons_per_pixel,
+                );
+            }
+        }
+        self.dose.add(
+            &ExposureDose::of(
+                detector_settings.photons_per_pixel,
+                scene.carm,
+                self.quanta_per_mm2_per_ugy,
+            ),
+            subtraction,
+        );
+        let mut values = detector::expose(&transmitted, geometry, &detector_settings, index);
+        let d = self.settings.detector;
         let mut window = (d.window, d.level);
         match self.mode {
             ImagingMode::Fluoroscopy => {
+                self.recursive_filter(&mut values, scene.carm);
+                self.enhance_edges(&mut values, geometry);
                 if d.auto_window {
                     window = detector::auto_window(&values, geometry.width_px, geometry.height_px)
                         .unwrap_or(window);
@@ -312,7 +448,17 @@ impl Fluoroscope {
             }
             ImagingMode::Subtraction => {
                 window = (self.settings.subtraction_window, 0.0);
+                let wanted = self.settings.mask_frames;
                 match &mut self.masks {
+                    Some(m) if m.carm == *scene.carm && m.frames < wanted => {
+                        // Still building the mask: a running mean.
+                        m.frames += 1;
+                        let k = m.frames as f32;
+                        for (mask, v) in m.mask.iter_mut().zip(&mut values) {
+                            *mask += (*v - *mask) / k;
+                            *v -= *v;
+                        }
+                    }
                     Some(m) if m.carm == *scene.carm => {
                         for ((v, mask), peak) in
                             values.iter_mut().zip(&m.mask).zip(&mut m.peak_opacity)
@@ -322,10 +468,11 @@ impl Fluoroscope {
                         }
                     }
                     _ => {
-                        // The first exposure of a run (or after a pose change) is the mask.
+                        // The first exposure of a run (or after a pose change) starts the mask.
                         self.masks = Some(SubtractionMasks {
                             carm: *scene.carm,
                             mask: values.clone(),
+                            frames: 1,
                             peak_opacity: vec![0.0; values.len()],
                         });
                         values.iter_mut().for_each(|v| *v -= *v);
@@ -345,6 +492,8 @@ impl Fluoroscope {
                 for ((v, mask), peak) in values.iter_mut().zip(&m.mask).zip(&m.peak_opacity) {
                     *v = *v - mask - peak.min(depth);
                 }
+                self.recursive_filter(&mut values, scene.carm);
+                self.enhance_edges(&mut values, geometry);
             }
         }
         Ok(Frame {
@@ -357,6 +506,43 @@ impl Fluoroscope {
             values,
             window,
         })
+    }
+
+    /// Edge enhancement of a shown image, if on.
+    fn enhance_edges(&self, values: &mut [f32], geometry: &crate::geometry::DetectorGeometry) {
+        if let Some(edge) = &self.settings.edge_enhancement {
+            processing::unsharp_mask(
+                values,
+                geometry.width_px,
+                geometry.height_px,
+                edge.sigma_px,
+                edge.amount,
+            );
+        }
+    }
+
+    /// Recursive filtering of `values` in place against the last image shown in this mode at
+    /// this pose (none after a mode or pose change: the new image shows as it is).
+    fn recursive_filter(&mut self, values: &mut [f32], carm: &CArm) {
+        let alpha = self.settings.recursive_weight as f32;
+        if alpha >= 1.0 {
+            return;
+        }
+        match &mut self.recursion {
+            Some(r) if r.carm == *carm && r.mode == self.mode && r.shown.len() == values.len() => {
+                for (v, shown) in values.iter_mut().zip(&mut r.shown) {
+                    *v = alpha * *v + (1.0 - alpha) * *shown;
+                    *shown = *v;
+                }
+            }
+            _ => {
+                self.recursion = Some(Recursion {
+                    carm: *carm,
+                    mode: self.mode,
+                    shown: values.to_vec(),
+                });
+            }
+        }
     }
 
     /// The background for this volume and pose: cached, re-rendered only when either (or
