@@ -168,7 +168,19 @@ struct Hemo {
     tubes: Arc<Vec<ContrastTube>>,
     /// Whether any iodine is in the vessels (contrast steps only then).
     active: bool,
+    /// The power injector's program (mL, mL/s): the last injection's, run again when a DSA
+    /// run fires it.
+    program: (f64, f64),
+    /// When the injector linked to the current DSA run fires (procedure time, s).
+    linked_at_s: Option<f64>,
 }
+
+/// The power injector's program before any injection: 6 mL at 4 mL/s, a selective
+/// common-carotid run through a 5 F catheter.
+const DEFAULT_INJECTOR_PROGRAM: (f64, f64) = (6.0, 4.0);
+
+/// Delay from the start of a DSA run to the linked injection (s): the mask frames come first.
+pub const LINKED_INJECTION_DELAY_S: f64 = 0.5;
 
 /// Threshold below which contrast cells are not drawn (mg/mL).
 const CONTRAST_DRAW_THRESHOLD: f64 = 1.0;
@@ -250,6 +262,8 @@ impl World {
                     steps_since_contrast: 0,
                     tubes: Arc::new(Vec::new()),
                     active: false,
+                    program: DEFAULT_INJECTOR_PROGRAM,
+                    linked_at_s: None,
                 })
             }
         };
@@ -374,7 +388,15 @@ impl World {
                     self.metrics.dsa_runs += 1;
                     let run = self.imaging.dsa_run;
                     self.event(EventKind::Imaging, format!("DSA run {run} started"));
+                    // The injector is linked to the run: it fires after the mask.
+                    let at = self.metrics.procedure_time_s + LINKED_INJECTION_DELAY_S;
+                    if let Some(hemo) = &mut self.hemo {
+                        hemo.linked_at_s = Some(at);
+                    }
                 } else if self.imaging.mode == Mode::Subtraction {
+                    if let Some(hemo) = &mut self.hemo {
+                        hemo.linked_at_s = None;
+                    }
                     self.imaging.mode = Mode::Fluoroscopy;
                     self.event(EventKind::Imaging, "DSA run ended");
                 }
@@ -417,6 +439,9 @@ impl World {
                     ));
                 };
                 hemo.injection = Some((volume_ml * 1e-6, rate_ml_s * 1e-6));
+                hemo.program = (volume_ml, rate_ml_s);
+                // An injection by hand during a DSA run replaces the linked one.
+                hemo.linked_at_s = None;
                 self.update_injection()?;
                 self.event(
                     EventKind::Contrast,
@@ -460,6 +485,36 @@ impl World {
     }
 
     /// Re-solves the flow for the current injection (at the device tip) or none.
+    /// Fires the injector linked to the DSA run when its time has come.
+    fn fire_linked_injection(&mut self) -> Result<()> {
+        let now = self.metrics.procedure_time_s;
+        let Some(hemo) = &mut self.hemo else {
+            return Ok(());
+        };
+        if hemo.linked_at_s.is_none_or(|at| now < at) {
+            return Ok(());
+        }
+        hemo.linked_at_s = None;
+        let (volume_ml, rate_ml_s) = hemo.program;
+        hemo.injection = Some((volume_ml * 1e-6, rate_ml_s * 1e-6));
+        match self.update_injection() {
+            Ok(()) => self.event(
+                EventKind::Contrast,
+                format!("injector linked to the DSA run: {volume_ml:.1} mL at {rate_ml_s:.1} mL/s"),
+            ),
+            Err(e) => {
+                if let Some(hemo) = &mut self.hemo {
+                    hemo.injection = None;
+                }
+                self.event(
+                    EventKind::Contrast,
+                    format!("linked injection not given: {e}"),
+                );
+            }
+        }
+        Ok(())
+    }
+
     fn update_injection(&mut self) -> Result<()> {
         let tip = Point3::from(self.nav.tip_position());
         let graph = &self.assets.anatomy.graph;
@@ -590,6 +645,7 @@ impl World {
     }
 
     fn step_contrast(&mut self, dt: f64) -> Result<()> {
+        self.fire_linked_injection()?;
         let every = self.assets.spec.fidelity.contrast_every_steps;
         let to_lps = self.assets.to_lps;
         let Some(hemo) = &mut self.hemo else {
@@ -701,6 +757,11 @@ impl World {
         h.f64s(&[self.nav.inserted_m(), self.nav.twist_rad()]);
         h.f64s(&self.proximal);
         if let Some(hemo) = &self.hemo {
+            h.f64s(&[
+                hemo.linked_at_s.unwrap_or(-1.0),
+                hemo.program.0,
+                hemo.program.1,
+            ]);
             for v in 0..hemo.solver.network().vessels.len() {
                 h.f64s(hemo.contrast.concentration(v));
             }

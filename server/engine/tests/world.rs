@@ -384,3 +384,46 @@ fn the_target_metric_agrees_with_an_autopilot_that_reaches_the_lcca() {
     // The device restarts where it started: the same run, the same time to the target.
     assert!((second - at).abs() < 2.0 * dt, "{second} vs {at}");
 }
+
+#[test]
+fn a_dsa_run_fires_the_linked_injector_after_its_mask_and_not_once_stopped() {
+    let a = assets(&default_text());
+    let dt = a.spec.time_step_s();
+    let delay_steps = (cathlab_engine::world::LINKED_INJECTION_DELAY_S / dt).ceil() as u64;
+    // Run 1: DSA held for a second, no injection asked for.
+    let mut world = World::new(a.clone()).unwrap();
+    world.apply(1, &Command::Dsa(true)).unwrap();
+    for _ in 0..delay_steps - 2 {
+        world.step().unwrap();
+    }
+    assert_eq!(
+        world.metrics().contrast_volume_ml,
+        0.0,
+        "nothing before the mask is done"
+    );
+    for _ in 0..delay_steps {
+        world.step().unwrap();
+    }
+    let injected = world.metrics().contrast_volume_ml;
+    let events = world.take_events();
+    println!(
+        "linked injection: {injected:.2} mL after {:.2} s; {:?}",
+        world.metrics().procedure_time_s,
+        events.iter().map(|e| e.message.clone()).collect::<Vec<_>>()
+    );
+    assert!(injected > 0.0);
+    assert!(
+        events
+            .iter()
+            .any(|e| e.kind == EventKind::Contrast && e.message.contains("linked"))
+    );
+    // Run 2: the run stopped before the injector's time: no contrast.
+    let mut stopped = World::new(a).unwrap();
+    stopped.apply(1, &Command::Dsa(true)).unwrap();
+    stopped.step().unwrap();
+    stopped.apply(2, &Command::Dsa(false)).unwrap();
+    for _ in 0..2 * delay_steps {
+        stopped.step().unwrap();
+    }
+    assert_eq!(stopped.metrics().contrast_volume_ml, 0.0);
+}

@@ -166,6 +166,29 @@ impl Default for FluoroscopeSettings {
     }
 }
 
+/// Robust σ of mostly-background values: 1.4826 × the median absolute deviation.
+fn robust_sigma(values: &[f32]) -> Option<f32> {
+    let mut v: Vec<f32> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    let n = v.len();
+    let median = *v.select_nth_unstable_by(n / 2, f32::total_cmp).1;
+    let mut deviations: Vec<f32> = v.iter().map(|x| (x - median).abs()).collect();
+    let mad = *deviations.select_nth_unstable_by(n / 2, f32::total_cmp).1;
+    Some(1.4826 * mad)
+}
+
+/// The roadmap's vessel map from a run's peak opacity: where the peak clears
+/// [`VESSEL_THRESHOLD_SIGMA`] noise σ, the peak capped at `depth`; elsewhere nothing, so the
+/// background stays clean.
+fn vessel_map(peak: &[f32], noise_sigma: Option<f32>, depth: f32) -> Vec<f32> {
+    let threshold = noise_sigma.map_or(0.0, |s| VESSEL_THRESHOLD_SIGMA * s);
+    peak.iter()
+        .map(|p| if *p > threshold { p.min(depth) } else { 0.0 })
+        .collect()
+}
+
 /// Counters of work done, for tests and reports.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct FluoroscopeStats {
@@ -184,11 +207,23 @@ struct CachedBackground {
 
 struct SubtractionMasks {
     carm: CArm,
-    /// The mean of the first `frames` exposures of the run.
+    /// The mean of the first `frames` exposures of the run, devices left out.
     mask: Vec<f32>,
     frames: u32,
+    /// Per pixel, the largest smoothed subtraction of the contrast (devices left out).
     peak_opacity: Vec<f32>,
+    /// Noise σ of one smoothed subtraction, from the run's first subtracted frame.
+    noise_sigma: Option<f32>,
+    /// The roadmap's vessel map, made from the peak on first use.
+    vessel_map: Option<Vec<f32>>,
 }
+
+/// σ (pixels) of the smoothing before a DSA frame's contrast enters the peak opacity.
+const PEAK_SMOOTHING_PX: f64 = 1.0;
+
+/// Vessel-map threshold in noise σ of a smoothed subtraction: the peak of a run's noise stays
+/// below it (about 4σ over 10⁶ pixel-frames), contrast above it.
+const VESSEL_THRESHOLD_SIGMA: f32 = 5.0;
 
 /// The recursive filter's memory: the last shown image of a mode at a pose.
 struct Recursion {
@@ -435,6 +470,34 @@ impl Fluoroscope {
             subtraction,
         );
         let mut values = detector::expose(&transmitted, geometry, &detector_settings, index);
+        // A DSA run's mask and vessel map leave the devices out (the same exposure without
+        // their attenuation, the same noise draw): a device that moves leaves no ghost.
+        let contrast_only = match (&layers, subtraction) {
+            (Some(l), true) if l.channels[1..].iter().any(|c| c.iter().any(|p| *p != 0.0)) => {
+                let mut iodine_only = l.clone();
+                for plane in &mut iodine_only.channels[1..] {
+                    plane.iter_mut().for_each(|p| *p = 0.0);
+                }
+                let mut t = detector::transmission(
+                    &self.settings.spectrum,
+                    self.cache.as_ref().map(|c| &c.image),
+                    Some(&iodine_only),
+                    geometry.width_px,
+                    geometry.height_px,
+                );
+                if let Some(scatter) = &self.settings.scatter {
+                    processing::add_scatter(
+                        &mut t,
+                        geometry.width_px,
+                        geometry.height_px,
+                        geometry.pixel_pitch_m(),
+                        scatter,
+                    );
+                }
+                Some(detector::expose(&t, geometry, &detector_settings, index))
+            }
+            _ => None,
+        };
         let d = self.settings.detector;
         let mut window = (d.window, d.level);
         match self.mode {
@@ -449,31 +512,54 @@ impl Fluoroscope {
             ImagingMode::Subtraction => {
                 window = (self.settings.subtraction_window, 0.0);
                 let wanted = self.settings.mask_frames;
+                let clean = contrast_only.as_ref().unwrap_or(&values);
                 match &mut self.masks {
                     Some(m) if m.carm == *scene.carm && m.frames < wanted => {
                         // Still building the mask: a running mean.
                         m.frames += 1;
                         let k = m.frames as f32;
-                        for (mask, v) in m.mask.iter_mut().zip(&mut values) {
-                            *mask += (*v - *mask) / k;
-                            *v -= *v;
+                        for (mask, c) in m.mask.iter_mut().zip(clean) {
+                            *mask += (*c - *mask) / k;
                         }
+                        values.iter_mut().for_each(|v| *v -= *v);
                     }
                     Some(m) if m.carm == *scene.carm => {
-                        for ((v, mask), peak) in
-                            values.iter_mut().zip(&m.mask).zip(&mut m.peak_opacity)
-                        {
+                        let mut opacity: Vec<f32> = clean
+                            .iter()
+                            .zip(&m.mask)
+                            .map(|(c, mask)| c - mask)
+                            .collect();
+                        let finite: Vec<f32> = opacity
+                            .iter()
+                            .map(|o| if o.is_finite() { *o } else { 0.0 })
+                            .collect();
+                        opacity = finite;
+                        detector::gaussian_blur(
+                            &mut opacity,
+                            geometry.width_px as usize,
+                            geometry.height_px as usize,
+                            PEAK_SMOOTHING_PX,
+                        );
+                        if m.noise_sigma.is_none() {
+                            m.noise_sigma = robust_sigma(&opacity);
+                        }
+                        for (peak, o) in m.peak_opacity.iter_mut().zip(&opacity) {
+                            *peak = peak.max(*o);
+                        }
+                        m.vessel_map = None;
+                        for (v, mask) in values.iter_mut().zip(&m.mask) {
                             *v -= mask;
-                            *peak = peak.max(*v);
                         }
                     }
                     _ => {
                         // The first exposure of a run (or after a pose change) starts the mask.
                         self.masks = Some(SubtractionMasks {
                             carm: *scene.carm,
-                            mask: values.clone(),
+                            mask: clean.clone(),
                             frames: 1,
                             peak_opacity: vec![0.0; values.len()],
+                            noise_sigma: None,
+                            vessel_map: None,
                         });
                         values.iter_mut().for_each(|v| *v -= *v);
                     }
@@ -481,16 +567,19 @@ impl Fluoroscope {
             }
             ImagingMode::Roadmap => {
                 window = (self.settings.subtraction_window, 0.0);
+                let depth = self.settings.roadmap_vessel_depth as f32;
                 let m = self
                     .masks
-                    .as_ref()
+                    .as_mut()
                     .filter(|m| m.carm == *scene.carm)
                     .ok_or_else(|| {
                         XrayError::Unavailable("roadmap: the C-arm moved since the DSA run".into())
                     })?;
-                let depth = self.settings.roadmap_vessel_depth as f32;
-                for ((v, mask), peak) in values.iter_mut().zip(&m.mask).zip(&m.peak_opacity) {
-                    *v = *v - mask - peak.min(depth);
+                let map = m
+                    .vessel_map
+                    .get_or_insert_with(|| vessel_map(&m.peak_opacity, m.noise_sigma, depth));
+                for ((v, mask), vessel) in values.iter_mut().zip(&m.mask).zip(map.iter()) {
+                    *v = *v - mask - vessel;
                 }
                 self.recursive_filter(&mut values, scene.carm);
                 self.enhance_edges(&mut values, geometry);

@@ -501,3 +501,140 @@ fn edge_enhancement_multiplies_white_noise_variance_by_its_filters_energy() {
         "{gain} vs {gain_by_hand}"
     );
 }
+
+/// The 3 mm, 150 mgI/mL vessel across the field at the isocenter.
+fn vessel_layer() -> Layers {
+    let mut vessel = Layers::new();
+    vessel
+        .add_contrast(
+            &[ContrastTube {
+                start: Point3::new(-0.05, 0.0, 0.0),
+                end: Point3::new(0.05, 0.0, 0.0),
+                start_radius_m: 1.5e-3,
+                end_radius_m: 1.5e-3,
+                concentration_mg_per_ml: 150.0,
+            }],
+            1.0,
+        )
+        .unwrap();
+    vessel
+}
+
+/// A 0.035" wire down pixel column `u` of `carm`, at the isocenter.
+fn wire_down_column(carm: &CArm, u: f64) -> Vec<Point3<f64>> {
+    [0.0, 127.0]
+        .iter()
+        .map(|&v| {
+            let ray = carm.ray(u, v);
+            ray.origin + ray.direction * carm.source_to_isocenter_m
+        })
+        .collect()
+}
+
+#[test]
+fn the_roadmap_keeps_no_ghost_of_a_wire_that_moved_after_the_dsa_run() {
+    let (volume, carm) = (slab(), carm(128));
+    let mut s = settings(false);
+    s.mask_frames = 3;
+    let mut c = chain(s);
+    // The DSA run: the wire down column 30 throughout, contrast after the mask.
+    let mut wire_at_30 = Layers::new();
+    wire_at_30
+        .add_device(
+            &wire_down_column(&carm, 30.0),
+            &DeviceAppearance::guidewire_035(),
+        )
+        .unwrap();
+    let mut with_contrast = vessel_layer();
+    with_contrast
+        .add_device(
+            &wire_down_column(&carm, 30.0),
+            &DeviceAppearance::guidewire_035(),
+        )
+        .unwrap();
+    c.set_mode(ImagingMode::Subtraction, &carm).unwrap();
+    for _ in 0..3 {
+        shoot(&mut c, &volume, &carm, &wire_at_30);
+    }
+    let dsa = shoot(&mut c, &volume, &carm, &with_contrast);
+    // Then the wire moves to column 90 and the roadmap goes on.
+    c.set_mode(ImagingMode::Roadmap, &carm).unwrap();
+    let mut wire_at_90 = Layers::new();
+    wire_at_90
+        .add_device(
+            &wire_down_column(&carm, 90.0),
+            &DeviceAppearance::guidewire_035(),
+        )
+        .unwrap();
+    let roadmap = shoot(&mut c, &volume, &carm, &wire_at_90);
+    let at = |f: &Frame, u: usize, v: usize| f.values[v * 128 + u];
+    println!(
+        "wire column in DSA {:.3}; roadmap at the old wire {:.5}, at the new wire {:.3}, on the vessel {:.3}",
+        at(&dsa, 30, 20),
+        at(&roadmap, 30, 20),
+        at(&roadmap, 90, 20),
+        at(&roadmap, 64, 63)
+    );
+    // The DSA frame shows the wire dark (its mask left it out); the roadmap shows the new
+    // wire dark, the vessel white, and nothing where the wire was.
+    assert!(at(&dsa, 30, 20) > 0.1);
+    for v in [10, 20, 40, 100] {
+        assert!(
+            at(&roadmap, 30, v).abs() < 1e-4,
+            "ghost at row {v}: {}",
+            at(&roadmap, 30, v)
+        );
+    }
+    assert!(at(&roadmap, 90, 20) > 0.1);
+    assert!(at(&roadmap, 64, 63) < -0.1);
+}
+
+#[test]
+fn the_roadmaps_vessel_map_is_clean_and_its_vessels_stand_out_of_the_noise() {
+    let (volume, carm) = (slab(), carm(128));
+    // The same noisy run twice, with and without contrast during the DSA frames: the roadmap
+    // frames then differ by the vessel map exactly (same masks, same live noise).
+    let roadmap = |contrast: bool| {
+        let mut s = settings(true);
+        s.mask_frames = 3;
+        let mut c = chain(s);
+        c.set_mode(ImagingMode::Subtraction, &carm).unwrap();
+        for _ in 0..3 {
+            shoot(&mut c, &volume, &carm, &Layers::new());
+        }
+        let run = if contrast {
+            vessel_layer()
+        } else {
+            Layers::new()
+        };
+        for _ in 0..10 {
+            shoot(&mut c, &volume, &carm, &run);
+        }
+        c.set_mode(ImagingMode::Roadmap, &carm).unwrap();
+        shoot(&mut c, &volume, &carm, &Layers::new())
+    };
+    let (frame, empty) = (roadmap(true), roadmap(false));
+    let row = |v: usize| {
+        frame.values[v * 128 + 8..v * 128 + 120]
+            .iter()
+            .map(|x| f64::from(*x))
+    };
+    let (vessel, _) = mean_var([63, 64].iter().flat_map(|&v| row(v)));
+    // The vessel projects 3.2 px either side of row 63.5; the background is well clear of it.
+    let background_rows = (8..52).chain(76..120);
+    let (background, var) = mean_var(background_rows.clone().flat_map(row));
+    let ratio = (background - vessel) / var.sqrt();
+    let in_map = |u: usize, v: usize| frame.values[v * 128 + u] != empty.values[v * 128 + u];
+    let stray = background_rows
+        .flat_map(|v| (0..128).map(move |u| (u, v)))
+        .filter(|&(u, v)| in_map(u, v))
+        .count();
+    let on_vessel = (0..128).filter(|&u| in_map(u, 63) && in_map(u, 64)).count();
+    println!(
+        "roadmap: vessel {vessel:.3}, background {background:.4} ± {:.4}: contrast {ratio:.1}× the noise; vessel map on {on_vessel} of 128 columns, {stray} pixels of it off the vessel",
+        var.sqrt()
+    );
+    assert!(ratio >= 5.0, "{ratio}");
+    assert_eq!(stray, 0);
+    assert_eq!(on_vessel, 128);
+}
