@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use cathlab_xray::FluoroscopeSettings;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{EngineError, Result};
@@ -267,16 +268,20 @@ fn default_photons() -> f64 {
     2000.0
 }
 fn default_recursive_weight() -> f64 {
-    0.5
+    FluoroscopeSettings::angio_suite().recursive_weight
 }
 fn default_mask_frames() -> u32 {
-    3
+    FluoroscopeSettings::angio_suite().mask_frames
 }
 fn default_scatter_to_primary() -> f64 {
-    1.0
+    FluoroscopeSettings::angio_suite()
+        .scatter
+        .map_or(0.0, |s| s.scatter_to_primary)
 }
 fn default_edge_enhancement() -> f64 {
-    0.6
+    FluoroscopeSettings::angio_suite()
+        .edge_enhancement
+        .map_or(0.0, |e| e.amount)
 }
 fn yes() -> bool {
     true

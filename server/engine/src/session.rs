@@ -328,7 +328,7 @@ fn spawn(name: String, body: impl FnOnce() + Send + 'static) -> Result<JoinHandl
 /// The imaging settings of a scene.
 pub fn fluoroscope_settings(assets: &SceneAssets) -> FluoroscopeSettings {
     let f = &assets.spec.fluoroscopy;
-    let mut settings = FluoroscopeSettings::default();
+    let mut settings = FluoroscopeSettings::angio_suite();
     settings.detector.photons_per_pixel = f.photons_per_pixel;
     settings.detector.noise = f.noise;
     settings.detector.seed = f.seed;

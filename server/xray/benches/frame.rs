@@ -8,7 +8,10 @@ use std::sync::Arc;
 
 use cathlab_xray::phantom::{BodyLandmarks, body_hu};
 use cathlab_xray::scene::SceneSpec;
-use cathlab_xray::{CpuRenderer, Fluoroscope, GpuRenderer, MarchSettings, Renderer, Scene, Volume};
+use cathlab_xray::{
+    CpuRenderer, Fluoroscope, FluoroscopeSettings, GpuRenderer, MarchSettings, Renderer, Scene,
+    Volume,
+};
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Point3, Vector3};
 
@@ -44,6 +47,31 @@ fn frame(c: &mut Criterion) {
             "the background stayed cached"
         );
     }
+    // The server's chain at 512²: exposure control, scatter and grid, recursive filter, edge
+    // enhancement and the automatic window on top of the same frame.
+    let mut spec = SceneSpec::read(&path).unwrap();
+    spec.carm.size_px = [512, 512];
+    let scene = spec.load(&path).unwrap();
+    let suite = FluoroscopeSettings {
+        spectrum: scene.settings.spectrum.clone(),
+        march: scene.settings.march,
+        ..FluoroscopeSettings::angio_suite()
+    };
+    let mut chain = Fluoroscope::new(Box::new(CpuRenderer::default()), suite).unwrap();
+    let shot = Scene {
+        volume: &scene.volume,
+        carm: &scene.carm,
+        layers: &scene.with_contrast,
+    };
+    chain.expose(0.0, shot).unwrap();
+    let mut t = 0.0;
+    group.bench_function("512x512_angio_suite_chain", |b| {
+        b.iter(|| {
+            t += 1.0 / 30.0;
+            let frame = chain.expose(t, shot).unwrap();
+            std::hint::black_box(frame.to_8bit())
+        })
+    });
     group.finish();
 }
 

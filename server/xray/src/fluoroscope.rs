@@ -130,6 +130,22 @@ pub struct FluoroscopeSettings {
     pub edge_enhancement: Option<EdgeEnhancement>,
 }
 
+impl FluoroscopeSettings {
+    /// The chain as an angio suite runs it (and the server's scenes by default): exposure
+    /// control, scatter through a 10:1 grid, recursive filtering at α = 0.5, edge enhancement,
+    /// a DSA mask of 3 frames and the automatic window. [`Default`] keeps every stage off.
+    pub fn angio_suite() -> Self {
+        let mut s = Self::default();
+        s.dose.automatic = true;
+        s.detector.auto_window = true;
+        s.recursive_weight = 0.5;
+        s.mask_frames = 3;
+        s.scatter = Some(ScatterSettings::default());
+        s.edge_enhancement = Some(EdgeEnhancement::default());
+        s
+    }
+}
+
 /// Unsharp-mask edge enhancement: `x + amount·(x − G_σ ⊛ x)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EdgeEnhancement {
