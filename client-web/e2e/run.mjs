@@ -121,6 +121,7 @@ if (process.env.E2E_DEBUG) {
   trainee.on("response", (r) => console.log(`  [trainee] ${r.status()} ${r.url()}`));
 }
 let sessionId = "";
+let toGoAtStart = Number.NaN;
 
 try {
   await test("trainee_page_loads_and_connects", async () => {
@@ -135,6 +136,13 @@ try {
     assert(await trainee.isVisible("#prompt"), "the fluoroscopy prompt shows before the pedal");
     assert((await trainee.textContent("#prompt")).includes("F"), "the prompt names the key");
     assert(!(await trainee.isVisible("#xray")), "no empty image before the first exposure");
+    // The target is named with the distance still to go along the route.
+    await trainee.waitForFunction(() => /mm to go/.test(document.querySelector("#hud-target")?.textContent ?? ""), null, {
+      timeout: 10_000,
+    });
+    toGoAtStart = Number.parseFloat(/· ([0-9.]+) mm to go/.exec(await trainee.textContent("#hud-target"))?.[1] ?? "NaN");
+    assert((await trainee.textContent("#hud-target")).startsWith("LCCA"), "the target named");
+    assert(toGoAtStart > 100, `distance to go at the start: ${toGoAtStart} mm`);
   });
 
   await test("fluoroscopy_frames_render_and_change_after_a_push", async () => {
@@ -173,6 +181,11 @@ try {
     console.log(`  dose display: ${dose}`);
     const kerma = Number.parseFloat(/Ka,r ([0-9.]+) mGy/.exec(dose)?.[1] ?? "NaN");
     assert(kerma > 0, `the dose display shows the accumulated reference air kerma: ${dose}`);
+    // After ~40 mm of push the route to go is shorter (metrics come once a second).
+    await trainee.waitForTimeout(1200);
+    const toGo = Number.parseFloat(/· ([0-9.]+) mm to go/.exec(await trainee.textContent("#hud-target"))?.[1] ?? "NaN");
+    console.log(`  to go: ${toGoAtStart} → ${toGo} mm`);
+    assert(toGoAtStart - toGo > 15, `the distance to go fell by ${toGoAtStart - toGo} mm`);
     await trainee.screenshot({ path: join(artifacts, "trainee.png") });
     await trainee.keyboard.up("f");
   });

@@ -30,6 +30,8 @@ export interface HudLines {
   wallForce: string;
   warning: boolean;
   target: string;
+  /** The target reached in this attempt (the HUD styles it as a success). */
+  reached: boolean;
 }
 
 export function hudLines(state: DeviceState | undefined, metrics: Metrics | undefined, target: string): HudLines {
@@ -45,8 +47,11 @@ export function hudLines(state: DeviceState | undefined, metrics: Metrics | unde
     target: target
       ? reached
         ? `${target} reached in ${clock(attemptTime(metrics))}`
-        : target
+        : metrics
+          ? `${target} · ${metrics.targetRemainingMm.toFixed(0)} mm to go`
+          : target
       : "—",
+    reached,
   };
 }
 
@@ -58,7 +63,12 @@ export function metricRows(m: Metrics | undefined): [string, string][] {
     ["Contrast", `${(m?.contrastVolumeMl ?? 0).toFixed(1)} mL`],
     ["Max wall force", `${((m?.maxWallForceN ?? 0) * 1000).toFixed(0)} mN`],
     ["Tip path", `${(m?.tipPathLengthMm ?? 0).toFixed(0)} mm`],
-    ["Target", m?.targetReached ? `reached in ${clock(attemptTime(m))}` : "not yet"],
+    [
+      "Target",
+      m?.targetReached
+        ? `reached in ${clock(attemptTime(m))}`
+        : `${(m?.targetRemainingMm ?? 0).toFixed(0)} mm to go`,
+    ],
     ["Resets", resetsLine(m)],
   ];
 }

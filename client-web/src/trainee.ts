@@ -121,6 +121,7 @@ async function main() {
       $("hud-force").textContent = lines.wallForce;
       $("hud-force-box").classList.toggle("warning", lines.warning);
       $("hud-target").textContent = lines.target;
+      $("hud-target").classList.toggle("success", lines.reached);
     }, 50);
   };
 

@@ -227,6 +227,7 @@ pub fn metrics_to_wire(m: &Metrics) -> pb::Metrics {
         divergence_resets: m.divergence_resets,
         operator_resets: m.operator_resets,
         attempt_started_at_s: m.attempt_started_at_s,
+        target_remaining_mm: m.target_remaining_m * 1e3,
     }
 }
 

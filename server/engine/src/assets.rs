@@ -49,10 +49,37 @@ pub struct SceneAssets {
     pub route: VesselPath,
     /// The target branch's index in the graph.
     pub target_branch: usize,
+    /// The route sampled every [`ROUTE_SPACING_M`] (anatomy frame, m).
+    pub route_samples: Vec<Point3<f64>>,
+    /// How far along the route the target counts as reached (m): the route up to the target
+    /// branch plus `target.reach_mm`.
+    pub goal_along_m: f64,
     /// The C-arm at the start.
     pub carm: CArm,
     /// The flow network (vessel i = graph branch i), when the scene has flow.
     pub network: Option<FlowNetwork>,
+}
+
+/// Spacing of the route samples (m).
+pub const ROUTE_SPACING_M: f64 = 1e-3;
+
+impl SceneAssets {
+    /// How far the tip at `tip` (anatomy frame, m) still has to go along the route to reach
+    /// the target (m; 0 once past it): the goal's distance along the route less the nearest
+    /// route sample's.
+    pub fn remaining_to_target_m(&self, tip: &Point3<f64>) -> f64 {
+        let nearest = self
+            .route_samples
+            .iter()
+            .enumerate()
+            .min_by(|a, b| {
+                (a.1 - tip)
+                    .norm_squared()
+                    .total_cmp(&(b.1 - tip).norm_squared())
+            })
+            .map_or(0, |(i, _)| i);
+        (self.goal_along_m - nearest as f64 * ROUTE_SPACING_M).max(0.0)
+    }
 }
 
 impl std::fmt::Debug for SceneAssets {
@@ -327,6 +354,18 @@ impl AssetCache {
                 Some(network_from_graph(graph, &settings).map_err(|e| scene_error("flow", e))?)
             }
         };
+        let route_samples: Vec<Point3<f64>> = graph
+            .sample_path(&route, ROUTE_SPACING_M)
+            .into_iter()
+            .map(|(p, _)| p)
+            .collect();
+        let goal_along_m = route
+            .legs
+            .iter()
+            .take_while(|leg| leg.branch != target_branch)
+            .map(|leg| (leg.to_arc - leg.from_arc).abs())
+            .sum::<f64>()
+            + spec.target.reach_mm * 1e-3;
         Ok(SceneAssets {
             spec: spec.clone(),
             anatomy,
@@ -336,6 +375,8 @@ impl AssetCache {
             entry,
             route,
             target_branch,
+            route_samples,
+            goal_along_m,
             carm,
             network,
         })

@@ -27,6 +27,8 @@ pub struct Metrics {
     pub attempt_started_at_s: f64,
     /// Resets the operator asked for.
     pub operator_resets: u32,
+    /// How far the tip still has to go along the route to the target (m).
+    pub target_remaining_m: f64,
     /// Physics steps taken.
     pub steps: u64,
     /// Physics resets after divergence.

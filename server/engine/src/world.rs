@@ -276,6 +276,7 @@ impl World {
             PulseRate::Hz15
         };
         let tip = nav.tip_position();
+        let target_remaining_m = assets.remaining_to_target_m(&Point3::from(tip));
         Ok(Self {
             imaging: Imaging {
                 pedal: false,
@@ -290,7 +291,10 @@ impl World {
             nav,
             active_device: 0,
             hemo,
-            metrics: Metrics::default(),
+            metrics: Metrics {
+                target_remaining_m,
+                ..Metrics::default()
+            },
             step: 0,
             last_seq: 0,
             previous_tip: tip,
@@ -627,6 +631,7 @@ impl World {
         let tip = self.nav.tip_position();
         self.metrics.tip_path_length_m += (tip - self.previous_tip).norm();
         self.previous_tip = tip;
+        self.metrics.target_remaining_m = self.assets.remaining_to_target_m(&Point3::from(tip));
         if self.metrics.target_reached_at_s.is_none() {
             let graph = &self.assets.anatomy.graph;
             if let Some(location) = graph.nearest(&Point3::from(tip))

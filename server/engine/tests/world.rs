@@ -324,6 +324,7 @@ fn the_target_metric_agrees_with_an_autopilot_that_reaches_the_lcca() {
     )
     .unwrap();
     let start_tip = world.snapshot().tip();
+    let start_remaining = world.metrics().target_remaining_m;
     let pilot_reached = world
         .follow_autopilot(&mut pilot, plan.max_steps, 1)
         .unwrap();
@@ -341,6 +342,21 @@ fn the_target_metric_agrees_with_an_autopilot_that_reaches_the_lcca() {
     );
     let events = world.take_events();
     assert!(events.iter().any(|e| e.kind == EventKind::TargetReached));
+    // The distance to go, along the route: from the start to the goal, then about nothing.
+    let remaining = world.metrics().target_remaining_m;
+    // The tip starts `inserted_mm` beyond the entry, straight along the route's start.
+    let expected = a.goal_along_m - (a.spec.start.along_route_mm + a.spec.start.inserted_mm) * 1e-3;
+    println!(
+        "to go: {:.1} mm at the start (route {:.1} mm), {:.1} mm when reached",
+        start_remaining * 1e3,
+        expected * 1e3,
+        remaining * 1e3
+    );
+    assert!(
+        (start_remaining - expected).abs() < 0.002,
+        "{start_remaining} vs {expected}"
+    );
+    assert!(remaining < 0.003, "{remaining}");
     let m = world.metrics();
     println!(
         "LCCA reached at {at:.2} s; tip path {:.0} mm, wall force max {:.3} N mean {:.4} N",
