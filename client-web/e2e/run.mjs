@@ -25,11 +25,11 @@ mkdirSync(artifacts, { recursive: true });
 const KEY = "e2e-instructor-key";
 
 /** Starts the server on a free port; resolves with its base URL once it listens. */
-function startServer(dir) {
+function startServer(dir, listen = "127.0.0.1:0") {
   const child = spawn(
     serverBinary,
     [
-      "--listen", "127.0.0.1:0",
+      "--listen", listen,
       "--database", join(dir, "e2e.sqlite"),
       "--scenes", join(repo, "scenes"),
       "--web-root", join(here, "dist"),
@@ -101,7 +101,7 @@ async function test(name, body) {
 }
 
 const dir = mkdtempSync(join(tmpdir(), "cathlab-e2e-"));
-const { child: server, url } = await startServer(dir);
+let { child: server, url } = await startServer(dir);
 const browser = await chromium.launch({
   executablePath: chromiumPath,
   args: [
@@ -303,6 +303,18 @@ try {
     // The server shut down cleanly although browsers held streams open.
     const code = await new Promise((r) => (server.exitCode !== null ? r(server.exitCode) : server.on("exit", r)));
     assert(code === 0, `server exit status ${code}`);
+  });
+
+  await test("after_a_server_restart_the_page_says_the_session_ended", async () => {
+    // The same address and database: the page reconnects, and the server no longer has the
+    // session, so the page stops retrying and says so.
+    ({ child: server } = await startServer(dir, new URL(url).host));
+    await trainee.waitForSelector('#connection[data-status="ended"]', { timeout: 30_000 });
+    const message = await trainee.textContent("#message");
+    console.log(`  ${message}`);
+    assert(/session has ended/.test(message), `the page says the session ended: ${message}`);
+    assert(await trainee.isVisible("#new-session"), "a link to start a new session");
+    assert(await trainee.$eval("#reset", (b) => b.disabled), "the controls are disabled");
   });
 
   await test("no_script_errors_on_any_page", async () => {

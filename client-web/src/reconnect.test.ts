@@ -51,4 +51,22 @@ describe("keepOpen", () => {
     // Two failures back off 100 then 200 ms; a message resets the back-off to 100 ms.
     expect(sleeps).toEqual([100, 200, 100]);
   });
+  it("ends without retrying when the error is final (the session is gone)", async () => {
+    const statuses: string[] = [];
+    let calls = 0;
+    await keepOpen(
+      async () => {
+        calls += 1;
+        if (calls === 1) throw new Error("refused");
+        throw new Error("not found");
+      },
+      (s: ConnectionStatus, detail?: string) => statuses.push(detail ? `${s}: ${detail}` : s),
+      new AbortController().signal,
+      new Backoff(100, 1000, () => 0.5),
+      async () => {},
+      (e) => e instanceof Error && e.message === "not found",
+    );
+    expect(calls).toBe(2);
+    expect(statuses).toEqual(["connecting", "reconnecting: refused", "reconnecting", "ended: not found"]);
+  });
 });

@@ -75,6 +75,23 @@ function say(text: string, kind: "warning" | "success" = "warning") {
   el.dataset.kind = kind;
 }
 
+/** The session is over: the message, with a way on. */
+function sessionEnded() {
+  const el = $("message");
+  el.dataset.kind = "warning";
+  el.textContent = "This session has ended (the server restarted or the session was closed). ";
+  const fresh = document.createElement("a");
+  fresh.href = `${location.pathname}${params.get("server") ? `?server=${encodeURIComponent(params.get("server")!)}` : ""}`;
+  fresh.textContent = "Start a new session";
+  fresh.id = "new-session";
+  el.append(fresh);
+  for (const c of document.querySelectorAll<HTMLButtonElement | HTMLInputElement | HTMLSelectElement>(
+    "#controls button, #controls input, #controls select",
+  )) {
+    c.disabled = true;
+  }
+}
+
 function describe(e: unknown): string {
   if (e instanceof ConnectError) return `${Code[e.code]}: ${e.rawMessage}`;
   return e instanceof Error ? e.message : String(e);
@@ -133,8 +150,20 @@ async function main() {
         redraw();
       }
     },
-    showStatus,
+    (status, detail) => {
+      showStatus(status, detail);
+      if (status === "ended") {
+        // The server is back but no longer has the session (it restarted, or the session was
+        // closed): say so, stop, and offer a new one.
+        stop.abort();
+        sessionStorage.removeItem(STORAGE);
+        sessionEnded();
+      }
+    },
     stop.signal,
+    undefined,
+    undefined,
+    (e) => e instanceof ConnectError && (e.code === Code.NotFound || e.code === Code.Unauthenticated),
   );
   // Metrics by a 1 Hz poll, not a stream: over plain HTTP/1.1 a browser holds at most six
   // connections to a server, and the two streams here (state, frames) are enough.
@@ -169,6 +198,11 @@ async function main() {
       $("frame-info").textContent = `frame ${frame.index} · t ${frame.timeS.toFixed(2)} s`;
       $("dose").textContent = doseLine(frame);
       $("prompt").hidden = true;
+      // The imaging buttons follow the server's mode (after a reload, or a refused command).
+      $("dsa").setAttribute("aria-pressed", String(frame.mode === ImagingMode.SUBTRACTION));
+      $("roadmap").setAttribute("aria-pressed", String(frame.mode === ImagingMode.ROADMAP));
+      const message = $("message");
+      if (frame.mode === ImagingMode.ROADMAP && /roadmap/i.test(message.textContent ?? "")) say("");
     },
   });
 
