@@ -225,10 +225,14 @@ try {
   await test("dashboard_lists_the_session_with_thumbnail_metrics_and_timeline", async () => {
     const dashboard = await instructor.newPage();
     dashboard.on("pageerror", (e) => pageErrors.push(`dashboard: ${e.message}`));
-    await dashboard.goto(`${url}/dashboard.html?key=${KEY}`);
+    // The key goes into the form, never into a URL.
+    await dashboard.goto(`${url}/dashboard.html`);
+    await dashboard.fill("#key", KEY);
+    await dashboard.click('#key-form button[type="submit"]');
     const card = `.card[data-session="${sessionId}"]`;
     await dashboard.waitForSelector(card, { timeout: 15_000 });
-    assert((await dashboard.textContent(`${card} h3`)).includes("e2e-trainee"), "the trainee's label");
+    const title = await dashboard.textContent(`${card} h3`);
+    assert(title.includes("e2e-trainee") && title.includes("arch_to_cow_lcca") && title.includes("started"), `the card's title: ${title}`);
     // A live thumbnail: fluoroscopy on again, frames arrive on the card.
     await trainee.bringToFront();
     await trainee.keyboard.down("f");
@@ -252,6 +256,8 @@ try {
     );
     await dashboard.screenshot({ path: join(artifacts, "dashboard.png") });
     const href = await dashboard.$eval(`${card} a`, (a) => a.href);
+    const hrefs = await dashboard.$$eval("a", (links) => links.map((a) => a.href));
+    assert(![dashboard.url(), ...hrefs].some((u) => u.includes(KEY)), "no URL carries the instructor key");
     observer = await instructor.newPage();
     observer.on("pageerror", (e) => pageErrors.push(`observer: ${e.message}`));
     await observer.goto(href);
@@ -315,6 +321,17 @@ try {
     assert(/session has ended/.test(message), `the page says the session ended: ${message}`);
     assert(await trainee.isVisible("#new-session"), "a link to start a new session");
     assert(await trainee.$eval("#reset", (b) => b.disabled), "the controls are disabled");
+    // The dashboard lists the ended session among the recorded ones (the key is kept
+    // in the instructor's browser storage, not in the address).
+    const dashboard = await instructor.newPage();
+    dashboard.on("pageerror", (e) => pageErrors.push(`dashboard after restart: ${e.message}`));
+    await dashboard.goto(`${url}/dashboard.html`);
+    const row = `#recorded li[data-session="${sessionId}"]`;
+    await dashboard.waitForSelector(row, { timeout: 15_000 });
+    const text = await dashboard.textContent(row);
+    console.log(`  recorded: ${text}`);
+    // A clean shutdown closes its sessions (a crash would leave them "interrupted").
+    assert(/closed|interrupted/.test(text) && text.includes("e2e-trainee"), `the ended session listed: ${text}`);
   });
 
   await test("no_script_errors_on_any_page", async () => {

@@ -1,11 +1,13 @@
 //! The instructor dashboard: every live session with a live thumbnail and metrics, a link to
-//! open it read-only, and its event timeline.
+//! open it read-only (with the session's observer token: the instructor key never goes into a
+//! URL), its event timeline, and the recorded sessions (closed, or interrupted by a restart).
 import { Code, ConnectError } from "@connectrpc/connect";
 import { type SimulatorClient, serverUrl, simulatorClient } from "./api.js";
 import { type Event, type Metrics, type SessionInfo, SessionStatus } from "./gen/cathlab/v1/simulator_pb.js";
 import { showFrames } from "./frames.js";
 import { metricRows } from "./hud.js";
 import { Backoff, keepOpen } from "./reconnect.js";
+import { timelineRows } from "./timeline.js";
 
 const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
 const params = new URLSearchParams(location.search);
@@ -21,7 +23,22 @@ interface Card {
 
 const cards = new Map<string, Card>();
 let selected = "";
-let instructorKey = params.get("key") ?? localStorage.getItem(KEY) ?? "";
+// The key lives in the page's storage, never in its URL: an old link's `?key=` is taken and
+// scrubbed from the address bar and history.
+if (params.has("key")) {
+  localStorage.setItem(KEY, params.get("key") ?? "");
+  const url = new URL(location.href);
+  url.searchParams.delete("key");
+  history.replaceState(null, "", url);
+}
+let instructorKey = localStorage.getItem(KEY) ?? "";
+
+/** "label · scene · started 14:02" (local time), so that two sessions can be told apart. */
+function sessionTitle(info: SessionInfo): string {
+  const started = new Date(info.createdUnixS * 1000);
+  const at = `${String(started.getHours()).padStart(2, "0")}:${String(started.getMinutes()).padStart(2, "0")}`;
+  return `${info.label || "session"} · ${info.sceneName} · started ${at} · ${info.sessionId.slice(0, 8)}`;
+}
 
 function describe(e: unknown): string {
   if (e instanceof ConnectError) return `${Code[e.code]}: ${e.rawMessage}`;
@@ -44,7 +61,7 @@ function renderMetrics(element: HTMLElement, m: Metrics | undefined) {
 function renderTimeline(events: Event[]) {
   $("timeline-session").textContent = selected ? selected.slice(0, 8) : "(choose a session)";
   $("timeline").replaceChildren(
-    ...events.map((e) => {
+    ...timelineRows(events).map((e) => {
       const li = document.createElement("li");
       li.className = e.kind;
       const time = document.createElement("time");
@@ -92,7 +109,7 @@ function addCard(client: SimulatorClient, info: SessionInfo): Card {
   element.className = "card";
   element.dataset.session = info.sessionId;
   const title = document.createElement("h3");
-  title.textContent = `${info.label || "session"} · ${info.sceneName}`;
+  title.textContent = sessionTitle(info);
   const image = document.createElement("img");
   image.alt = `X-ray of session ${info.sessionId}`;
   const actions = document.createElement("div");
@@ -100,7 +117,7 @@ function addCard(client: SimulatorClient, info: SessionInfo): Card {
   const open = document.createElement("a");
   open.textContent = "Open read-only";
   open.target = "_blank";
-  open.href = `/?${new URLSearchParams({ session: info.sessionId, token: instructorKey, role: "observer" })}`;
+  open.href = `/?${new URLSearchParams({ session: info.sessionId, token: info.observerToken, role: "observer" })}`;
   const timeline = document.createElement("button");
   timeline.textContent = "Timeline";
   timeline.addEventListener("click", () => select(client, info.sessionId));
@@ -110,6 +127,23 @@ function addCard(client: SimulatorClient, info: SessionInfo): Card {
   const card: Card = { element, stop: new AbortController() };
   void showFrames(client, info.sessionId, image, { size: 192, quality: 70, signal: card.stop.signal });
   return card;
+}
+
+/** The recorded sessions, newest first: closed ones and those a server restart interrupted. */
+function renderRecorded(recorded: SessionInfo[]) {
+  const sorted = [...recorded].sort((a, b) => b.createdUnixS - a.createdUnixS);
+  $("recorded-count").textContent = `(${sorted.length})`;
+  $("recorded").replaceChildren(
+    ...sorted.map((info) => {
+      const li = document.createElement("li");
+      li.dataset.session = info.sessionId;
+      const status = info.status === SessionStatus.INTERRUPTED ? "interrupted" : "closed";
+      li.className = status;
+      const rows = Object.fromEntries(metricRows(info.metrics));
+      li.textContent = `${sessionTitle(info)} — ${status}; ${info.commands} commands; time ${rows.Time}, fluoro ${rows.Fluoro}, target ${rows.Target}`;
+      return li;
+    }),
+  );
 }
 
 function showStatus(status: string, detail = "") {
@@ -125,7 +159,7 @@ async function poll(signal: AbortSignal) {
   while (!signal.aborted) {
     let wait = POLL_MS;
     try {
-      const { sessions } = await client.listSessions({ includeRecorded: false }, { signal });
+      const { sessions } = await client.listSessions({ includeRecorded: true }, { signal });
       showStatus("connected");
       $("message").textContent = "";
       backoff.reset();
@@ -144,6 +178,7 @@ async function poll(signal: AbortSignal) {
         renderMetrics(card.element, info.metrics);
       }
       $("count").textContent = `(${cards.size})`;
+      renderRecorded(sessions.filter((s) => s.status !== SessionStatus.RUNNING));
       if (!cards.has(selected)) select(client, cards.keys().next().value ?? "");
     } catch (e) {
       if (signal.aborted) return;

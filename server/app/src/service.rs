@@ -173,6 +173,7 @@ impl SimulatorService {
             timing: Some(timing_to_wire(&session.timing().summary())),
             commands: session.commands_recorded(),
             active_device: state.active_device,
+            observer_token: String::new(),
         }
     }
 
@@ -197,6 +198,7 @@ impl SimulatorService {
             timing: None,
             commands: self.store.command_count(&s.id).map_err(store_status)?,
             active_device: 0,
+            observer_token: String::new(),
         })
     }
 
@@ -324,11 +326,18 @@ impl Simulator for SimulatorService {
                 "listing sessions needs the instructor key",
             ));
         }
+        let tokens = self.tokens.read().clone();
         let mut sessions: Vec<pb::SessionInfo> = self
             .engine
             .sessions()
             .iter()
-            .map(|s| self.info_of(s))
+            .map(|s| pb::SessionInfo {
+                observer_token: tokens
+                    .get(s.id())
+                    .map(|t| t.observer.clone())
+                    .unwrap_or_default(),
+                ..self.info_of(s)
+            })
             .collect();
         if request.get_ref().include_recorded {
             let live: Vec<String> = sessions.iter().map(|s| s.session_id.clone()).collect();
