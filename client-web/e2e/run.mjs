@@ -137,10 +137,10 @@ try {
     assert((await trainee.textContent("#prompt")).includes("F"), "the prompt names the key");
     assert(!(await trainee.isVisible("#xray")), "no empty image before the first exposure");
     // The target is named with the distance still to go along the route.
-    await trainee.waitForFunction(() => /mm to go/.test(document.querySelector("#hud-target")?.textContent ?? ""), null, {
+    await trainee.waitForFunction(() => / mm$/.test(document.querySelector("#hud-target")?.textContent ?? ""), null, {
       timeout: 10_000,
     });
-    toGoAtStart = Number.parseFloat(/· ([0-9.]+) mm to go/.exec(await trainee.textContent("#hud-target"))?.[1] ?? "NaN");
+    toGoAtStart = Number.parseFloat(/· ([0-9.]+) mm/.exec(await trainee.textContent("#hud-target"))?.[1] ?? "NaN");
     assert((await trainee.textContent("#hud-target")).startsWith("LCCA"), "the target named");
     assert(toGoAtStart > 100, `distance to go at the start: ${toGoAtStart} mm`);
   });
@@ -183,7 +183,7 @@ try {
     assert(kerma > 0, `the dose display shows the accumulated reference air kerma: ${dose}`);
     // After ~40 mm of push the route to go is shorter (metrics come once a second).
     await trainee.waitForTimeout(1200);
-    const toGo = Number.parseFloat(/· ([0-9.]+) mm to go/.exec(await trainee.textContent("#hud-target"))?.[1] ?? "NaN");
+    const toGo = Number.parseFloat(/· ([0-9.]+) mm/.exec(await trainee.textContent("#hud-target"))?.[1] ?? "NaN");
     console.log(`  to go: ${toGoAtStart} → ${toGo} mm`);
     assert(toGoAtStart - toGo > 15, `the distance to go fell by ${toGoAtStart - toGo} mm`);
     await trainee.screenshot({ path: join(artifacts, "trainee.png") });
@@ -300,6 +300,37 @@ try {
     const moved = millimetres(await observer.textContent("#hud-inserted"));
     console.log(`  trainee pushed to ${pushed} mm; the observer shows ${moved} mm`);
     assert(moved - after > 10, `the observer sees the trainee's push: ${after} → ${moved}`);
+  });
+
+  await test("layouts_fit_1280x800_and_1024x640_without_scrolling", async () => {
+    await trainee.bringToFront();
+    for (const [width, height] of [[1280, 800], [1024, 640]]) {
+      await trainee.setViewportSize({ width, height });
+      await trainee.waitForTimeout(300);
+      const layout = await trainee.evaluate(() => {
+        const boxes = [...document.querySelectorAll("#controls button, #controls input, #controls select, #hud dd")].map(
+          (e) => {
+            const r = e.getBoundingClientRect();
+            return { id: e.id || e.textContent?.trim().slice(0, 20), bottom: r.bottom, right: r.right, width: r.width };
+          },
+        );
+        const screen = document.querySelector("#screen").getBoundingClientRect();
+        return {
+          boxes,
+          scroll: document.documentElement.scrollHeight - innerHeight,
+          screen: { width: screen.width, height: screen.height },
+        };
+      });
+      const outside = layout.boxes.filter((b) => b.bottom > height + 0.5 || b.right > width + 0.5 || b.width === 0);
+      console.log(
+        `  ${width}×${height}: image ${layout.screen.width.toFixed(0)}×${layout.screen.height.toFixed(0)} px; ${layout.boxes.length} controls, ${outside.length} out of view; page scrolls ${layout.scroll} px`,
+      );
+      await trainee.screenshot({ path: join(artifacts, `trainee-${width}x${height}.png`) });
+      assert(outside.length === 0, `out of view at ${width}×${height}: ${JSON.stringify(outside)}`);
+      assert(layout.scroll <= 0, `the page scrolls ${layout.scroll} px at ${width}×${height}`);
+      assert(layout.screen.height >= height - 200, `the image uses the height: ${layout.screen.height} px`);
+    }
+    await trainee.setViewportSize({ width: 1280, height: 860 });
   });
 
   await test("the_page_shows_reconnecting_when_the_server_goes", async () => {

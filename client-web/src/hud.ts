@@ -48,7 +48,7 @@ export function hudLines(state: DeviceState | undefined, metrics: Metrics | unde
       ? reached
         ? `${target} reached in ${clock(attemptTime(metrics))}`
         : metrics
-          ? `${target} · ${metrics.targetRemainingMm.toFixed(0)} mm to go`
+          ? `${target} · ${metrics.targetRemainingMm.toFixed(0)} mm`
           : target
       : "—",
     reached,
