@@ -313,16 +313,20 @@ fn the_target_metric_agrees_with_an_autopilot_that_reaches_the_lcca() {
     let mut world = World::new(a.clone()).unwrap();
     let plan =
         cathlab_physics::scenarios::ArchToCowPlan::for_target(&a.anatomy.graph, "LCCA").unwrap();
-    let mut pilot = Autopilot::new(
-        &a.anatomy.graph,
-        a.route.clone(),
-        0.0,
-        cathlab_physics::autopilot::AutopilotSettings {
-            reach_m: a.spec.target.reach_mm * 1e-3,
-            ..plan.autopilot
-        },
-    )
-    .unwrap();
+    // The autopilot of the scene's route, told the scene's reach.
+    let autopilot = || {
+        Autopilot::new(
+            &a.anatomy.graph,
+            a.route.clone(),
+            0.0,
+            cathlab_physics::autopilot::AutopilotSettings {
+                reach_m: a.spec.target.reach_mm * 1e-3,
+                ..plan.autopilot
+            },
+        )
+        .unwrap()
+    };
+    let mut pilot = autopilot();
     let start_tip = world.snapshot().tip();
     let start_remaining = world.metrics().target_remaining_m;
     let pilot_reached = world
@@ -380,16 +384,7 @@ fn the_target_metric_agrees_with_an_autopilot_that_reaches_the_lcca() {
     assert_eq!(m.operator_resets, 1);
     assert_eq!(m.target_reached_at_s, None);
     assert_eq!(m.attempt_started_at_s, reset_at);
-    let mut again = Autopilot::new(
-        &a.anatomy.graph,
-        a.route.clone(),
-        0.0,
-        cathlab_physics::autopilot::AutopilotSettings {
-            reach_m: a.spec.target.reach_mm * 1e-3,
-            ..plan.autopilot
-        },
-    )
-    .unwrap();
+    let mut again = autopilot();
     world
         .follow_autopilot(&mut again, plan.max_steps, 1)
         .unwrap()

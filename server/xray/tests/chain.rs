@@ -250,19 +250,7 @@ fn a_dsa_mask_averaged_over_k_frames_cuts_the_subtraction_noise() {
 fn a_3_mm_iodine_vessel_has_the_hand_computed_contrast_to_noise_in_each_mode() {
     let (volume, carm) = (slab(), carm(128));
     // A 3 mm vessel of contrast diluted to 150 mgI/mL, across the field at the isocenter.
-    let mut vessel = Layers::new();
-    vessel
-        .add_contrast(
-            &[ContrastTube {
-                start: Point3::new(-0.05, 0.0, 0.0),
-                end: Point3::new(0.05, 0.0, 0.0),
-                start_radius_m: 1.5e-3,
-                end_radius_m: 1.5e-3,
-                concentration_mg_per_ml: 150.0,
-            }],
-            1.0,
-        )
-        .unwrap();
+    let vessel = vessel_layer();
     let q = dose::quanta_per_mm2_per_ugy(&Spectrum::default());
     let pixel_mm2 = (carm.detector.pixel_pitch_m() * 1e3).powi(2);
     // Hand contrast on the two rows either side of the vessel's centre line (pixel centres
@@ -320,13 +308,9 @@ fn a_0014_inch_wire_has_the_hand_computed_contrast_to_noise_in_fluoroscopy() {
     let (volume, carm) = (slab(), carm(128));
     // The microwire runs down pixel column 64 through the pixel centres at the isocenter, its
     // platinum-coiled 30 mm at the far end; rows 4–76 see the nitinol shaft only.
-    let on_column = |v: f64| {
-        let ray = carm.ray(64.0, v);
-        ray.origin + ray.direction * carm.source_to_isocenter_m
-    };
     let mut wire = Layers::new();
     wire.add_device(
-        &[on_column(0.0), on_column(127.0)],
+        &wire_down_column(&carm, 64.0),
         &DeviceAppearance::microwire_014(),
     )
     .unwrap();
@@ -418,19 +402,7 @@ fn the_scatter_kernel_spreads_the_primary_without_gaining_or_losing_any() {
 fn scatter_behind_a_grid_lowers_a_vessels_contrast_by_the_residual_scatter() {
     use cathlab_xray::ScatterSettings;
     let (volume, carm) = (slab(), carm(128));
-    let mut vessel = Layers::new();
-    vessel
-        .add_contrast(
-            &[ContrastTube {
-                start: Point3::new(-0.05, 0.0, 0.0),
-                end: Point3::new(0.05, 0.0, 0.0),
-                start_radius_m: 1.5e-3,
-                end_radius_m: 1.5e-3,
-                concentration_mg_per_ml: 150.0,
-            }],
-            1.0,
-        )
-        .unwrap();
+    let vessel = vessel_layer();
     let contrast = |scatter: Option<ScatterSettings>| {
         let mut s = settings(false);
         s.scatter = scatter;
@@ -520,7 +492,8 @@ fn vessel_layer() -> Layers {
     vessel
 }
 
-/// A 0.035" wire down pixel column `u` of `carm`, at the isocenter.
+/// The ends of a wire down pixel column `u` of `carm` (through the pixel centres at the
+/// isocenter), rows 0 to 127.
 fn wire_down_column(carm: &CArm, u: f64) -> Vec<Point3<f64>> {
     [0.0, 127.0]
         .iter()
