@@ -228,9 +228,7 @@ pub fn grey(value: f32, window: f64, level: f64) -> f64 {
 /// central half of the image (the measuring field of a fluoroscope's automatic brightness
 /// control); `None` when none is exposed.
 pub fn auto_window(values: &[f32], width: u32, height: u32) -> Option<(f64, f64)> {
-    let (w, h) = (width as usize, height as usize);
-    let mut sample: Vec<f32> = (h / 4..h - h / 4)
-        .flat_map(|v| values[v * w + w / 4..v * w + w - w / 4].iter().copied())
+    let mut sample: Vec<f32> = measuring_field(values, width, height)
         .filter(|v| v.is_finite())
         .collect();
     if sample.is_empty() {
@@ -243,6 +241,13 @@ pub fn auto_window(values: &[f32], width: u32, height: u32) -> Option<(f64, f64)
         .1;
     let width = f64::from(hi - lo).max(1e-3);
     Some((width, f64::from(lo) + 0.5 * width))
+}
+
+/// The values of the central half of a `width × height` image (half the width, half the
+/// height): the measuring field of a fluoroscope's automatic brightness and exposure control.
+pub fn measuring_field(values: &[f32], width: u32, height: u32) -> impl Iterator<Item = f32> + '_ {
+    let (w, h) = (width as usize, height as usize);
+    (h / 4..h - h / 4).flat_map(move |v| values[v * w + w / 4..v * w + w - w / 4].iter().copied())
 }
 
 /// Window/level to 8-bit grey.

@@ -121,13 +121,7 @@ impl DoseSettings {
 /// What the automatic exposure control measures: the median transmitted fraction over the
 /// central half of the field (its measuring field), or `None` if nothing there transmits.
 pub fn measuring_field_transmission(transmitted: &[f32], width: u32, height: u32) -> Option<f64> {
-    let (w, h) = (width as usize, height as usize);
-    let mut sample: Vec<f32> = (h / 4..h - h / 4)
-        .flat_map(|v| {
-            transmitted[v * w + w / 4..v * w + w - w / 4]
-                .iter()
-                .copied()
-        })
+    let mut sample: Vec<f32> = crate::detector::measuring_field(transmitted, width, height)
         .filter(|t| t.is_finite() && *t > 0.0)
         .collect();
     if sample.is_empty() {

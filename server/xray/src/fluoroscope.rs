@@ -436,22 +436,7 @@ impl Fluoroscope {
             Some(self.renderer.project_layers(scene.layers, scene.carm)?)
         };
         let geometry = &scene.carm.detector;
-        let mut transmitted = detector::transmission(
-            &self.settings.spectrum,
-            self.cache.as_ref().map(|c| &c.image),
-            layers.as_ref(),
-            geometry.width_px,
-            geometry.height_px,
-        );
-        if let Some(scatter) = &self.settings.scatter {
-            processing::add_scatter(
-                &mut transmitted,
-                geometry.width_px,
-                geometry.height_px,
-                geometry.pixel_pitch_m(),
-                scatter,
-            );
-        }
+        let transmitted = self.detected_fraction(layers.as_ref(), geometry);
         let index = self.stats.exposures;
         self.stats.exposures += 1;
         let subtraction = self.mode == ImagingMode::Subtraction;
@@ -494,22 +479,7 @@ impl Fluoroscope {
                 for plane in &mut iodine_only.channels[1..] {
                     plane.iter_mut().for_each(|p| *p = 0.0);
                 }
-                let mut t = detector::transmission(
-                    &self.settings.spectrum,
-                    self.cache.as_ref().map(|c| &c.image),
-                    Some(&iodine_only),
-                    geometry.width_px,
-                    geometry.height_px,
-                );
-                if let Some(scatter) = &self.settings.scatter {
-                    processing::add_scatter(
-                        &mut t,
-                        geometry.width_px,
-                        geometry.height_px,
-                        geometry.pixel_pitch_m(),
-                        scatter,
-                    );
-                }
+                let t = self.detected_fraction(Some(&iodine_only), geometry);
                 Some(detector::expose(&t, geometry, &detector_settings, index))
             }
             _ => None,
@@ -540,16 +510,13 @@ impl Fluoroscope {
                         values.iter_mut().for_each(|v| *v -= *v);
                     }
                     Some(m) if m.carm == *scene.carm => {
+                        // Collimated (NaN) pixels count as no opacity.
                         let mut opacity: Vec<f32> = clean
                             .iter()
                             .zip(&m.mask)
                             .map(|(c, mask)| c - mask)
+                            .map(|o| if o.is_finite() { o } else { 0.0 })
                             .collect();
-                        let finite: Vec<f32> = opacity
-                            .iter()
-                            .map(|o| if o.is_finite() { *o } else { 0.0 })
-                            .collect();
-                        opacity = finite;
                         detector::gaussian_blur(
                             &mut opacity,
                             geometry.width_px as usize,
@@ -611,6 +578,32 @@ impl Fluoroscope {
             values,
             window,
         })
+    }
+
+    /// The fraction of the unattenuated beam each pixel detects: the cached background and
+    /// `layers` through the spectrum, plus scatter behind the grid when it is on.
+    fn detected_fraction(
+        &self,
+        layers: Option<&PathImage>,
+        geometry: &crate::geometry::DetectorGeometry,
+    ) -> Vec<f32> {
+        let mut transmitted = detector::transmission(
+            &self.settings.spectrum,
+            self.cache.as_ref().map(|c| &c.image),
+            layers,
+            geometry.width_px,
+            geometry.height_px,
+        );
+        if let Some(scatter) = &self.settings.scatter {
+            processing::add_scatter(
+                &mut transmitted,
+                geometry.width_px,
+                geometry.height_px,
+                geometry.pixel_pitch_m(),
+                scatter,
+            );
+        }
+        transmitted
     }
 
     /// Edge enhancement of a shown image, if on.
