@@ -75,6 +75,24 @@ fn scene_errors_name_the_field_and_the_reason() {
         ),
         ("not = [toml".to_owned(), "(document)", ""),
     ];
+    // The imaging chain's knobs, each out of its range.
+    let chain = [
+        ("recursive_weight = 0.0", "fluoroscopy.recursive_weight"),
+        ("dsa_mask_frames = 40", "fluoroscopy.dsa_mask_frames"),
+        (
+            "scatter_to_primary = -1.0",
+            "fluoroscopy.scatter_to_primary",
+        ),
+        ("edge_enhancement = nan", "fluoroscopy.edge_enhancement"),
+    ]
+    .map(|(line, path)| {
+        (
+            default_text().replace("pulse_rate = 15", &format!("pulse_rate = 15\n{line}")),
+            path,
+            "",
+        )
+    });
+    let cases: Vec<(String, &str, &str)> = cases.into_iter().chain(chain).collect();
     for (text, path, reason) in cases {
         match SceneSpec::parse(&text, SceneFormat::Toml) {
             Err(EngineError::Scene { path: p, reason: r }) => {
