@@ -11,7 +11,7 @@ use cathlab_anatomy::{Lumen, VesselPath};
 use cathlab_hemo::{FlowNetwork, GraphFlowSettings, InletCondition, MMHG, network_from_graph};
 use cathlab_physics::autopilot::{Autopilot, AutopilotSettings};
 use cathlab_physics::{Device, Wall, WallProbe, presets};
-use cathlab_xray::phantom::{BodyLandmarks, head_and_neck};
+use cathlab_xray::phantom::BodyPhantom;
 use cathlab_xray::scene::ARCH_TO_COW_TO_LPS;
 use cathlab_xray::{CArm, DetectorGeometry, DeviceAppearance, Volume};
 use nalgebra::{Matrix3, Point3, Vector3};
@@ -231,7 +231,7 @@ impl AssetCache {
         spec: &CtSpec,
         base: &Path,
         anatomy_key: &str,
-        vessels_lps: impl FnOnce() -> Vec<Point3<f64>>,
+        phantom: impl FnOnce() -> cathlab_xray::Result<BodyPhantom>,
     ) -> Result<Arc<Volume>> {
         let key = match spec {
             CtSpec::Phantom { spacing_mm } => format!("phantom:{spacing_mm}:{anatomy_key}"),
@@ -248,10 +248,7 @@ impl AssetCache {
             return Ok(found.clone());
         }
         let volume = match spec {
-            CtSpec::Phantom { spacing_mm } => {
-                let landmarks = BodyLandmarks::from_vessels(&vessels_lps())?;
-                head_and_neck(&landmarks, spacing_mm * 1e-3)?
-            }
+            CtSpec::Phantom { spacing_mm } => phantom()?.volume(spacing_mm * 1e-3)?,
             CtSpec::File {
                 path,
                 hu_slope,
@@ -306,11 +303,7 @@ impl AssetCache {
         }
         let anatomy_key = format!("{:?}", spec.anatomy);
         let volume = self.volume(&spec.ct, base, &anatomy_key, || {
-            graph
-                .branches
-                .iter()
-                .flat_map(|b| b.points.iter().map(|p| Point3::from(to_lps * p.coords)))
-                .collect()
+            BodyPhantom::around_graph(graph, &to_lps)
         })?;
         let iso_name = if spec.carm.isocenter_branch.is_empty() {
             &spec.target.branch

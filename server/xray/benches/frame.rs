@@ -6,7 +6,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use cathlab_xray::phantom::{BodyLandmarks, body_hu};
+use cathlab_xray::phantom::{BodyLandmarks, BodyPhantom};
 use cathlab_xray::scene::SceneSpec;
 use cathlab_xray::{
     CpuRenderer, Fluoroscope, FluoroscopeSettings, GpuRenderer, MarchSettings, Renderer, Scene,
@@ -82,15 +82,20 @@ fn volume_256() -> Arc<Volume> {
         arch_top_s: -0.1,
         bottom_s: -0.15,
         midline_l: 0.0,
-        spine_front_p: 0.02,
+        cervical_spine_p: 0.02,
+        thoracic_spine_p: 0.04,
+        aortic_knob_l: 0.035,
+        lung_apex_s: -0.005,
+        descending_aorta: None,
     };
+    let body = BodyPhantom::new(landmarks);
     Arc::new(
         Volume::from_fn(
             [256; 3],
             Vector3::repeat(1.4e-3),
             Vector3::new(0.0, 0.0, 0.02),
             1,
-            |p| body_hu(&landmarks, p),
+            |p| body.hu(p),
         )
         .unwrap(),
     )

@@ -1,200 +1,974 @@
-//! A synthesized head-and-neck CT (skull with skull base, brain, neck, cervical and thoracic
-//! spine, trachea, thorax with lungs, ribs and sternum, air around) placed around a vessel
-//! phantom, so that every scene has a realistic background. Simple shapes with textbook HU.
+//! The synthesized body around a vessel tree: a skull with orbits, sinuses, petrous ridges
+//! and skull base; mandible and teeth; cervical and thoracic vertebrae with their bodies,
+//! arches and processes; clavicles, curved ribs and sternum; lungs, heart and aortic-knob
+//! shadows. It is placed from landmarks of the vessels (circle of Willis, aortic arch,
+//! vertebral arteries, descending aorta), so that every vessel lies in soft tissue where it
+//! belongs; vessels crossing bone run in canals (the transverse foramina, the carotid canal,
+//! the foramen magnum). Simple shapes with textbook HU.
 
-use nalgebra::{Point3, Vector3};
+use std::collections::HashSet;
+
+use cathlab_anatomy::graph::VesselGraph;
+use nalgebra::{Matrix3, Point3, Vector3};
 
 use crate::error::{Result, XrayError};
 use crate::volume::Volume;
+
+/// One centerline sample of a vessel, in patient LPS coordinates.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VesselPoint {
+    /// Centre (m, LPS).
+    pub position: Point3<f64>,
+    /// Lumen radius (m).
+    pub radius: f64,
+}
 
 /// Where the body goes, in patient LPS coordinates (m).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BodyLandmarks {
     /// Centre of the circle of Willis (the head is built around it).
     pub circle_of_willis: Point3<f64>,
-    /// Height (S, m) of the top of the aortic arch: the thorax starts above it.
+    /// Height (S, m) of the top of the aortic arch's centreline.
     pub arch_top_s: f64,
     /// Lowest height (S, m) the volume must reach.
     pub bottom_s: f64,
     /// Left–right coordinate of the midline (m).
     pub midline_l: f64,
-    /// Posterior coordinate of the front of the vertebral bodies (m).
-    pub spine_front_p: f64,
+    /// Posterior coordinate of the centre of the cervical vertebral bodies (m).
+    pub cervical_spine_p: f64,
+    /// Posterior coordinate of the centre of the thoracic vertebral bodies (m).
+    pub thoracic_spine_p: f64,
+    /// Left–right coordinate of the aorta's leftmost wall, the aortic knob (m).
+    pub aortic_knob_l: f64,
+    /// Height of the lungs' apices (S, m): under the subclavian arteries that groove them.
+    pub lung_apex_s: f64,
+    /// The descending aorta's axis, where the tree has one.
+    pub descending_aorta: Option<AortaAxis>,
 }
 
-impl BodyLandmarks {
-    /// Landmarks from a vessel tree's centerline points (LPS): the circle of Willis at the
-    /// top of the tree, the midline at the mean left–right position of its top 40 mm, the
-    /// spine just behind the most posterior neck vessel (the vertebral arteries), the arch
-    /// at the top of the lowest fifth of the tree.
-    pub fn from_vessels(points: &[Point3<f64>]) -> Result<Self> {
-        if points.len() < 2
-            || points
-                .iter()
-                .any(|p| !p.coords.iter().all(|c| c.is_finite()))
-        {
-            return Err(XrayError::OutOfRange {
-                what: "vessel points for the body phantom".into(),
-                range: "at least 2, all finite",
-                value: points.len() as f64,
-            });
-        }
-        let top = points.iter().map(|p| p.z).fold(f64::MIN, f64::max);
-        let bottom = points.iter().map(|p| p.z).fold(f64::MAX, f64::min);
-        let head: Vec<&Point3<f64>> = points.iter().filter(|p| p.z > top - 0.04).collect();
-        let mean = |f: &dyn Fn(&Point3<f64>) -> f64| {
-            head.iter().map(|p| f(p)).sum::<f64>() / head.len() as f64
-        };
-        let (l, p) = (mean(&|q| q.x), mean(&|q| q.y));
-        let span = top - bottom;
-        let neck: Vec<&Point3<f64>> = points
+/// A straight fit to the descending aorta: position at the arch top's height, slope and
+/// mean radius (LPS, m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AortaAxis {
+    /// L and P of the axis at the height of the arch top (m).
+    pub at_arch: [f64; 2],
+    /// Change of L and P per metre of height.
+    pub slope: [f64; 2],
+    /// Mean lumen radius (m).
+    pub radius: f64,
+}
+
+impl AortaAxis {
+    /// L and P of the axis at height `s` (m).
+    pub fn at(&self, s: f64, arch_top_s: f64) -> [f64; 2] {
+        let dz = s - arch_top_s;
+        [
+            self.at_arch[0] + self.slope[0] * dz,
+            self.at_arch[1] + self.slope[1] * dz,
+        ]
+    }
+
+    /// Least-squares line through `points` (at least two heights).
+    fn fit(points: &[&VesselPoint], arch_top_s: f64) -> Option<Self> {
+        let n = points.len() as f64;
+        let mz = points
             .iter()
-            .filter(|q| q.z < top - 0.06 && q.z > bottom + 0.35 * span)
-            .collect();
-        let spine_front_p = neck.iter().map(|q| q.y).fold(p, f64::max) + 0.006;
-        Ok(Self {
-            circle_of_willis: Point3::new(l, p, top),
-            arch_top_s: bottom + 0.3 * span,
-            bottom_s: bottom,
-            midline_l: l,
-            spine_front_p,
+            .map(|v| v.position.z - arch_top_s)
+            .sum::<f64>()
+            / n;
+        let szz: f64 = points
+            .iter()
+            .map(|v| (v.position.z - arch_top_s - mz).powi(2))
+            .sum();
+        if points.len() < 2 || szz < 1e-8 {
+            return None;
+        }
+        let line = |f: &dyn Fn(&Point3<f64>) -> f64| {
+            let m = points.iter().map(|v| f(&v.position)).sum::<f64>() / n;
+            let sxz: f64 = points
+                .iter()
+                .map(|v| (f(&v.position) - m) * (v.position.z - arch_top_s - mz))
+                .sum();
+            let slope = sxz / szz;
+            (m - slope * mz, slope)
+        };
+        let (l, dl) = line(&|p| p.x);
+        let (p, dp) = line(&|p| p.y);
+        Some(Self {
+            at_arch: [l, p],
+            slope: [dl, dp],
+            radius: points.iter().map(|v| v.radius).sum::<f64>() / n,
         })
     }
 }
 
-/// HU of the tissues used.
-mod hu {
-    pub const AIR: f64 = -1000.0;
-    pub const LUNG: f64 = -820.0;
-    pub const FAT: f64 = -90.0;
-    pub const SOFT: f64 = 40.0;
-    pub const BRAIN: f64 = 35.0;
-    pub const SKULL: f64 = 1300.0;
-    pub const PETROUS: f64 = 1700.0;
-    pub const VERTEBRA: f64 = 450.0;
-    pub const CORTEX: f64 = 1100.0;
-    pub const DISC: f64 = 90.0;
-    pub const RIB: f64 = 800.0;
+/// Lumen radius from which a vessel counts as the aorta (m).
+const AORTA_RADIUS: f64 = 7e-3;
+
+impl BodyLandmarks {
+    /// Landmarks from a vessel tree's centerline samples (LPS):
+    /// - the circle of Willis at the mean of the tree's top 40 mm;
+    /// - the aorta is every sample wider than 7 mm; the arch top is its highest sample and
+    ///   the knob its leftmost wall;
+    /// - the neck lies between 40 mm above the arch and 50 mm below the circle of Willis;
+    ///   the midline halfway between its leftmost and rightmost vessel; the cervical
+    ///   vertebral bodies at the vertebral arteries' depth (the tenth of neck samples
+    ///   furthest back);
+    /// - the thoracic vertebral bodies just behind the descending aorta (the back half of
+    ///   the aorta more than 40 mm below the arch top), clear of it.
+    ///
+    /// A tree without an aorta or a neck gets textbook offsets instead.
+    pub fn from_vessels(points: &[VesselPoint]) -> Result<Self> {
+        if points.len() < 2
+            || points.iter().any(|v| {
+                !v.position.coords.iter().all(|c| c.is_finite())
+                    || !v.radius.is_finite()
+                    || v.radius < 0.0
+            })
+        {
+            return Err(XrayError::OutOfRange {
+                what: "vessel points for the body phantom".into(),
+                range: "at least 2, all finite with radii ≥ 0",
+                value: points.len() as f64,
+            });
+        }
+        let z = |v: &&VesselPoint| v.position.z;
+        let top = points.iter().map(|v| v.position.z).fold(f64::MIN, f64::max);
+        let bottom = points.iter().map(|v| v.position.z).fold(f64::MAX, f64::min);
+        let head: Vec<&VesselPoint> = points.iter().filter(|v| z(v) > top - 0.04).collect();
+        let mean = |set: &[&VesselPoint], f: &dyn Fn(&Point3<f64>) -> f64| {
+            set.iter().map(|v| f(&v.position)).sum::<f64>() / set.len() as f64
+        };
+        let cow = Point3::new(
+            mean(&head, &|p| p.x),
+            mean(&head, &|p| p.y),
+            mean(&head, &|p| p.z),
+        );
+        let aorta: Vec<&VesselPoint> = points.iter().filter(|v| v.radius >= AORTA_RADIUS).collect();
+        let (arch_top_s, knob) = if aorta.is_empty() {
+            (bottom + 0.3 * (top - bottom), None)
+        } else {
+            (
+                aorta.iter().map(z).fold(f64::MIN, f64::max),
+                Some(
+                    aorta
+                        .iter()
+                        .map(|v| v.position.x + v.radius)
+                        .fold(f64::MIN, f64::max),
+                ),
+            )
+        };
+        let neck: Vec<&VesselPoint> = points
+            .iter()
+            .filter(|v| z(v) > arch_top_s + 0.04 && z(v) < cow.z - 0.05)
+            .collect();
+        let (midline_l, cervical_spine_p) = if neck.is_empty() {
+            (cow.x, cow.y + 0.03)
+        } else {
+            let min_l = neck.iter().map(|v| v.position.x).fold(f64::MAX, f64::min);
+            let max_l = neck.iter().map(|v| v.position.x).fold(f64::MIN, f64::max);
+            let mut depth: Vec<f64> = neck.iter().map(|v| v.position.y).collect();
+            depth.sort_by(f64::total_cmp);
+            let p90 = depth[(depth.len() * 9 / 10).min(depth.len() - 1)];
+            (0.5 * (min_l + max_l), p90 - 0.002)
+        };
+        let low: Vec<&VesselPoint> = aorta
+            .iter()
+            .copied()
+            .filter(|v| z(v) < arch_top_s - 0.04)
+            .collect();
+        let mut descending_aorta = None;
+        let thoracic_spine_p = if low.is_empty() {
+            cervical_spine_p + 0.03
+        } else {
+            let mut depth: Vec<f64> = low.iter().map(|v| v.position.y).collect();
+            depth.sort_by(f64::total_cmp);
+            let back = &depth[depth.len() / 2..];
+            let p = back.iter().sum::<f64>() / back.len() as f64;
+            let descending: Vec<&VesselPoint> = low
+                .iter()
+                .copied()
+                .filter(|v| v.position.y >= depth[depth.len() / 2])
+                .collect();
+            descending_aorta = AortaAxis::fit(&descending, arch_top_s);
+            let x = mean(&descending, &|q| q.x) - midline_l;
+            let r = descending.iter().map(|v| v.radius).sum::<f64>() / descending.len() as f64;
+            // Behind the aorta's centre; further back when the aorta lies in front of the
+            // vertebral body rather than beside it.
+            let gap = x.abs() - r - THORACIC_BODY[0];
+            let behind = if gap >= 0.0 {
+                0.008
+            } else {
+                r + THORACIC_BODY[1] + 0.003
+            };
+            (p + behind).clamp(cervical_spine_p + 0.01, cervical_spine_p + 0.08)
+        };
+        // The lung apices: 45 mm above the arch, or under any vessel crossing above them
+        // out to the side (the subclavian arteries).
+        let apex_default = arch_top_s + 0.045;
+        let lung_apex_s = points
+            .iter()
+            .filter(|v| {
+                (v.position.x - midline_l).abs() > 0.035
+                    && v.position.z > arch_top_s - 0.01
+                    && v.position.z < arch_top_s + 0.08
+            })
+            .map(|v| v.position.z - v.radius - 0.004)
+            .fold(apex_default, f64::min)
+            .max(arch_top_s + 0.005);
+        Ok(Self {
+            descending_aorta,
+            lung_apex_s,
+            circle_of_willis: cow,
+            arch_top_s,
+            bottom_s: bottom,
+            midline_l,
+            cervical_spine_p,
+            thoracic_spine_p,
+            aortic_knob_l: knob.unwrap_or(midline_l + 0.035),
+        })
+    }
 }
 
-/// HU at a patient point of the body around `m`.
-pub fn body_hu(m: &BodyLandmarks, p: &Point3<f64>) -> f64 {
-    let cow = m.circle_of_willis;
-    let x = p.x - m.midline_l;
-    // Head: ellipsoid around the circle of Willis with a 7 mm skull and 4 mm scalp.
-    let head_centre = cow + Vector3::new(0.0, 0.005, 0.02);
-    let e = |q: &Point3<f64>, c: &Point3<f64>, a: [f64; 3]| {
-        let d = q - c;
-        ((d.x / a[0]).powi(2) + (d.y / a[1]).powi(2) + (d.z / a[2]).powi(2)).sqrt()
-    };
-    let head_axes = [0.072, 0.092, 0.105];
-    let r_head = e(p, &head_centre, head_axes);
-    if r_head <= 1.0 + 0.004 / 0.09 {
-        // Skull base: petrous ridges either side of the circle of Willis.
-        for side in [-1.0, 1.0] {
-            let c = Point3::new(m.midline_l + side * 0.035, cow.y + 0.012, cow.z - 0.012);
-            if e(p, &c, [0.022, 0.010, 0.009]) <= 1.0 {
-                return hu::PETROUS;
+/// Semi-axes of a cervical vertebral body (left–right, front–back; m).
+const CERVICAL_BODY: [f64; 2] = [0.012, 0.008];
+/// Semi-axes of a thoracic vertebral body (m).
+const THORACIC_BODY: [f64; 2] = [0.016, 0.013];
+
+/// What a point of the body is made of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Tissue {
+    /// Outside the body, or an airway or sinus.
+    Air,
+    /// Aerated lung.
+    Lung,
+    /// Subcutaneous or orbital fat.
+    Fat,
+    /// Muscle, organs, blood and vessel walls.
+    Soft,
+    /// Brain.
+    Brain,
+    /// Intervertebral disc or costal cartilage.
+    Cartilage,
+    /// Cancellous bone (vertebral bodies, sternum).
+    CancellousBone,
+    /// Cortical bone (skull, cortices, ribs, clavicles, mandible).
+    CorticalBone,
+    /// The dense petrous bone.
+    PetrousBone,
+    /// Tooth enamel and dentine.
+    Tooth,
+}
+
+impl Tissue {
+    /// Textbook CT number (HU).
+    pub fn hu(self) -> f64 {
+        match self {
+            Tissue::Air => -1000.0,
+            Tissue::Lung => -820.0,
+            Tissue::Fat => -90.0,
+            Tissue::Soft => 40.0,
+            Tissue::Brain => 35.0,
+            Tissue::Cartilage => 110.0,
+            Tissue::CancellousBone => 300.0,
+            Tissue::CorticalBone => 1200.0,
+            Tissue::PetrousBone => 1700.0,
+            Tissue::Tooth => 2200.0,
+        }
+    }
+
+    /// Soft tissue a vessel may run in (not air, lung or bone).
+    pub fn is_soft(self) -> bool {
+        matches!(
+            self,
+            Tissue::Soft | Tissue::Brain | Tissue::Fat | Tissue::Cartilage
+        )
+    }
+
+    fn is_bone(self) -> bool {
+        matches!(
+            self,
+            Tissue::CancellousBone | Tissue::CorticalBone | Tissue::PetrousBone | Tissue::Tooth
+        )
+    }
+}
+
+/// Which part of the body a point belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Region {
+    /// Outside the body.
+    Outside,
+    /// Inside the skull.
+    Cranium,
+    /// Face and jaw below the cranium.
+    Face,
+    /// The neck, above the thoracic inlet.
+    Neck,
+    /// The mediastinum: between the lungs, from the inlet to the diaphragm (heart, aorta).
+    Mediastinum,
+    /// A lung.
+    Lung,
+    /// The chest wall with ribs, sternum, clavicles and spine, and the shoulders.
+    ChestWall,
+    /// Below the diaphragm.
+    Abdomen,
+}
+
+/// One point's tissue and region.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Sample {
+    /// What it is made of.
+    pub tissue: Tissue,
+    /// Where it is.
+    pub region: Region,
+}
+
+/// Side of the cubic cells the vessel canals are rasterised on (m).
+const CANAL_CELL: f64 = 1e-3;
+/// Clearance of bone around a vessel's lumen (m).
+const CANAL_CLEARANCE: f64 = 1.5e-3;
+
+/// The body around a vessel tree: landmarks, derived heights and the vessels' bony canals.
+#[derive(Debug, Clone)]
+pub struct BodyPhantom {
+    landmarks: BodyLandmarks,
+    /// Vertical scale of the neck and spine (1: textbook adult).
+    scale: f64,
+    /// Top of the dens (S, m).
+    dens_s: f64,
+    /// Thoracic inlet (S, m): above it is the neck.
+    inlet_s: f64,
+    /// Top of the first thoracic vertebra (S, m).
+    t1_s: f64,
+    /// Centre of the rib cage's elliptic section (P, m).
+    chest_p: f64,
+    /// Clavicles: polylines (LPS, m).
+    clavicles: [Vec<Point3<f64>>; 2],
+    canals: HashSet<[i32; 3]>,
+}
+
+/// Smoothstep from 0 at `a` to 1 at `b`.
+fn smooth(a: f64, b: f64, x: f64) -> f64 {
+    let t = ((x - a) / (b - a)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// Normalised elliptic radius of `(dx, dy, dz)` with semi-axes `a`.
+fn ell(d: Vector3<f64>, a: [f64; 3]) -> f64 {
+    ((d.x / a[0]).powi(2) + (d.y / a[1]).powi(2) + (d.z / a[2]).powi(2)).sqrt()
+}
+
+/// Distance from `p` to a capsule `a`–`b`.
+fn segment_distance(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>) -> f64 {
+    let ab = b - a;
+    if ab.norm_squared() == 0.0 {
+        return (p - a).norm();
+    }
+    let t = ((p - a).dot(&ab) / ab.norm_squared()).clamp(0.0, 1.0);
+    (p - (a + ab * t)).norm()
+}
+
+impl BodyPhantom {
+    /// The body around the vessels: landmarks from them and canals along them.
+    pub fn around(vessels: &[Vec<VesselPoint>]) -> Result<Self> {
+        let all: Vec<VesselPoint> = vessels.iter().flatten().copied().collect();
+        let landmarks = BodyLandmarks::from_vessels(&all)?;
+        let mut body = Self::new(landmarks);
+        for branch in vessels {
+            body.carve(branch);
+        }
+        Ok(body)
+    }
+
+    /// The body around a vessel graph whose coordinates `to_lps` turns into LPS.
+    pub fn around_graph(graph: &VesselGraph, to_lps: &Matrix3<f64>) -> Result<Self> {
+        let vessels: Vec<Vec<VesselPoint>> = graph
+            .branches
+            .iter()
+            .map(|b| {
+                b.points
+                    .iter()
+                    .zip(&b.radii)
+                    .map(|(p, &radius)| VesselPoint {
+                        position: Point3::from(to_lps * p.coords),
+                        radius,
+                    })
+                    .collect()
+            })
+            .collect();
+        Self::around(&vessels)
+    }
+
+    /// The body around `landmarks` alone (no canals).
+    pub fn new(landmarks: BodyLandmarks) -> Self {
+        let m = landmarks;
+        let dens_s = m.circle_of_willis.z - 0.03;
+        // Dens to the arch top: C2 with its dens, C3–C7 and T1–T3 (textbook 0.202 m).
+        let scale = ((dens_s - m.arch_top_s) / 0.202).clamp(0.7, 1.3);
+        let t1_s = m.arch_top_s + 3.0 * 0.025 * scale;
+        let inlet_s = m.arch_top_s + 0.035 * scale;
+        let chest_p = m.thoracic_spine_p - 0.075;
+        let notch = Point3::new(m.midline_l, chest_p - 0.088, inlet_s - 0.005);
+        let clavicles = [-1.0, 1.0].map(|side: f64| {
+            (0..=24)
+                .map(|i| {
+                    let t = i as f64 / 24.0;
+                    Point3::new(
+                        m.midline_l + side * (0.022 + 0.128 * t),
+                        notch.y + 0.01 + 0.075 * t - 0.018 * (std::f64::consts::PI * t).sin(),
+                        notch.z + 0.035 * t.powf(1.5),
+                    )
+                })
+                .collect()
+        });
+        Self {
+            landmarks,
+            scale,
+            dens_s,
+            inlet_s,
+            t1_s,
+            chest_p,
+            clavicles,
+            canals: HashSet::new(),
+        }
+    }
+
+    /// The landmarks the body was placed from.
+    pub fn landmarks(&self) -> &BodyLandmarks {
+        &self.landmarks
+    }
+
+    /// Marks the cells within a vessel's radius plus clearance as a canal through bone.
+    fn carve(&mut self, branch: &[VesselPoint]) {
+        let cell = |p: Vector3<f64>| p.map(|c| (c / CANAL_CELL).floor() as i32);
+        let pairs: Vec<(VesselPoint, VesselPoint)> = match branch {
+            [only] => vec![(*only, *only)],
+            _ => branch.windows(2).map(|w| (w[0], w[1])).collect(),
+        };
+        for (a, b) in pairs {
+            let reach = a.radius.max(b.radius) + CANAL_CLEARANCE + 0.5 * CANAL_CELL * 3f64.sqrt();
+            let lo = cell(a.position.coords.inf(&b.position.coords).add_scalar(-reach));
+            let hi = cell(a.position.coords.sup(&b.position.coords).add_scalar(reach));
+            for i in lo.x..=hi.x {
+                for j in lo.y..=hi.y {
+                    for k in lo.z..=hi.z {
+                        let c =
+                            Point3::new(f64::from(i) + 0.5, f64::from(j) + 0.5, f64::from(k) + 0.5)
+                                * CANAL_CELL;
+                        if segment_distance(&c, &a.position, &b.position) <= reach {
+                            self.canals.insert([i, j, k]);
+                        }
+                    }
+                }
             }
         }
-        return if r_head > 1.0 {
-            hu::SOFT
-        } else if r_head > 1.0 - 0.007 / 0.09 {
-            hu::SKULL
-        } else {
-            hu::BRAIN
-        };
     }
-    let neck_top = head_centre.z - 0.08;
-    if p.z > neck_top + 0.02 {
-        return hu::AIR;
-    }
-    // Spine: vertebral bodies (cortex, cancellous bone, discs) with posterior elements.
-    let spine_p = m.spine_front_p + 0.009;
-    let body_r = ((x / 0.011).powi(2) + ((p.y - spine_p) / 0.009).powi(2)).sqrt();
-    let level = (p.z - cow.z).rem_euclid(0.018);
-    if body_r <= 1.0 && p.z < cow.z - 0.03 {
-        return if level < 0.004 {
-            hu::DISC
-        } else if body_r > 0.8 {
-            hu::CORTEX
-        } else {
-            hu::VERTEBRA
-        };
-    }
-    let arch = ((x / 0.014).powi(2) + ((p.y - spine_p - 0.022) / 0.012).powi(2)).sqrt();
-    if arch <= 1.0
-        && (arch > 0.55 || (x.abs() < 0.003 && p.y > spine_p + 0.028))
-        && p.z < cow.z - 0.03
-    {
-        return hu::CORTEX;
-    }
-    let in_thorax = p.z < m.arch_top_s + 0.03;
-    // Trachea: an air tube in front of the spine, through the neck into the chest.
-    let trachea_p = m.spine_front_p - 0.022;
-    if (x * x + (p.y - trachea_p).powi(2)).sqrt() < 0.008 && p.z > m.arch_top_s - 0.05 {
-        return hu::AIR;
-    }
-    if !in_thorax {
-        // Neck: an elliptic cylinder of soft tissue under a layer of fat.
-        let r = ((x / 0.055).powi(2) + ((p.y - spine_p + 0.01) / 0.058).powi(2)).sqrt();
-        return if r > 1.0 {
-            hu::AIR
-        } else if r > 0.92 {
-            hu::FAT
-        } else {
-            hu::SOFT
-        };
-    }
-    // Thorax: soft-tissue wall, ribs, sternum, two lungs beside the mediastinum.
-    let thorax_c = spine_p - 0.06;
-    let r = ((x / 0.16).powi(2) + ((p.y - thorax_c) / 0.11).powi(2)).sqrt();
-    if r > 1.0 {
-        return hu::AIR;
-    }
-    let rib_level = (p.z - m.arch_top_s).rem_euclid(0.028);
-    if r > 0.86 && r < 0.92 && rib_level < 0.009 {
-        return hu::RIB;
-    }
-    if r > 0.86 {
-        return if r > 0.95 { hu::FAT } else { hu::SOFT };
-    }
-    if x.abs() < 0.015 && p.y < thorax_c - 0.09 {
-        return hu::CORTEX;
-    }
-    let mediastinum = x.abs() < 0.045 + 0.02 * (1.0 - r);
-    if !mediastinum && r < 0.84 {
-        return hu::LUNG;
-    }
-    hu::SOFT
-}
 
-/// Samples the body around `landmarks` on a grid of `spacing_m`, covering the vessels
-/// (±0.17 m left–right, ±0.13 m front–back of the spine, from the skull top down to the
-/// lowest vessel point), with 2³ sub-samples per voxel for partial-volume edges.
-pub fn head_and_neck(landmarks: &BodyLandmarks, spacing_m: f64) -> Result<Volume> {
-    crate::error::require_positive(|| "phantom voxel spacing (m)".into(), spacing_m)?;
-    let top = landmarks.circle_of_willis.z + 0.14;
-    let bottom = landmarks.bottom_s - 0.02;
-    let extent = Vector3::new(0.34, 0.26, top - bottom);
-    let dims = extent.map(|e| (e / spacing_m).ceil() as usize + 1);
-    if dims.iter().product::<usize>() > 512 * 512 * 512 {
-        return Err(XrayError::OutOfRange {
-            what: "phantom voxel count".into(),
-            range: "at most 512³ (use a coarser spacing)",
-            value: dims.iter().product::<usize>() as f64,
-        });
+    fn in_canal(&self, p: &Point3<f64>) -> bool {
+        let c = p.coords.map(|c| (c / CANAL_CELL).floor() as i32);
+        self.canals.contains(&[c.x, c.y, c.z])
     }
-    let centre = Vector3::new(
-        landmarks.midline_l,
-        landmarks.spine_front_p - 0.03,
-        0.5 * (top + bottom),
-    );
-    Volume::from_fn(
-        [dims.x, dims.y, dims.z],
-        Vector3::repeat(spacing_m),
-        centre,
-        2,
-        |p| body_hu(landmarks, p),
-    )
+
+    /// Tissue and region at a patient point (LPS, m).
+    pub fn sample(&self, p: &Point3<f64>) -> Sample {
+        let mut s = self.sample_shapes(p);
+        let displaced = s.tissue.is_bone()
+            || (s.tissue == Tissue::Air && s.region != Region::Outside && s.region != Region::Lung);
+        if displaced && self.in_canal(p) {
+            s.tissue = Tissue::Soft;
+        }
+        s
+    }
+
+    /// CT number at a patient point (HU).
+    pub fn hu(&self, p: &Point3<f64>) -> f64 {
+        self.sample(p).tissue.hu()
+    }
+
+    /// Centre of the vertebral bodies (P, m), their semi-axes (m) at height `z`, and whether
+    /// `z` is in the thoracic spine.
+    fn spine_at(&self, z: f64) -> (f64, [f64; 2]) {
+        let m = &self.landmarks;
+        // Lordosis to kyphosis: from the C6 body to the T3 body.
+        let t = smooth(self.t1_s + 0.045 * self.scale, m.arch_top_s + 0.01, z);
+        let p = m.cervical_spine_p + (m.thoracic_spine_p - m.cervical_spine_p) * t;
+        let a = [
+            CERVICAL_BODY[0] + (THORACIC_BODY[0] - CERVICAL_BODY[0]) * t,
+            CERVICAL_BODY[1] + (THORACIC_BODY[1] - CERVICAL_BODY[1]) * t,
+        ];
+        (p, a)
+    }
+
+    /// Where `z` is within its vertebral level: `Some(true)` in a body, `Some(false)` in a
+    /// disc, `None` above the dens.
+    fn vertebral_level(&self, z: f64) -> Option<bool> {
+        let s = self.scale;
+        let depth = self.dens_s - z;
+        if depth < 0.0 {
+            return None;
+        }
+        let c2 = 0.032 * s;
+        if depth < c2 {
+            return Some(true);
+        }
+        let cervical = 5.0 * 0.019 * s;
+        let (period, disc, into) = if depth < c2 + cervical {
+            (0.019 * s, 0.0045 * s, depth - c2)
+        } else {
+            (0.025 * s, 0.0045 * s, depth - c2 - cervical)
+        };
+        Some(into.rem_euclid(period) >= disc)
+    }
+
+    /// The spine: bodies, discs, arches, spinous and transverse processes.
+    fn spine(&self, x: f64, p: &Point3<f64>) -> Option<Tissue> {
+        let level = self.vertebral_level(p.z)?;
+        let (centre, a) = self.spine_at(p.z);
+        let y = p.y - centre;
+        let body = ((x / a[0]).powi(2) + (y / a[1]).powi(2)).sqrt();
+        let dens = p.z > self.dens_s - 0.014 * self.scale;
+        if dens {
+            // The dens: a peg on top of C2, ringed by the atlas.
+            let r = (x * x + (y + 0.002).powi(2)).sqrt();
+            if r < 0.005 {
+                return Some(Tissue::CancellousBone);
+            }
+            let atlas = ((x / 0.024).powi(2) + ((y - 0.008) / 0.02).powi(2)).sqrt();
+            if p.z < self.dens_s - 0.004 && atlas < 1.0 && atlas > 0.8 {
+                return Some(Tissue::CorticalBone);
+            }
+            return None;
+        }
+        if body <= 1.0 {
+            return Some(if !level {
+                Tissue::Cartilage
+            } else if body > 0.82 {
+                Tissue::CorticalBone
+            } else {
+                Tissue::CancellousBone
+            });
+        }
+        if !level {
+            return None;
+        }
+        // The canal behind the body, ringed by pedicles and laminae.
+        let canal_c = a[1] + 0.009;
+        let r = (x * x + (y - canal_c).powi(2)).sqrt();
+        if r < 0.0075 {
+            return None;
+        }
+        if r < 0.012 && y > a[1] * 0.5 {
+            return Some(Tissue::CorticalBone);
+        }
+        // Spinous process, backwards and downwards.
+        if x.abs() < 0.003 && y > canal_c && y < canal_c + 0.032 {
+            return Some(Tissue::CorticalBone);
+        }
+        // Transverse processes.
+        let reach =
+            0.016 + 0.006 * (a[0] - CERVICAL_BODY[0]) / (THORACIC_BODY[0] - CERVICAL_BODY[0]);
+        if x.abs() > a[0] * 0.8
+            && x.abs() < a[0] + reach
+            && y > canal_c - 0.008
+            && y < canal_c + 0.004
+        {
+            return Some(Tissue::CorticalBone);
+        }
+        None
+    }
+
+    /// The rib cage's section at height `z`: semi-axes (m).
+    fn cage_at(&self, z: f64) -> [f64; 2] {
+        let top = self.landmarks.lung_apex_s + 0.012;
+        let bottom = self.landmarks.arch_top_s - 0.05;
+        let t = ((top - z) / (top - bottom)).clamp(0.0, 1.0);
+        [0.145 * t.powf(0.45).max(0.0), 0.1 * t.powf(0.2).max(0.0)]
+    }
+
+    /// Height of the diaphragm's dome at `x` from the midline (m); the right is higher.
+    fn diaphragm(&self, x: f64) -> f64 {
+        self.landmarks.arch_top_s - 0.15 * self.scale - 0.035 * (x / 0.13).powi(2)
+            + if x < 0.0 { 0.015 } else { 0.0 }
+    }
+
+    fn sample_shapes(&self, p: &Point3<f64>) -> Sample {
+        let m = &self.landmarks;
+        let cow = m.circle_of_willis;
+        let x = p.x - m.midline_l;
+        let sample = |tissue, region| Sample { tissue, region };
+        if let Some(s) = self.head(x, p) {
+            return s;
+        }
+        if let Some(t) = self.spine(x, p) {
+            let region = if p.z > self.inlet_s {
+                Region::Neck
+            } else {
+                Region::ChestWall
+            };
+            return sample(t, region);
+        }
+        // The airway: pharynx, larynx and trachea in front of the spine, to the carina.
+        let (spine_p, a) = self.spine_at(p.z);
+        let airway_p = spine_p - a[1] - 0.017;
+        if p.z < cow.z - 0.045 && p.z > m.arch_top_s - 0.03 {
+            let w = if p.z > cow.z - 0.09 { 0.014 } else { 0.008 };
+            if ((x / w).powi(2) + ((p.y - airway_p) / 0.008).powi(2)).sqrt() < 1.0 {
+                let region = if p.z > self.inlet_s {
+                    Region::Neck
+                } else {
+                    Region::Mediastinum
+                };
+                return sample(Tissue::Air, region);
+            }
+        }
+        if p.z > self.inlet_s {
+            return self.neck(x, p);
+        }
+        self.thorax(x, p)
+    }
+
+    /// The head: scalp, skull, brain, skull base, orbits, sinuses, face, mandible and teeth.
+    fn head(&self, x: f64, p: &Point3<f64>) -> Option<Sample> {
+        let cow = self.landmarks.circle_of_willis;
+        let d = Vector3::new(x, p.y - cow.y - 0.012, p.z - cow.z - 0.012);
+        let inner = [0.068, 0.088, 0.088];
+        let r = ell(d, inner);
+        let sample = |tissue, region| Some(Sample { tissue, region });
+        let rel = Vector3::new(x, p.y - cow.y, p.z - cow.z);
+        // Orbits: fat cones under a bony rim, in front of the circle of Willis.
+        for side in [-1.0, 1.0] {
+            let o = ell(
+                rel - Vector3::new(side * 0.031, -0.06, 0.006),
+                [0.017, 0.022, 0.016],
+            );
+            if o < 1.0 {
+                return sample(
+                    if o > 0.86 {
+                        Tissue::CorticalBone
+                    } else {
+                        Tissue::Fat
+                    },
+                    Region::Face,
+                );
+            }
+        }
+        // The cranial floor: anterior fossa over the orbits, middle fossa around the sella,
+        // posterior fossa behind.
+        let floor = 0.024
+            + (-0.022 - 0.024) * smooth(-0.045, -0.025, rel.y)
+            + (-0.045 + 0.022) * smooth(0.008, 0.028, rel.y)
+            - 0.008 * (x / 0.05).powi(2).min(1.0) * smooth(-0.03, -0.015, rel.y);
+        let thickness = 0.007;
+        let outer = r <= 1.0 + thickness / 0.088;
+        let scalp = r <= 1.0 + (thickness + 0.005) / 0.088;
+        if scalp && rel.z >= floor - 0.008 {
+            // Sinuses first: frontal in the frontal bone, sphenoid under the sella.
+            for side in [-1.0, 1.0] {
+                if ell(
+                    rel - Vector3::new(side * 0.011, -0.07, 0.038),
+                    [0.011, 0.007, 0.012],
+                ) < 1.0
+                {
+                    return sample(Tissue::Air, Region::Face);
+                }
+            }
+            if ell(
+                rel - Vector3::new(0.0, -0.022, -0.02),
+                [0.011, 0.011, 0.009],
+            ) < 1.0
+            {
+                return sample(Tissue::Air, Region::Cranium);
+            }
+            // Petrous ridges: from the apex beside the clivus out and back.
+            for side in [-1.0, 1.0] {
+                let a = Point3::new(side * 0.012, 0.006, -0.02);
+                let b = Point3::new(side * 0.056, 0.036, -0.014);
+                if segment_distance(&Point3::from(rel), &a, &b) < 0.008 {
+                    return sample(Tissue::PetrousBone, Region::Cranium);
+                }
+            }
+            // Clivus: from the dorsum sellae down to the foramen magnum.
+            let a = Point3::new(0.0, 0.01, -0.012);
+            let b = Point3::new(0.0, 0.022, -0.045);
+            if segment_distance(&Point3::from(rel), &a, &b) < 0.006 && rel.x.abs() < 0.012 {
+                return sample(Tissue::CorticalBone, Region::Cranium);
+            }
+            if r > 1.0 {
+                return sample(
+                    if outer {
+                        Tissue::CorticalBone
+                    } else {
+                        Tissue::Soft
+                    },
+                    if outer { Region::Cranium } else { Region::Face },
+                );
+            }
+            if rel.z >= floor {
+                return sample(Tissue::Brain, Region::Cranium);
+            }
+            // The floor itself, open at the foramen magnum.
+            let foramen = (x * x + (rel.y - 0.032).powi(2)).sqrt() < 0.017;
+            return sample(
+                if foramen {
+                    Tissue::Soft
+                } else {
+                    Tissue::CorticalBone
+                },
+                Region::Cranium,
+            );
+        }
+        // Under the skull base, inside the head's outline: the deep face and the muscles
+        // and glands of the upper neck.
+        let under_skull = scalp && rel.z < floor - 0.008;
+        // Face and jaw under the cranium.
+        let face = ell(
+            rel - Vector3::new(0.0, -0.038, -0.045),
+            [0.062, 0.068, 0.068],
+        );
+        if face < 1.3 {
+            // The mandibular rami up to the condyles.
+            if (x.abs() - 0.047).abs() < 0.004
+                && rel.y > -0.01
+                && rel.y < 0.01
+                && rel.z > -0.095
+                && rel.z < -0.035
+            {
+                return sample(Tissue::CorticalBone, Region::Face);
+            }
+        }
+        if face >= 1.0 || rel.y > 0.0 {
+            return under_skull.then_some(Sample {
+                tissue: Tissue::Soft,
+                region: if rel.y < 0.0 {
+                    Region::Face
+                } else {
+                    Region::Neck
+                },
+            });
+        }
+        for side in [-1.0, 1.0] {
+            if ell(
+                rel - Vector3::new(side * 0.025, -0.058, -0.028),
+                [0.016, 0.018, 0.017],
+            ) < 1.0
+            {
+                return sample(Tissue::Air, Region::Face);
+            }
+        }
+        if ell(rel - Vector3::new(0.0, -0.062, -0.01), [0.01, 0.026, 0.028]) < 1.0 {
+            return sample(Tissue::Air, Region::Face);
+        }
+        // The dental arches (a parabola in the axial plane) and the mandible under them.
+        let arch_p = |reach: f64| -0.085 + (0.085 - 0.002) * (x / reach).powi(2).min(1.0);
+        let on_arch = |reach: f64, z0: f64, z1: f64, half: f64| {
+            x.abs() <= reach && rel.z > z0 && rel.z < z1 && (rel.y - arch_p(reach)).abs() < half
+        };
+        if on_arch(0.04, -0.06, -0.049, 0.005) || on_arch(0.038, -0.072, -0.061, 0.005) {
+            return sample(Tissue::Tooth, Region::Face);
+        }
+        if on_arch(0.046, -0.102, -0.072, 0.005) {
+            return sample(Tissue::CorticalBone, Region::Face);
+        }
+        let skin = if face > 0.94 {
+            Tissue::Fat
+        } else {
+            Tissue::Soft
+        };
+        sample(skin, Region::Face)
+    }
+
+    /// The neck and the shoulders above the thoracic inlet.
+    fn neck(&self, x: f64, p: &Point3<f64>) -> Sample {
+        let (spine_p, _) = self.spine_at(p.z);
+        let centre = spine_p - 0.02;
+        let r = ((x / 0.058).powi(2) + ((p.y - centre) / 0.06).powi(2)).sqrt();
+        if let Some(s) = self.clavicle(p) {
+            return s;
+        }
+        if r <= 1.0 {
+            return Sample {
+                tissue: if r > 0.92 { Tissue::Fat } else { Tissue::Soft },
+                region: Region::Neck,
+            };
+        }
+        // Beside the neck: the shoulders, the lung apices and the root of the neck.
+        self.thorax(x, p)
+    }
+
+    fn clavicle(&self, p: &Point3<f64>) -> Option<Sample> {
+        for line in &self.clavicles {
+            let (first, last) = (line[0], line[line.len() - 1]);
+            let lo = first.coords.inf(&last.coords).add_scalar(-0.03);
+            let hi = first.coords.sup(&last.coords).add_scalar(0.03);
+            if (0..3).any(|i| p.coords[i] < lo[i] || p.coords[i] > hi[i]) {
+                continue;
+            }
+            let d = line
+                .windows(2)
+                .map(|w| segment_distance(p, &w[0], &w[1]))
+                .fold(f64::MAX, f64::min);
+            if d < 0.0065 {
+                return Some(Sample {
+                    tissue: if d > 0.004 {
+                        Tissue::CorticalBone
+                    } else {
+                        Tissue::CancellousBone
+                    },
+                    region: Region::ChestWall,
+                });
+            }
+        }
+        None
+    }
+
+    /// The thorax below the inlet: wall, ribs, sternum, lungs, mediastinum, heart.
+    fn thorax(&self, x: f64, p: &Point3<f64>) -> Sample {
+        let m = &self.landmarks;
+        let sample = |tissue, region| Sample { tissue, region };
+        let y = p.y - self.chest_p;
+        // The body wall: an ellipse, narrowing above the inlet where the trapezius slopes
+        // from the shoulders up to the neck.
+        let half = 0.165 - 1.8 * (p.z - self.inlet_s).max(0.0);
+        let depth = 0.112 - 0.3 * (p.z - self.inlet_s).max(0.0);
+        if half < 0.05 || depth < 0.05 {
+            return sample(Tissue::Air, Region::Outside);
+        }
+        let wall = ((x / half).powi(2) + ((y - 0.005) / depth).powi(2)).sqrt();
+        if wall > 1.0 {
+            return sample(Tissue::Air, Region::Outside);
+        }
+        if let Some(s) = self.clavicle(p) {
+            return s;
+        }
+        let diaphragm = self.diaphragm(x);
+        let cage = self.cage_at(p.z);
+        let r = if cage[0] > 0.0 {
+            ((x / cage[0]).powi(2) + (y / cage[1]).powi(2)).sqrt()
+        } else {
+            f64::INFINITY
+        };
+        // Sternum: the manubrium, then the body.
+        let front = -cage[1].max(0.09);
+        let sternum_half = if p.z > m.arch_top_s - 0.02 {
+            0.024
+        } else {
+            0.014
+        };
+        if x.abs() < sternum_half
+            && y > front - 0.004
+            && y < front + 0.01
+            && p.z < self.inlet_s - 0.005
+            && p.z > m.arch_top_s - 0.17 * self.scale
+        {
+            return sample(Tissue::CancellousBone, Region::ChestWall);
+        }
+        // Ribs: each from its vertebra round to the front, falling as it goes.
+        if (0.86..1.0).contains(&r) && p.z > diaphragm - 0.06 {
+            let theta = x.abs().atan2(y * cage[0] / cage[1]) / std::f64::consts::PI;
+            let bend = -0.065 * theta * theta + 0.012 * (std::f64::consts::PI * theta).sin();
+            let period = 0.025 * self.scale;
+            let k = ((self.t1_s - 0.01 + bend - p.z) / period).round();
+            let centre = self.t1_s - 0.01 - k * period + bend;
+            if (0.0..12.0).contains(&k) && (p.z - centre).abs() < 0.0055 && theta > 0.08 {
+                let band = (r - 0.93).abs() * cage[0].min(cage[1]);
+                if band < 0.0045 {
+                    return sample(
+                        if theta > 0.86 {
+                            Tissue::Cartilage
+                        } else {
+                            Tissue::CorticalBone
+                        },
+                        Region::ChestWall,
+                    );
+                }
+            }
+        }
+        if p.z < diaphragm {
+            return sample(
+                if wall > 0.95 {
+                    Tissue::Fat
+                } else {
+                    Tissue::Soft
+                },
+                Region::Abdomen,
+            );
+        }
+        // The heart, low and to the left, behind the sternum.
+        let heart = ell(
+            Vector3::new(
+                x - 0.022,
+                y - (front + 0.06),
+                p.z - (m.arch_top_s - 0.105 * self.scale),
+            ),
+            [0.068, 0.055, 0.065],
+        );
+        if heart < 1.0 {
+            return sample(Tissue::Soft, Region::Mediastinum);
+        }
+        if r >= 0.9 {
+            return sample(
+                if wall > 0.95 {
+                    Tissue::Fat
+                } else {
+                    Tissue::Soft
+                },
+                Region::ChestWall,
+            );
+        }
+        // Mediastinum: narrow above the arch, bulging out to the aortic knob at the arch,
+        // and round the descending aorta beside the spine.
+        let knob = m.aortic_knob_l - m.midline_l + 0.004;
+        let (spine_p, a) = self.spine_at(p.z);
+        let bulge = 1.0 - ((p.z - (m.arch_top_s - 0.012)) / 0.034).powi(2);
+        let left = 0.04 + (knob - 0.04).max(0.0) * bulge.max(0.0).sqrt();
+        if x > -0.036 && x < left {
+            return sample(Tissue::Soft, Region::Mediastinum);
+        }
+        if let Some(axis) = &m.descending_aorta
+            && p.z < m.arch_top_s
+        {
+            let [l, q] = axis.at(p.z, m.arch_top_s);
+            if (p.x - l).hypot(p.y - q) < axis.radius + 0.01 {
+                return sample(Tissue::Soft, Region::Mediastinum);
+            }
+        }
+        if p.y > spine_p + a[1] + 0.02 && x.abs() < 0.05 {
+            return sample(Tissue::Soft, Region::ChestWall);
+        }
+        // Above the apices: the root of the neck (muscles, the subclavian vessels).
+        if p.z > m.lung_apex_s - 0.025 * ((x.abs() - 0.06) / 0.05).powi(2) {
+            return sample(Tissue::Soft, Region::Mediastinum);
+        }
+        sample(Tissue::Lung, Region::Lung)
+    }
+
+    /// Samples the body on a grid of `spacing_m`, covering the vessels (±0.17 m left–right,
+    /// from the face to the back, from the skull top down to 30 mm below the lowest vessel),
+    /// with 2³ sub-samples per voxel for partial-volume edges.
+    pub fn volume(&self, spacing_m: f64) -> Result<Volume> {
+        crate::error::require_positive(|| "phantom voxel spacing (m)".into(), spacing_m)?;
+        let m = &self.landmarks;
+        let cow = m.circle_of_willis;
+        let top = cow.z + 0.012 + 0.088 + 0.012 + 0.004;
+        let bottom = m.bottom_s - 0.03;
+        let front = (cow.y - 0.038 - 0.068).min(self.chest_p - 0.112 + 0.005) - 0.004;
+        let back = (cow.y + 0.012 + 0.1).max(self.chest_p + 0.117) + 0.004;
+        let extent = Vector3::new(0.34, back - front, top - bottom);
+        let dims = extent.map(|e| (e / spacing_m).ceil() as usize + 1);
+        if dims.iter().product::<usize>() > 512 * 512 * 512 {
+            return Err(XrayError::OutOfRange {
+                what: "phantom voxel count".into(),
+                range: "at most 512³ (use a coarser spacing)",
+                value: dims.iter().product::<usize>() as f64,
+            });
+        }
+        let centre = Vector3::new(m.midline_l, 0.5 * (front + back), 0.5 * (top + bottom));
+        Volume::from_fn(
+            [dims.x, dims.y, dims.z],
+            Vector3::repeat(spacing_m),
+            centre,
+            2,
+            |p| self.hu(p),
+        )
+    }
 }

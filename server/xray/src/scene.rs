@@ -14,7 +14,7 @@ use crate::error::{Result, XrayError};
 use crate::fluoroscope::{Fluoroscope, FluoroscopeSettings, Frame, ImagingMode, Scene as Shot};
 use crate::geometry::{CArm, DetectorGeometry};
 use crate::layers::{ContrastTube, DeviceAppearance, Layers};
-use crate::phantom::{BodyLandmarks, head_and_neck};
+use crate::phantom::BodyPhantom;
 use crate::render::Renderer;
 use crate::volume::Volume;
 
@@ -275,12 +275,7 @@ impl SceneSpec {
         let volume = match &self.ct {
             CtSpec::Phantom { spacing_mm } => {
                 let graph = need_graph("ct: phantom")?;
-                let points: Vec<Point3<f64>> = graph
-                    .branches
-                    .iter()
-                    .flat_map(|b| b.points.iter().map(to_lps))
-                    .collect();
-                head_and_neck(&BodyLandmarks::from_vessels(&points)?, spacing_mm * 1e-3)?
+                BodyPhantom::around_graph(graph, &rotation)?.volume(spacing_mm * 1e-3)?
             }
             CtSpec::File {
                 path,

@@ -1,5 +1,6 @@
 //! Golden images: the real aorta CT at three C-arm poses and the arch-to-circle-of-Willis
-//! phantom with contrast and devices, noise off, against PNGs kept in `tests/golden/`
+//! vessels in the synthesized body (chest AP, neck lateral, head AP, roadmap) with contrast
+//! and devices, noise off, against PNGs kept in `tests/golden/`
 //! (mean difference ≤ 0.5 grey level, 99.9 % of pixels within 2). Both renderers are held
 //! to the same images. `CATHLAB_BLESS=1` rewrites the PNGs after a deliberate change.
 
@@ -8,11 +9,13 @@ use std::path::{Path, PathBuf};
 use cathlab_xray::scene::SceneSpec;
 use cathlab_xray::{CpuRenderer, GpuRenderer, Renderer};
 
-const SCENES: [&str; 5] = [
+const SCENES: [&str; 7] = [
     "aorta_ap",
     "aorta_lateral",
     "aorta_cranial",
     "arch_to_cow_lcca",
+    "arch_to_cow_lateral",
+    "arch_to_cow_head",
     "arch_to_cow_roadmap",
 ];
 

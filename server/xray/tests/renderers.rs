@@ -260,11 +260,16 @@ fn skipping_air_bricks_leaves_line_integrals_unchanged() {
         arch_top_s: -0.05,
         bottom_s: -0.08,
         midline_l: 0.0,
-        spine_front_p: 0.02,
+        cervical_spine_p: 0.02,
+        thoracic_spine_p: 0.04,
+        aortic_knob_l: 0.035,
+        lung_apex_s: -0.005,
+        descending_aorta: None,
     };
+    let body = cathlab_xray::phantom::BodyPhantom::new(landmarks);
     let volume = Arc::new(
         Volume::from_fn([96; 3], Vector3::repeat(3e-3), Vector3::zeros(), 1, |p| {
-            cathlab_xray::phantom::body_hu(&landmarks, p)
+            body.hu(p)
         })
         .unwrap(),
     );
