@@ -286,6 +286,7 @@ async fn stream_once(
                     .create_session(pb::CreateSessionRequest {
                         scene: Some(scene),
                         label: label.clone(),
+                        ..Default::default()
                     })
                     .await
                     .context("creating a session")?

@@ -221,6 +221,72 @@ try {
     await trainee.click("#screen");
   });
 
+  await test("a_dsa_run_shows_the_arch_vessels_on_the_roadmap_with_the_target_marked", async () => {
+    await trainee.bringToFront();
+    await trainee.click("#screen");
+    await trainee.keyboard.down("f");
+    await nextFrame(trainee);
+    // A DSA run fires the injector after its mask; the contrast reaches the branches.
+    await trainee.click("#dsa");
+    await trainee.waitForFunction(() => document.querySelector("#mode")?.textContent?.startsWith("DSA"), null, {
+      timeout: 15_000,
+    });
+    // A run of 8 s, as for an arch angiogram: the contrast rises from the descending aorta
+    // through the arch into the branches.
+    await trainee.waitForTimeout(8000);
+    await trainee.click("#dsa");
+    await trainee.click("#screen");
+    await trainee.click("#roadmap");
+    await trainee.waitForFunction(() => document.querySelector("#mode")?.textContent?.startsWith("ROADMAP"), null, {
+      timeout: 15_000,
+    });
+    await nextFrame(trainee);
+    await nextFrame(trainee);
+    await trainee.waitForSelector('#target-marker[data-visible="true"]', { timeout: 10_000 });
+    // Along the marked target (the LCCA from its origin on the arch) against the body
+    // around it: the vessel map's contrast over the background noise.
+    const measured = await trainee.evaluate(() => {
+      const img = document.querySelector("#xray");
+      const canvas = document.createElement("canvas");
+      canvas.width = img.naturalWidth;
+      canvas.height = img.naturalHeight;
+      const g = canvas.getContext("2d");
+      g.drawImage(img, 0, 0);
+      const { data, width, height } = g.getImageData(0, 0, canvas.width, canvas.height);
+      const at = (x, y) => data[4 * (Math.round(y) * width + Math.round(x))];
+      const points = document
+        .querySelector("#target-marker polyline")
+        .getAttribute("points")
+        .trim()
+        .split(/\s+/)
+        .map((p) => p.split(",").map(Number))
+        .map(([x, y]) => [x * width, y * height]);
+      const inside = points.filter(([x, y]) => x >= 2 && y >= 2 && x < width - 2 && y < height - 2);
+      const median = (v) => {
+        const s = [...v].sort((a, b) => a - b);
+        return s[Math.floor(s.length / 2)];
+      };
+      const vessel = median(inside.map(([x, y]) => at(x, y)));
+      // Background: a ring 25–45 px round the marked vessel, 12 px or more from it.
+      const near = (x, y, r) => inside.some(([px, py]) => (px - x) ** 2 + (py - y) ** 2 < r * r);
+      const ring = [];
+      for (let y = 0; y < height; y += 2)
+        for (let x = 0; x < width; x += 2) if (near(x, y, 45) && !near(x, y, 25)) ring.push(at(x, y));
+      const background = median(ring);
+      const noise = 1.4826 * median(ring.map((v) => Math.abs(v - background)));
+      return { points: inside.length, vessel, background, noise };
+    });
+    const ratio = Math.abs(measured.vessel - measured.background) / Math.max(measured.noise, 0.5);
+    console.log(
+      `  roadmap: ${measured.points} marker points; vessel ${measured.vessel} vs background ${measured.background} ± ${measured.noise.toFixed(2)} grey levels: contrast ${ratio.toFixed(1)}× the noise`,
+    );
+    await trainee.screenshot({ path: join(artifacts, "trainee-roadmap.png") });
+    assert(measured.points >= 10, `the target marker has ${measured.points} points in the image`);
+    assert(ratio >= 5, `the vessel map's contrast is ${ratio.toFixed(1)}× the background noise`);
+    await trainee.click("#roadmap");
+    await trainee.keyboard.up("f");
+  });
+
   let observer;
   await test("dashboard_lists_the_session_with_thumbnail_metrics_and_timeline", async () => {
     const dashboard = await instructor.newPage();
@@ -300,6 +366,47 @@ try {
     const moved = millimetres(await observer.textContent("#hud-inserted"));
     console.log(`  trainee pushed to ${pushed} mm; the observer shows ${moved} mm`);
     assert(moved - after > 10, `the observer sees the trainee's push: ${after} → ${moved}`);
+  });
+
+  await test("an_instructor_starts_an_assessment_session_without_guidance", async () => {
+    // A second instructor machine: the first one's pages hold its six HTTP/1.1 connections.
+    const dashboard = await (await browser.newContext({ viewport: { width: 1280, height: 860 } })).newPage();
+    dashboard.on("pageerror", (e) => pageErrors.push(`dashboard: ${e.message}`));
+    await dashboard.goto(`${url}/dashboard.html`);
+    await dashboard.click("#new-session-box summary");
+    await dashboard.waitForFunction(() => document.querySelectorAll("#new-scene option").length > 0);
+    await dashboard.fill("#new-label", "e2e-assessed");
+    await dashboard.check("#new-assessment");
+    await dashboard.click('#new-session button[type="submit"]');
+    await dashboard.waitForFunction(() => document.querySelector("#new-link")?.textContent, null, { timeout: 30_000 });
+    const started = await dashboard.textContent("#new-link");
+    console.log(`  ${started}`);
+    assert(await dashboard.$("#trainee-link"), `the dashboard gives the trainee's link: ${started}`);
+    const link = await dashboard.$eval("#trainee-link", (a) => a.href);
+    assert(!link.includes(KEY), "the trainee's link carries no instructor key");
+    const assessed = await (await browser.newContext({ viewport: { width: 1280, height: 860 } })).newPage();
+    assessed.on("pageerror", (e) => pageErrors.push(`assessed: ${e.message}`));
+    await assessed.goto(link);
+    await assessed.waitForSelector('#connection[data-status="connected"]', { timeout: 30_000 });
+    assert((await assessed.$eval("body", (b) => b.dataset.guidance)) === "off", "the page knows guidance is off");
+    assert(!(await assessed.isVisible("#prompt")), "no prompt in an assessment");
+    assert((await assessed.textContent("#hud-target-title")) === "Target", "no distance heading");
+    await assessed.waitForTimeout(1500);
+    assert(!/mm/.test(await assessed.textContent("#hud-target")), "no remaining distance");
+    await assessed.click("#screen");
+    await assessed.keyboard.down("f");
+    await assessed.click("#dsa");
+    await assessed.waitForFunction(() => document.querySelector("#mode")?.textContent?.startsWith("DSA"), null, {
+      timeout: 15_000,
+    });
+    await nextFrame(assessed);
+    assert(
+      (await assessed.$eval("#target-marker", (m) => m.dataset.visible)) !== "true",
+      "no target marker in an assessment",
+    );
+    await assessed.keyboard.up("f");
+    await assessed.close();
+    await dashboard.close();
   });
 
   await test("layouts_fit_1280x800_and_1024x640_without_scrolling", async () => {

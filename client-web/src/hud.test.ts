@@ -61,6 +61,7 @@ describe("HUD", () => {
     expect(hudLines(undefined, m, "rva").reached).toBe(true);
     const going = create(MetricsSchema, { targetRemainingMm: 123.4 });
     expect(hudLines(undefined, going, "lcca")).toMatchObject({ target: "lcca · 123 mm", reached: false });
+    expect(hudLines(undefined, going, "lcca", false).target).toBe("lcca");
     expect(Object.fromEntries(metricRows(going))).toMatchObject({ Target: "123 mm to go" });
     expect(Object.fromEntries(metricRows(m))).toMatchObject({ Target: "reached in 0:30", Resets: "2" });
     m.divergenceResets = 1;

@@ -34,7 +34,13 @@ export interface HudLines {
   reached: boolean;
 }
 
-export function hudLines(state: DeviceState | undefined, metrics: Metrics | undefined, target: string): HudLines {
+/** The HUD's lines; `showDistance` false (an assessment) leaves the remaining distance out. */
+export function hudLines(
+  state: DeviceState | undefined,
+  metrics: Metrics | undefined,
+  target: string,
+  showDistance = true,
+): HudLines {
   const force = state ? largestWallForce(state) : 0;
   const reached = metrics?.targetReached ?? false;
   return {
@@ -47,7 +53,7 @@ export function hudLines(state: DeviceState | undefined, metrics: Metrics | unde
     target: target
       ? reached
         ? `${target} reached in ${clock(attemptTime(metrics))}`
-        : metrics
+        : metrics && showDistance
           ? `${target} · ${metrics.targetRemainingMm.toFixed(0)} mm`
           : target
       : "—",

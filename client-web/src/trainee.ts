@@ -13,6 +13,7 @@ import {
 } from "./gen/cathlab/v1/simulator_pb.js";
 import { showFrames } from "./frames.js";
 import { doseLine, hudLines } from "./hud.js";
+import { drawMarker } from "./marker.js";
 import { type ConnectionStatus, keepOpen } from "./reconnect.js";
 
 const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
@@ -48,6 +49,7 @@ async function join(): Promise<Joined> {
   const created = await anonymous.createSession({
     scene: { case: "sceneName", value: scene },
     label: params.get("label") ?? "trainee",
+    assessment: params.get("assessment") === "1",
   });
   return remember({ id: created.sessionId, token: created.controllerToken, readOnly: false });
 }
@@ -116,6 +118,11 @@ async function main() {
   for (const [i, name] of (scene?.devices ?? []).entries()) device.add(new Option(name, String(i)));
   device.value = String(info.activeDevice);
   const target = scene?.target ?? "";
+  // Guidance the session allows (an assessment turns it off; an older server sends none).
+  const guidance = info.guidance ?? { targetMarker: true, targetDistance: true, prompts: true };
+  document.body.dataset.guidance = guidance.prompts ? "on" : "off";
+  if (!guidance.prompts) $("prompt").hidden = true;
+  if (!guidance.targetDistance) $("hud-target-title").textContent = "Target";
 
   let state: DeviceState | undefined;
   let metrics: Metrics | undefined;
@@ -130,7 +137,7 @@ async function main() {
     hudPending = true;
     setTimeout(() => {
       hudPending = false;
-      const lines = hudLines(state, metrics, target);
+      const lines = hudLines(state, metrics, target, guidance.targetDistance);
       $("hud-inserted").textContent = lines.inserted;
       $("hud-twist").textContent = lines.twist;
       $("hud-fluoro").textContent = lines.fluoroscopy;
@@ -177,7 +184,7 @@ async function main() {
         if (metrics && metrics.divergenceResets > resets) {
           say("The simulation diverged and the device was put back at its start.");
         }
-        if (metrics?.targetReached && !reached) say(`Target ${target} reached.`, "success");
+        if (metrics?.targetReached && !reached && guidance.prompts) say(`Target ${target} reached.`, "success");
         resets = metrics?.divergenceResets ?? 0;
         reached = metrics?.targetReached ?? false;
         redraw();
@@ -198,6 +205,7 @@ async function main() {
       $("frame-info").textContent = `frame ${frame.index} · t ${frame.timeS.toFixed(2)} s`;
       $("dose").textContent = doseLine(frame);
       $("prompt").hidden = true;
+      drawMarker($<HTMLElement>("target-marker") as unknown as SVGSVGElement, frame, target);
       // The imaging buttons follow the server's mode (after a reload, or a refused command).
       $("dsa").setAttribute("aria-pressed", String(frame.mode === ImagingMode.SUBTRACTION));
       $("roadmap").setAttribute("aria-pressed", String(frame.mode === ImagingMode.ROADMAP));
@@ -357,7 +365,7 @@ function controls(client: SimulatorClient, sessionId: string) {
   primary.addEventListener("change", carm);
   secondary.addEventListener("change", carm);
   $<HTMLSelectElement>("zoom").addEventListener("change", (e) => {
-    $("xray").style.transform = `scale(${(e.target as HTMLSelectElement).value})`;
+    $("stage").style.transform = `scale(${(e.target as HTMLSelectElement).value})`;
   });
 }
 

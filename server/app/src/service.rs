@@ -14,6 +14,7 @@ use cathlab_api::{
     state_to_wire, status_of, timing_to_wire,
 };
 use cathlab_engine::engine::SceneSource;
+use cathlab_engine::scene::GuidanceSpec;
 use cathlab_engine::session::Session;
 use cathlab_engine::{CommandRecord, Encoding, Engine, EngineError, SceneFormat, SceneSpec};
 use parking_lot::RwLock;
@@ -174,6 +175,7 @@ impl SimulatorService {
             commands: session.commands_recorded(),
             active_device: state.active_device,
             observer_token: String::new(),
+            guidance: Some(guidance_to_wire(&session.assets().spec.guidance)),
         }
     }
 
@@ -199,6 +201,9 @@ impl SimulatorService {
             commands: self.store.command_count(&s.id).map_err(store_status)?,
             active_device: 0,
             observer_token: String::new(),
+            guidance: serde_json::from_str::<SceneSpec>(&s.scene_json)
+                .ok()
+                .map(|spec| guidance_to_wire(&spec.guidance)),
         })
     }
 
@@ -279,7 +284,10 @@ impl Simulator for SimulatorService {
         if r.label.len() > 200 {
             return Err(Status::invalid_argument("label: longer than 200 bytes"));
         }
-        let (spec, base) = self.engine.scene(&source).map_err(engine_status)?;
+        let (mut spec, base) = self.engine.scene(&source).map_err(engine_status)?;
+        if r.assessment {
+            spec.guidance = GuidanceSpec::off();
+        }
         let id = random_hex(16);
         let tokens = Tokens {
             controller: random_hex(24),
@@ -581,6 +589,12 @@ impl Simulator for SimulatorService {
                             skipped,
                             reference_air_kerma_mgy: frame.dose.reference_air_kerma_mgy,
                             kerma_area_product_gy_cm2: frame.dose.kerma_area_product_gy_cm2,
+                            target_outline: frame
+                                .target_outline
+                                .iter()
+                                .flatten()
+                                .copied()
+                                .collect(),
                         }),
                         Ok(Err(e)) => Err(engine_status(e)),
                         Err(e) => Err(Status::internal(e.to_string())),
@@ -755,4 +769,12 @@ pub fn replay_stored(engine: &Engine, store: &Store, id: &str) -> Result<pb::Rep
         replayed_digest: format!("{:016x}", outcome.replayed_digest),
         metrics: Some(metrics_to_wire(&outcome.metrics)),
     })
+}
+
+fn guidance_to_wire(g: &GuidanceSpec) -> pb::Guidance {
+    pb::Guidance {
+        target_marker: g.target_marker,
+        target_distance: g.target_distance,
+        prompts: g.prompts,
+    }
 }

@@ -172,7 +172,79 @@ async fn push_advances_the_tip_frames_decode_and_observers_see_the_same_state() 
         let (lo, hi) = (grey.iter().min().unwrap(), grey.iter().max().unwrap());
         assert!(hi > lo, "{encoding:?}: a flat image");
         assert_eq!(frame.mode, pb::ImagingMode::Fluoroscopy as i32);
+        // The guided scene outlines its target: the LCCA's first 50 mm, inside the image.
+        let outline = &frame.target_outline;
+        assert!(
+            outline.len() >= 2 * 10 && outline.len() % 2 == 0,
+            "{outline:?}"
+        );
+        assert!(
+            outline.iter().all(|f| (0.0..=1.0).contains(f)),
+            "{outline:?}"
+        );
     }
+    let info = client
+        .get_session(authed(
+            pb::GetSessionRequest {
+                session_id: id.clone(),
+            },
+            &session.observer_token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let guidance = info.guidance.expect("guidance");
+    assert!(guidance.target_marker && guidance.target_distance && guidance.prompts);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_assessment_session_runs_without_guidance() {
+    let server = shared();
+    let mut client = server.client().await;
+    let session = client
+        .create_session(pb::CreateSessionRequest {
+            scene: Some(pb::create_session_request::Scene::SceneName(
+                "arch_to_cow_lcca".into(),
+            )),
+            label: "assessment".into(),
+            assessment: true,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let guidance = session.info.clone().unwrap().guidance.expect("guidance");
+    assert!(!guidance.target_marker && !guidance.target_distance && !guidance.prompts);
+    send(
+        &mut client,
+        &session,
+        1,
+        command(pb::command::Kind::Fluoroscopy(true)),
+    )
+    .await
+    .unwrap();
+    let mut frames = client
+        .stream_frames(authed(
+            pb::StreamFramesRequest {
+                session_id: session.session_id.clone(),
+                encoding: pb::FrameEncoding::Raw8 as i32,
+                width: 64,
+                height: 64,
+                jpeg_quality: 0,
+            },
+            &session.observer_token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let frame = tokio::time::timeout(Duration::from_secs(60), frames.message())
+        .await
+        .expect("a frame within a minute")
+        .unwrap()
+        .unwrap();
+    assert!(
+        frame.target_outline.is_empty(),
+        "no marker in an assessment"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -385,6 +457,7 @@ async fn bad_input_gets_named_errors() {
                     text.to_owned(),
                 )),
                 label: String::new(),
+                ..Default::default()
             })
             .await
             .unwrap_err();
@@ -402,6 +475,7 @@ async fn bad_input_gets_named_errors() {
         .create_session(pb::CreateSessionRequest {
             scene: Some(pb::create_session_request::Scene::SceneToml(huge)),
             label: String::new(),
+            ..Default::default()
         })
         .await
         .unwrap_err();
@@ -706,6 +780,7 @@ async fn a_diverging_session_is_reset_and_reported_while_others_go_on() {
         .create_session(pb::CreateSessionRequest {
             scene: Some(pb::create_session_request::Scene::SceneToml(coarse)),
             label: "coarse".into(),
+            ..Default::default()
         })
         .await
         .unwrap()

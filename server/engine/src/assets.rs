@@ -54,6 +54,8 @@ pub struct SceneAssets {
     /// How far along the route the target counts as reached (m): the route up to the target
     /// branch plus `target.reach_mm`.
     pub goal_along_m: f64,
+    /// The target: the route's last `target.reach_mm` before the goal, every 2 mm (LPS, m).
+    pub target_path_lps: Vec<Point3<f64>>,
     /// The C-arm at the start.
     pub carm: CArm,
     /// The flow network (vessel i = graph branch i), when the scene has flow.
@@ -359,7 +361,17 @@ impl AssetCache {
             .map(|leg| (leg.to_arc - leg.from_arc).abs())
             .sum::<f64>()
             + spec.target.reach_mm * 1e-3;
+        let goal = (goal_along_m / ROUTE_SPACING_M).round() as usize;
+        let reach = (spec.target.reach_mm * 1e-3 / ROUTE_SPACING_M).round() as usize;
+        let target_path_lps = route_samples
+            .get(goal.saturating_sub(reach)..=goal.min(route_samples.len().saturating_sub(1)))
+            .unwrap_or_default()
+            .iter()
+            .step_by(2)
+            .map(|p| Point3::from(to_lps * p.coords))
+            .collect();
         Ok(SceneAssets {
+            target_path_lps,
             spec: spec.clone(),
             anatomy,
             to_lps,

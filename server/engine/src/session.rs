@@ -87,6 +87,9 @@ pub struct RenderedFrame {
     pub step: u64,
     /// Dose accumulated by the session's exposures up to this frame.
     pub dose: DoseTally,
+    /// The target vessel projected into the image as (x, y) fractions of its width and height
+    /// from the top-left, when the scene's guidance shows the marker; empty otherwise.
+    pub target_outline: Vec<[f32; 2]>,
 }
 
 /// Session threads' knobs.
@@ -542,6 +545,7 @@ fn render_loop(mut r: RenderLoop) {
                         last_seq: snapshot.last_seq,
                         step: snapshot.step,
                         dose: r.fluoroscope.dose(),
+                        target_outline: target_outline(&r.assets, &carm),
                     })));
                 }
             }
@@ -556,4 +560,30 @@ fn render_loop(mut r: RenderLoop) {
             }
         }
     }
+}
+
+/// The scene's target path projected by `carm` into image fractions (empty when the scene's
+/// guidance hides the marker).
+pub fn target_outline(assets: &SceneAssets, carm: &cathlab_xray::CArm) -> Vec<[f32; 2]> {
+    if !assets.spec.guidance.target_marker {
+        return Vec::new();
+    }
+    let (w, h) = (
+        f64::from(carm.detector.width_px),
+        f64::from(carm.detector.height_px),
+    );
+    let projection = carm.projection_matrix();
+    assets
+        .target_path_lps
+        .iter()
+        .filter_map(|p| {
+            let q = projection * p.to_homogeneous();
+            (q.z > 0.0).then(|| {
+                [
+                    ((q.x / q.z + 0.5) / w) as f32,
+                    ((q.y / q.z + 0.5) / h) as f32,
+                ]
+            })
+        })
+        .collect()
 }

@@ -158,6 +158,7 @@ async fn load_scene(
         .create_session(pb::CreateSessionRequest {
             scene: Some(scene),
             label: "load".into(),
+            ..Default::default()
         })
         .await?
         .into_inner();

@@ -115,6 +115,7 @@ pub async fn create(client: &mut SimulatorClient<Channel>) -> pb::CreateSessionR
                 "arch_to_cow_lcca".into(),
             )),
             label: "test".into(),
+            ..Default::default()
         })
         .await
         .expect("session created")

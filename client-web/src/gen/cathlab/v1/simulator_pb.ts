@@ -20,7 +20,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cathlab/v1/simulator.proto.
  */
 export const file_cathlab_v1_simulator: GenFile = /*@__PURE__*/
-  fileDesc("ChpjYXRobGFiL3YxL3NpbXVsYXRvci5wcm90bxIKY2F0aGxhYi52MSITChFMaXN0U2NlbmVzUmVxdWVzdCJkCgxTY2VuZVN1bW1hcnkSDAoEbmFtZRgBIAEoCRITCgtkZXNjcmlwdGlvbhgCIAEoCRIPCgdkZXZpY2VzGAMgAygJEhAKCGhhc19mbG93GAQgASgIEg4KBnRhcmdldBgFIAEoCSI+ChJMaXN0U2NlbmVzUmVzcG9uc2USKAoGc2NlbmVzGAEgAygLMhguY2F0aGxhYi52MS5TY2VuZVN1bW1hcnkicAoUQ3JlYXRlU2Vzc2lvblJlcXVlc3QSFAoKc2NlbmVfbmFtZRgBIAEoCUgAEhQKCnNjZW5lX3RvbWwYAiABKAlIABIUCgpzY2VuZV9qc29uGAMgASgJSAASDQoFbGFiZWwYBCABKAlCBwoFc2NlbmUihAEKFUNyZWF0ZVNlc3Npb25SZXNwb25zZRISCgpzZXNzaW9uX2lkGAEgASgJEhgKEGNvbnRyb2xsZXJfdG9rZW4YAiABKAkSFgoOb2JzZXJ2ZXJfdG9rZW4YAyABKAkSJQoEaW5mbxgEIAEoCzIXLmNhdGhsYWIudjEuU2Vzc2lvbkluZm8iLwoTTGlzdFNlc3Npb25zUmVxdWVzdBIYChBpbmNsdWRlX3JlY29yZGVkGAEgASgIIkEKFExpc3RTZXNzaW9uc1Jlc3BvbnNlEikKCHNlc3Npb25zGAEgAygLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyInChFHZXRTZXNzaW9uUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIikKE0Nsb3NlU2Vzc2lvblJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSI9ChRDbG9zZVNlc3Npb25SZXNwb25zZRIlCgRpbmZvGAEgASgLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyKoAgoLU2Vzc2lvbkluZm8SEgoKc2Vzc2lvbl9pZBgBIAEoCRISCgpzY2VuZV9uYW1lGAIgASgJEg0KBWxhYmVsGAMgASgJEikKBnN0YXR1cxgEIAEoDjIZLmNhdGhsYWIudjEuU2Vzc2lvblN0YXR1cxIWCg5jcmVhdGVkX3VuaXhfcxgFIAEoARIUCgxzdGVwX3JhdGVfaHoYBiABKAESJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcxIiCgZ0aW1pbmcYCCABKAsyEi5jYXRobGFiLnYxLlRpbWluZxIQCghjb21tYW5kcxgJIAEoBBIVCg1hY3RpdmVfZGV2aWNlGAogASgNEhYKDm9ic2VydmVyX3Rva2VuGAsgASgJIvECCgdNZXRyaWNzEhgKEHByb2NlZHVyZV90aW1lX3MYASABKAESGgoSZmx1b3Jvc2NvcHlfdGltZV9zGAIgASgBEhAKCGRzYV9ydW5zGAMgASgNEhoKEmNvbnRyYXN0X3ZvbHVtZV9tbBgEIAEoARIYChBtYXhfd2FsbF9mb3JjZV9uGAUgASgBEhkKEW1lYW5fd2FsbF9mb3JjZV9uGAYgASgBEhoKEnRpcF9wYXRoX2xlbmd0aF9tbRgHIAEoARIWCg50YXJnZXRfcmVhY2hlZBgIIAEoCBIbChN0YXJnZXRfcmVhY2hlZF9hdF9zGAkgASgBEg0KBXN0ZXBzGAogASgEEhkKEWRpdmVyZ2VuY2VfcmVzZXRzGAsgASgNEhcKD29wZXJhdG9yX3Jlc2V0cxgMIAEoDRIcChRhdHRlbXB0X3N0YXJ0ZWRfYXRfcxgNIAEoARIbChN0YXJnZXRfcmVtYWluaW5nX21tGA4gASgBIvABCgZUaW1pbmcSDQoFc3RlcHMYASABKAQSEgoKbGF0ZV9zdGVwcxgCIAEoBBIUCgxtaXNzZWRfc3RlcHMYAyABKAQSGAoQc3RlcF90aW1lX3A1MF9tcxgEIAEoARIYChBzdGVwX3RpbWVfcDk5X21zGAUgASgBEhgKEHN0ZXBfdGltZV9tYXhfbXMYBiABKAESDgoGZnJhbWVzGAcgASgEEhkKEWZyYW1lX3RpbWVfcDUwX21zGAggASgBEhkKEWZyYW1lX3RpbWVfcDk5X21zGAkgASgBEhkKEWZyYW1lX3RpbWVfbWF4X21zGAogASgBIkEKCUluc2VydGlvbhIXCg12ZWxvY2l0eV9tbV9zGAEgASgBSAASEwoJdGFyZ2V0X21tGAIgASgBSABCBgoEbW9kZSI7CgVUd2lzdBIUCgpyYXRlX2RlZ19zGAEgASgBSAASFAoKdGFyZ2V0X2RlZxgCIAEoAUgAQgYKBG1vZGUiNgoIQ0FybVBvc2USEwoLcHJpbWFyeV9kZWcYASABKAESFQoNc2Vjb25kYXJ5X2RlZxgCIAEoASIxCglJbmplY3Rpb24SEQoJdm9sdW1lX21sGAEgASgBEhEKCXJhdGVfbWxfcxgCIAEoASLAAgoHQ29tbWFuZBIqCglpbnNlcnRpb24YASABKAsyFS5jYXRobGFiLnYxLkluc2VydGlvbkgAEiIKBXR3aXN0GAIgASgLMhEuY2F0aGxhYi52MS5Ud2lzdEgAEhcKDXNlbGVjdF9kZXZpY2UYAyABKA1IABIVCgtmbHVvcm9zY29weRgEIAEoCEgAEisKCnB1bHNlX3JhdGUYBSABKA4yFS5jYXRobGFiLnYxLlB1bHNlUmF0ZUgAEg0KA2RzYRgGIAEoCEgAEhEKB3JvYWRtYXAYByABKAhIABIkCgRjYXJtGAggASgLMhQuY2F0aGxhYi52MS5DQXJtUG9zZUgAEicKBmluamVjdBgJIAEoCzIVLmNhdGhsYWIudjEuSW5qZWN0aW9uSAASDwoFcmVzZXQYCiABKAhIAEIGCgRraW5kIlsKElNlbmRDb21tYW5kUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEgsKA3NlcRgCIAEoBBIkCgdjb21tYW5kGAMgASgLMhMuY2F0aGxhYi52MS5Db21tYW5kIicKCkNvbW1hbmRBY2sSCwoDc2VxGAEgASgEEgwKBHN0ZXAYAiABKAQiVwoMQ29udHJvbElucHV0EhIKCnNlc3Npb25faWQYASABKAkSCwoDc2VxGAIgASgEEhEKCXB1c2hfbW1fcxgDIAEoARITCgt0d2lzdF9kZWdfcxgEIAEoASI3Cg1Db250cm9sT3V0cHV0EiYKBXN0YXRlGAEgASgLMhcuY2F0aGxhYi52MS5EZXZpY2VTdGF0ZSI6ChJTdHJlYW1TdGF0ZVJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCRIQCgh0aXBfb25seRgCIAEoCCInCgRWZWMzEgkKAXgYASABKAESCQoBeRgCIAEoARIJCgF6GAMgASgBIlIKC1dhbGxDb250YWN0EiIKCHBvc2l0aW9uGAEgASgLMhAuY2F0aGxhYi52MS5WZWMzEh8KBWZvcmNlGAIgASgLMhAuY2F0aGxhYi52MS5WZWMzIrEDCgtEZXZpY2VTdGF0ZRIMCgRzdGVwGAEgASgEEg4KBnRpbWVfcxgCIAEoARIQCghsYXN0X3NlcRgDIAEoBBIQCghub2Rlc19tbRgEIAMoAhIpCg90aXBfcG9zaXRpb25fbW0YBSABKAsyEC5jYXRobGFiLnYxLlZlYzMSJwoNdGlwX2RpcmVjdGlvbhgGIAEoCzIQLmNhdGhsYWIudjEuVmVjMxITCgtpbnNlcnRlZF9tbRgHIAEoARIRCgl0d2lzdF9kZWcYCCABKAESKQoIY29udGFjdHMYCSADKAsyFy5jYXRobGFiLnYxLldhbGxDb250YWN0EioKEHByb3hpbWFsX2ZvcmNlX24YCiABKAsyEC5jYXRobGFiLnYxLlZlYzMSLQoTcHJveGltYWxfdG9ycXVlX25tbRgLIAEoCzIQLmNhdGhsYWIudjEuVmVjMxIVCg1hY3RpdmVfZGV2aWNlGAwgASgNEhYKDnNlcnZlcl91bml4X3VzGA0gASgEEhUKDWF4aWFsX2ZvcmNlX24YDiABKAESGAoQYXhpYWxfdG9ycXVlX25tbRgPIAEoASKLAQoTU3RyZWFtRnJhbWVzUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEisKCGVuY29kaW5nGAIgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEg0KBXdpZHRoGAMgASgNEg4KBmhlaWdodBgEIAEoDRIUCgxqcGVnX3F1YWxpdHkYBSABKA0ioAIKCVhyYXlGcmFtZRINCgVpbmRleBgBIAEoBBIOCgZ0aW1lX3MYAiABKAESDQoFd2lkdGgYAyABKA0SDgoGaGVpZ2h0GAQgASgNEisKCGVuY29kaW5nGAUgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEgwKBGRhdGEYBiABKAwSJQoEbW9kZRgHIAEoDjIXLmNhdGhsYWIudjEuSW1hZ2luZ01vZGUSDAoEaGVsZBgIIAEoCBIQCghsYXN0X3NlcRgJIAEoBBIPCgdza2lwcGVkGAogASgEEh8KF3JlZmVyZW5jZV9haXJfa2VybWFfbWd5GAsgASgBEiEKGWtlcm1hX2FyZWFfcHJvZHVjdF9neV9jbTIYDCABKAEiKgoUU3RyZWFtTWV0cmljc1JlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSJECgVFdmVudBIMCgRzdGVwGAEgASgEEg4KBnRpbWVfcxgCIAEoARIMCgRraW5kGAMgASgJEg8KB21lc3NhZ2UYBCABKAkiYwoNU2Vzc2lvblVwZGF0ZRImCgdtZXRyaWNzGAEgASgLMhMuY2F0aGxhYi52MS5NZXRyaWNzSAASIgoFZXZlbnQYAiABKAsyES5jYXRobGFiLnYxLkV2ZW50SABCBgoEa2luZCInChFHZXRBbmF0b215UmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIjsKBkJyYW5jaBIMCgRuYW1lGAEgASgJEhEKCXBvaW50c19tbRgCIAMoAhIQCghyYWRpaV9tbRgDIAMoAiKMAQoHQW5hdG9teRIkCghicmFuY2hlcxgBIAMoCzISLmNhdGhsYWIudjEuQnJhbmNoEhMKC3ZlcnRpY2VzX21tGAIgAygCEhEKCXRyaWFuZ2xlcxgDIAMoDRIjCglhY2Nlc3NfbW0YBCABKAsyEC5jYXRobGFiLnYxLlZlYzMSDgoGdGFyZ2V0GAUgASgJIioKFFJlcGxheVNlc3Npb25SZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkirQEKDFJlcGxheVJlc3VsdBINCgVzdGVwcxgBIAEoBBIQCghjb21tYW5kcxgCIAEoDRITCgtjaGVja3BvaW50cxgDIAEoDRIPCgdtYXRjaGVkGAQgASgNEhcKD3JlY29yZGVkX2RpZ2VzdBgFIAEoCRIXCg9yZXBsYXllZF9kaWdlc3QYBiABKAkSJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcyqGAQoNU2Vzc2lvblN0YXR1cxIeChpTRVNTSU9OX1NUQVRVU19VTlNQRUNJRklFRBAAEhoKFlNFU1NJT05fU1RBVFVTX1JVTk5JTkcQARIZChVTRVNTSU9OX1NUQVRVU19DTE9TRUQQAhIeChpTRVNTSU9OX1NUQVRVU19JTlRFUlJVUFRFRBADKmEKCVB1bHNlUmF0ZRIaChZQVUxTRV9SQVRFX1VOU1BFQ0lGSUVEEAASEgoOUFVMU0VfUkFURV83XzUQARIRCg1QVUxTRV9SQVRFXzE1EAISEQoNUFVMU0VfUkFURV8zMBADKpMBCg1GcmFtZUVuY29kaW5nEh4KGkZSQU1FX0VOQ09ESU5HX1VOU1BFQ0lGSUVEEAASFwoTRlJBTUVfRU5DT0RJTkdfUkFXOBABEhgKFEZSQU1FX0VOQ09ESU5HX1JBVzE2EAISFgoSRlJBTUVfRU5DT0RJTkdfUE5HEAMSFwoTRlJBTUVfRU5DT0RJTkdfSlBFRxAEKoEBCgtJbWFnaW5nTW9kZRIcChhJTUFHSU5HX01PREVfVU5TUEVDSUZJRUQQABIcChhJTUFHSU5HX01PREVfRkxVT1JPU0NPUFkQARIcChhJTUFHSU5HX01PREVfU1VCVFJBQ1RJT04QAhIYChRJTUFHSU5HX01PREVfUk9BRE1BUBADMpgHCglTaW11bGF0b3ISSwoKTGlzdFNjZW5lcxIdLmNhdGhsYWIudjEuTGlzdFNjZW5lc1JlcXVlc3QaHi5jYXRobGFiLnYxLkxpc3RTY2VuZXNSZXNwb25zZRJUCg1DcmVhdGVTZXNzaW9uEiAuY2F0aGxhYi52MS5DcmVhdGVTZXNzaW9uUmVxdWVzdBohLmNhdGhsYWIudjEuQ3JlYXRlU2Vzc2lvblJlc3BvbnNlElEKDExpc3RTZXNzaW9ucxIfLmNhdGhsYWIudjEuTGlzdFNlc3Npb25zUmVxdWVzdBogLmNhdGhsYWIudjEuTGlzdFNlc3Npb25zUmVzcG9uc2USRAoKR2V0U2Vzc2lvbhIdLmNhdGhsYWIudjEuR2V0U2Vzc2lvblJlcXVlc3QaFy5jYXRobGFiLnYxLlNlc3Npb25JbmZvElEKDENsb3NlU2Vzc2lvbhIfLmNhdGhsYWIudjEuQ2xvc2VTZXNzaW9uUmVxdWVzdBogLmNhdGhsYWIudjEuQ2xvc2VTZXNzaW9uUmVzcG9uc2USRQoLU2VuZENvbW1hbmQSHi5jYXRobGFiLnYxLlNlbmRDb21tYW5kUmVxdWVzdBoWLmNhdGhsYWIudjEuQ29tbWFuZEFjaxJCCgdDb250cm9sEhguY2F0aGxhYi52MS5Db250cm9sSW5wdXQaGS5jYXRobGFiLnYxLkNvbnRyb2xPdXRwdXQoATABEkgKC1N0cmVhbVN0YXRlEh4uY2F0aGxhYi52MS5TdHJlYW1TdGF0ZVJlcXVlc3QaFy5jYXRobGFiLnYxLkRldmljZVN0YXRlMAESSAoMU3RyZWFtRnJhbWVzEh8uY2F0aGxhYi52MS5TdHJlYW1GcmFtZXNSZXF1ZXN0GhUuY2F0aGxhYi52MS5YcmF5RnJhbWUwARJOCg1TdHJlYW1NZXRyaWNzEiAuY2F0aGxhYi52MS5TdHJlYW1NZXRyaWNzUmVxdWVzdBoZLmNhdGhsYWIudjEuU2Vzc2lvblVwZGF0ZTABEkAKCkdldEFuYXRvbXkSHS5jYXRobGFiLnYxLkdldEFuYXRvbXlSZXF1ZXN0GhMuY2F0aGxhYi52MS5BbmF0b215EksKDVJlcGxheVNlc3Npb24SIC5jYXRobGFiLnYxLlJlcGxheVNlc3Npb25SZXF1ZXN0GhguY2F0aGxhYi52MS5SZXBsYXlSZXN1bHRiBnByb3RvMw");
+  fileDesc("ChpjYXRobGFiL3YxL3NpbXVsYXRvci5wcm90bxIKY2F0aGxhYi52MSITChFMaXN0U2NlbmVzUmVxdWVzdCJkCgxTY2VuZVN1bW1hcnkSDAoEbmFtZRgBIAEoCRITCgtkZXNjcmlwdGlvbhgCIAEoCRIPCgdkZXZpY2VzGAMgAygJEhAKCGhhc19mbG93GAQgASgIEg4KBnRhcmdldBgFIAEoCSI+ChJMaXN0U2NlbmVzUmVzcG9uc2USKAoGc2NlbmVzGAEgAygLMhguY2F0aGxhYi52MS5TY2VuZVN1bW1hcnkihAEKFENyZWF0ZVNlc3Npb25SZXF1ZXN0EhQKCnNjZW5lX25hbWUYASABKAlIABIUCgpzY2VuZV90b21sGAIgASgJSAASFAoKc2NlbmVfanNvbhgDIAEoCUgAEg0KBWxhYmVsGAQgASgJEhIKCmFzc2Vzc21lbnQYBSABKAhCBwoFc2NlbmUiSwoIR3VpZGFuY2USFQoNdGFyZ2V0X21hcmtlchgBIAEoCBIXCg90YXJnZXRfZGlzdGFuY2UYAiABKAgSDwoHcHJvbXB0cxgDIAEoCCKEAQoVQ3JlYXRlU2Vzc2lvblJlc3BvbnNlEhIKCnNlc3Npb25faWQYASABKAkSGAoQY29udHJvbGxlcl90b2tlbhgCIAEoCRIWCg5vYnNlcnZlcl90b2tlbhgDIAEoCRIlCgRpbmZvGAQgASgLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyIvChNMaXN0U2Vzc2lvbnNSZXF1ZXN0EhgKEGluY2x1ZGVfcmVjb3JkZWQYASABKAgiQQoUTGlzdFNlc3Npb25zUmVzcG9uc2USKQoIc2Vzc2lvbnMYASADKAsyFy5jYXRobGFiLnYxLlNlc3Npb25JbmZvIicKEUdldFNlc3Npb25SZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkiKQoTQ2xvc2VTZXNzaW9uUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIj0KFENsb3NlU2Vzc2lvblJlc3BvbnNlEiUKBGluZm8YASABKAsyFy5jYXRobGFiLnYxLlNlc3Npb25JbmZvItACCgtTZXNzaW9uSW5mbxISCgpzZXNzaW9uX2lkGAEgASgJEhIKCnNjZW5lX25hbWUYAiABKAkSDQoFbGFiZWwYAyABKAkSKQoGc3RhdHVzGAQgASgOMhkuY2F0aGxhYi52MS5TZXNzaW9uU3RhdHVzEhYKDmNyZWF0ZWRfdW5peF9zGAUgASgBEhQKDHN0ZXBfcmF0ZV9oehgGIAEoARIkCgdtZXRyaWNzGAcgASgLMhMuY2F0aGxhYi52MS5NZXRyaWNzEiIKBnRpbWluZxgIIAEoCzISLmNhdGhsYWIudjEuVGltaW5nEhAKCGNvbW1hbmRzGAkgASgEEhUKDWFjdGl2ZV9kZXZpY2UYCiABKA0SFgoOb2JzZXJ2ZXJfdG9rZW4YCyABKAkSJgoIZ3VpZGFuY2UYDCABKAsyFC5jYXRobGFiLnYxLkd1aWRhbmNlIvECCgdNZXRyaWNzEhgKEHByb2NlZHVyZV90aW1lX3MYASABKAESGgoSZmx1b3Jvc2NvcHlfdGltZV9zGAIgASgBEhAKCGRzYV9ydW5zGAMgASgNEhoKEmNvbnRyYXN0X3ZvbHVtZV9tbBgEIAEoARIYChBtYXhfd2FsbF9mb3JjZV9uGAUgASgBEhkKEW1lYW5fd2FsbF9mb3JjZV9uGAYgASgBEhoKEnRpcF9wYXRoX2xlbmd0aF9tbRgHIAEoARIWCg50YXJnZXRfcmVhY2hlZBgIIAEoCBIbChN0YXJnZXRfcmVhY2hlZF9hdF9zGAkgASgBEg0KBXN0ZXBzGAogASgEEhkKEWRpdmVyZ2VuY2VfcmVzZXRzGAsgASgNEhcKD29wZXJhdG9yX3Jlc2V0cxgMIAEoDRIcChRhdHRlbXB0X3N0YXJ0ZWRfYXRfcxgNIAEoARIbChN0YXJnZXRfcmVtYWluaW5nX21tGA4gASgBIvABCgZUaW1pbmcSDQoFc3RlcHMYASABKAQSEgoKbGF0ZV9zdGVwcxgCIAEoBBIUCgxtaXNzZWRfc3RlcHMYAyABKAQSGAoQc3RlcF90aW1lX3A1MF9tcxgEIAEoARIYChBzdGVwX3RpbWVfcDk5X21zGAUgASgBEhgKEHN0ZXBfdGltZV9tYXhfbXMYBiABKAESDgoGZnJhbWVzGAcgASgEEhkKEWZyYW1lX3RpbWVfcDUwX21zGAggASgBEhkKEWZyYW1lX3RpbWVfcDk5X21zGAkgASgBEhkKEWZyYW1lX3RpbWVfbWF4X21zGAogASgBIkEKCUluc2VydGlvbhIXCg12ZWxvY2l0eV9tbV9zGAEgASgBSAASEwoJdGFyZ2V0X21tGAIgASgBSABCBgoEbW9kZSI7CgVUd2lzdBIUCgpyYXRlX2RlZ19zGAEgASgBSAASFAoKdGFyZ2V0X2RlZxgCIAEoAUgAQgYKBG1vZGUiNgoIQ0FybVBvc2USEwoLcHJpbWFyeV9kZWcYASABKAESFQoNc2Vjb25kYXJ5X2RlZxgCIAEoASIxCglJbmplY3Rpb24SEQoJdm9sdW1lX21sGAEgASgBEhEKCXJhdGVfbWxfcxgCIAEoASLAAgoHQ29tbWFuZBIqCglpbnNlcnRpb24YASABKAsyFS5jYXRobGFiLnYxLkluc2VydGlvbkgAEiIKBXR3aXN0GAIgASgLMhEuY2F0aGxhYi52MS5Ud2lzdEgAEhcKDXNlbGVjdF9kZXZpY2UYAyABKA1IABIVCgtmbHVvcm9zY29weRgEIAEoCEgAEisKCnB1bHNlX3JhdGUYBSABKA4yFS5jYXRobGFiLnYxLlB1bHNlUmF0ZUgAEg0KA2RzYRgGIAEoCEgAEhEKB3JvYWRtYXAYByABKAhIABIkCgRjYXJtGAggASgLMhQuY2F0aGxhYi52MS5DQXJtUG9zZUgAEicKBmluamVjdBgJIAEoCzIVLmNhdGhsYWIudjEuSW5qZWN0aW9uSAASDwoFcmVzZXQYCiABKAhIAEIGCgRraW5kIlsKElNlbmRDb21tYW5kUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEgsKA3NlcRgCIAEoBBIkCgdjb21tYW5kGAMgASgLMhMuY2F0aGxhYi52MS5Db21tYW5kIicKCkNvbW1hbmRBY2sSCwoDc2VxGAEgASgEEgwKBHN0ZXAYAiABKAQiVwoMQ29udHJvbElucHV0EhIKCnNlc3Npb25faWQYASABKAkSCwoDc2VxGAIgASgEEhEKCXB1c2hfbW1fcxgDIAEoARITCgt0d2lzdF9kZWdfcxgEIAEoASI3Cg1Db250cm9sT3V0cHV0EiYKBXN0YXRlGAEgASgLMhcuY2F0aGxhYi52MS5EZXZpY2VTdGF0ZSI6ChJTdHJlYW1TdGF0ZVJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCRIQCgh0aXBfb25seRgCIAEoCCInCgRWZWMzEgkKAXgYASABKAESCQoBeRgCIAEoARIJCgF6GAMgASgBIlIKC1dhbGxDb250YWN0EiIKCHBvc2l0aW9uGAEgASgLMhAuY2F0aGxhYi52MS5WZWMzEh8KBWZvcmNlGAIgASgLMhAuY2F0aGxhYi52MS5WZWMzIrEDCgtEZXZpY2VTdGF0ZRIMCgRzdGVwGAEgASgEEg4KBnRpbWVfcxgCIAEoARIQCghsYXN0X3NlcRgDIAEoBBIQCghub2Rlc19tbRgEIAMoAhIpCg90aXBfcG9zaXRpb25fbW0YBSABKAsyEC5jYXRobGFiLnYxLlZlYzMSJwoNdGlwX2RpcmVjdGlvbhgGIAEoCzIQLmNhdGhsYWIudjEuVmVjMxITCgtpbnNlcnRlZF9tbRgHIAEoARIRCgl0d2lzdF9kZWcYCCABKAESKQoIY29udGFjdHMYCSADKAsyFy5jYXRobGFiLnYxLldhbGxDb250YWN0EioKEHByb3hpbWFsX2ZvcmNlX24YCiABKAsyEC5jYXRobGFiLnYxLlZlYzMSLQoTcHJveGltYWxfdG9ycXVlX25tbRgLIAEoCzIQLmNhdGhsYWIudjEuVmVjMxIVCg1hY3RpdmVfZGV2aWNlGAwgASgNEhYKDnNlcnZlcl91bml4X3VzGA0gASgEEhUKDWF4aWFsX2ZvcmNlX24YDiABKAESGAoQYXhpYWxfdG9ycXVlX25tbRgPIAEoASKLAQoTU3RyZWFtRnJhbWVzUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEisKCGVuY29kaW5nGAIgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEg0KBXdpZHRoGAMgASgNEg4KBmhlaWdodBgEIAEoDRIUCgxqcGVnX3F1YWxpdHkYBSABKA0iuAIKCVhyYXlGcmFtZRINCgVpbmRleBgBIAEoBBIOCgZ0aW1lX3MYAiABKAESDQoFd2lkdGgYAyABKA0SDgoGaGVpZ2h0GAQgASgNEisKCGVuY29kaW5nGAUgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEgwKBGRhdGEYBiABKAwSJQoEbW9kZRgHIAEoDjIXLmNhdGhsYWIudjEuSW1hZ2luZ01vZGUSDAoEaGVsZBgIIAEoCBIQCghsYXN0X3NlcRgJIAEoBBIPCgdza2lwcGVkGAogASgEEh8KF3JlZmVyZW5jZV9haXJfa2VybWFfbWd5GAsgASgBEiEKGWtlcm1hX2FyZWFfcHJvZHVjdF9neV9jbTIYDCABKAESFgoOdGFyZ2V0X291dGxpbmUYDSADKAIiKgoUU3RyZWFtTWV0cmljc1JlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSJECgVFdmVudBIMCgRzdGVwGAEgASgEEg4KBnRpbWVfcxgCIAEoARIMCgRraW5kGAMgASgJEg8KB21lc3NhZ2UYBCABKAkiYwoNU2Vzc2lvblVwZGF0ZRImCgdtZXRyaWNzGAEgASgLMhMuY2F0aGxhYi52MS5NZXRyaWNzSAASIgoFZXZlbnQYAiABKAsyES5jYXRobGFiLnYxLkV2ZW50SABCBgoEa2luZCInChFHZXRBbmF0b215UmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIjsKBkJyYW5jaBIMCgRuYW1lGAEgASgJEhEKCXBvaW50c19tbRgCIAMoAhIQCghyYWRpaV9tbRgDIAMoAiKMAQoHQW5hdG9teRIkCghicmFuY2hlcxgBIAMoCzISLmNhdGhsYWIudjEuQnJhbmNoEhMKC3ZlcnRpY2VzX21tGAIgAygCEhEKCXRyaWFuZ2xlcxgDIAMoDRIjCglhY2Nlc3NfbW0YBCABKAsyEC5jYXRobGFiLnYxLlZlYzMSDgoGdGFyZ2V0GAUgASgJIioKFFJlcGxheVNlc3Npb25SZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkirQEKDFJlcGxheVJlc3VsdBINCgVzdGVwcxgBIAEoBBIQCghjb21tYW5kcxgCIAEoDRITCgtjaGVja3BvaW50cxgDIAEoDRIPCgdtYXRjaGVkGAQgASgNEhcKD3JlY29yZGVkX2RpZ2VzdBgFIAEoCRIXCg9yZXBsYXllZF9kaWdlc3QYBiABKAkSJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcyqGAQoNU2Vzc2lvblN0YXR1cxIeChpTRVNTSU9OX1NUQVRVU19VTlNQRUNJRklFRBAAEhoKFlNFU1NJT05fU1RBVFVTX1JVTk5JTkcQARIZChVTRVNTSU9OX1NUQVRVU19DTE9TRUQQAhIeChpTRVNTSU9OX1NUQVRVU19JTlRFUlJVUFRFRBADKmEKCVB1bHNlUmF0ZRIaChZQVUxTRV9SQVRFX1VOU1BFQ0lGSUVEEAASEgoOUFVMU0VfUkFURV83XzUQARIRCg1QVUxTRV9SQVRFXzE1EAISEQoNUFVMU0VfUkFURV8zMBADKpMBCg1GcmFtZUVuY29kaW5nEh4KGkZSQU1FX0VOQ09ESU5HX1VOU1BFQ0lGSUVEEAASFwoTRlJBTUVfRU5DT0RJTkdfUkFXOBABEhgKFEZSQU1FX0VOQ09ESU5HX1JBVzE2EAISFgoSRlJBTUVfRU5DT0RJTkdfUE5HEAMSFwoTRlJBTUVfRU5DT0RJTkdfSlBFRxAEKoEBCgtJbWFnaW5nTW9kZRIcChhJTUFHSU5HX01PREVfVU5TUEVDSUZJRUQQABIcChhJTUFHSU5HX01PREVfRkxVT1JPU0NPUFkQARIcChhJTUFHSU5HX01PREVfU1VCVFJBQ1RJT04QAhIYChRJTUFHSU5HX01PREVfUk9BRE1BUBADMpgHCglTaW11bGF0b3ISSwoKTGlzdFNjZW5lcxIdLmNhdGhsYWIudjEuTGlzdFNjZW5lc1JlcXVlc3QaHi5jYXRobGFiLnYxLkxpc3RTY2VuZXNSZXNwb25zZRJUCg1DcmVhdGVTZXNzaW9uEiAuY2F0aGxhYi52MS5DcmVhdGVTZXNzaW9uUmVxdWVzdBohLmNhdGhsYWIudjEuQ3JlYXRlU2Vzc2lvblJlc3BvbnNlElEKDExpc3RTZXNzaW9ucxIfLmNhdGhsYWIudjEuTGlzdFNlc3Npb25zUmVxdWVzdBogLmNhdGhsYWIudjEuTGlzdFNlc3Npb25zUmVzcG9uc2USRAoKR2V0U2Vzc2lvbhIdLmNhdGhsYWIudjEuR2V0U2Vzc2lvblJlcXVlc3QaFy5jYXRobGFiLnYxLlNlc3Npb25JbmZvElEKDENsb3NlU2Vzc2lvbhIfLmNhdGhsYWIudjEuQ2xvc2VTZXNzaW9uUmVxdWVzdBogLmNhdGhsYWIudjEuQ2xvc2VTZXNzaW9uUmVzcG9uc2USRQoLU2VuZENvbW1hbmQSHi5jYXRobGFiLnYxLlNlbmRDb21tYW5kUmVxdWVzdBoWLmNhdGhsYWIudjEuQ29tbWFuZEFjaxJCCgdDb250cm9sEhguY2F0aGxhYi52MS5Db250cm9sSW5wdXQaGS5jYXRobGFiLnYxLkNvbnRyb2xPdXRwdXQoATABEkgKC1N0cmVhbVN0YXRlEh4uY2F0aGxhYi52MS5TdHJlYW1TdGF0ZVJlcXVlc3QaFy5jYXRobGFiLnYxLkRldmljZVN0YXRlMAESSAoMU3RyZWFtRnJhbWVzEh8uY2F0aGxhYi52MS5TdHJlYW1GcmFtZXNSZXF1ZXN0GhUuY2F0aGxhYi52MS5YcmF5RnJhbWUwARJOCg1TdHJlYW1NZXRyaWNzEiAuY2F0aGxhYi52MS5TdHJlYW1NZXRyaWNzUmVxdWVzdBoZLmNhdGhsYWIudjEuU2Vzc2lvblVwZGF0ZTABEkAKCkdldEFuYXRvbXkSHS5jYXRobGFiLnYxLkdldEFuYXRvbXlSZXF1ZXN0GhMuY2F0aGxhYi52MS5BbmF0b215EksKDVJlcGxheVNlc3Npb24SIC5jYXRobGFiLnYxLlJlcGxheVNlc3Npb25SZXF1ZXN0GhguY2F0aGxhYi52MS5SZXBsYXlSZXN1bHRiBnByb3RvMw");
 
 /**
  * @generated from message cathlab.v1.ListScenesRequest
@@ -130,6 +130,14 @@ export type CreateSessionRequest = Message<"cathlab.v1.CreateSessionRequest"> & 
    * @generated from field: string label = 4;
    */
   label: string;
+
+  /**
+   * An assessment: the session runs with no guidance (no target marker, no remaining
+   * distance, no prompts), whatever the scene says.
+   *
+   * @generated from field: bool assessment = 5;
+   */
+  assessment: boolean;
 };
 
 /**
@@ -138,6 +146,42 @@ export type CreateSessionRequest = Message<"cathlab.v1.CreateSessionRequest"> & 
  */
 export const CreateSessionRequestSchema: GenMessage<CreateSessionRequest> = /*@__PURE__*/
   messageDesc(file_cathlab_v1_simulator, 3);
+
+/**
+ * What the trainee's page shows to guide (all on unless the scene or an assessment turns it
+ * off).
+ *
+ * @generated from message cathlab.v1.Guidance
+ */
+export type Guidance = Message<"cathlab.v1.Guidance"> & {
+  /**
+   * The target vessel outlined on subtraction and roadmap images (XrayFrame.target_outline).
+   *
+   * @generated from field: bool target_marker = 1;
+   */
+  targetMarker: boolean;
+
+  /**
+   * The remaining distance to the target in the HUD.
+   *
+   * @generated from field: bool target_distance = 2;
+   */
+  targetDistance: boolean;
+
+  /**
+   * Prompts: "hold F for fluoroscopy" and the target-reached banner.
+   *
+   * @generated from field: bool prompts = 3;
+   */
+  prompts: boolean;
+};
+
+/**
+ * Describes the message cathlab.v1.Guidance.
+ * Use `create(GuidanceSchema)` to create a new message.
+ */
+export const GuidanceSchema: GenMessage<Guidance> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 4);
 
 /**
  * @generated from message cathlab.v1.CreateSessionResponse
@@ -173,7 +217,7 @@ export type CreateSessionResponse = Message<"cathlab.v1.CreateSessionResponse"> 
  * Use `create(CreateSessionResponseSchema)` to create a new message.
  */
 export const CreateSessionResponseSchema: GenMessage<CreateSessionResponse> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 4);
+  messageDesc(file_cathlab_v1_simulator, 5);
 
 /**
  * @generated from message cathlab.v1.ListSessionsRequest
@@ -192,7 +236,7 @@ export type ListSessionsRequest = Message<"cathlab.v1.ListSessionsRequest"> & {
  * Use `create(ListSessionsRequestSchema)` to create a new message.
  */
 export const ListSessionsRequestSchema: GenMessage<ListSessionsRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 5);
+  messageDesc(file_cathlab_v1_simulator, 6);
 
 /**
  * @generated from message cathlab.v1.ListSessionsResponse
@@ -209,7 +253,7 @@ export type ListSessionsResponse = Message<"cathlab.v1.ListSessionsResponse"> & 
  * Use `create(ListSessionsResponseSchema)` to create a new message.
  */
 export const ListSessionsResponseSchema: GenMessage<ListSessionsResponse> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 6);
+  messageDesc(file_cathlab_v1_simulator, 7);
 
 /**
  * @generated from message cathlab.v1.GetSessionRequest
@@ -226,7 +270,7 @@ export type GetSessionRequest = Message<"cathlab.v1.GetSessionRequest"> & {
  * Use `create(GetSessionRequestSchema)` to create a new message.
  */
 export const GetSessionRequestSchema: GenMessage<GetSessionRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 7);
+  messageDesc(file_cathlab_v1_simulator, 8);
 
 /**
  * @generated from message cathlab.v1.CloseSessionRequest
@@ -243,7 +287,7 @@ export type CloseSessionRequest = Message<"cathlab.v1.CloseSessionRequest"> & {
  * Use `create(CloseSessionRequestSchema)` to create a new message.
  */
 export const CloseSessionRequestSchema: GenMessage<CloseSessionRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 8);
+  messageDesc(file_cathlab_v1_simulator, 9);
 
 /**
  * @generated from message cathlab.v1.CloseSessionResponse
@@ -260,7 +304,7 @@ export type CloseSessionResponse = Message<"cathlab.v1.CloseSessionResponse"> & 
  * Use `create(CloseSessionResponseSchema)` to create a new message.
  */
 export const CloseSessionResponseSchema: GenMessage<CloseSessionResponse> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 9);
+  messageDesc(file_cathlab_v1_simulator, 10);
 
 /**
  * @generated from message cathlab.v1.SessionInfo
@@ -329,6 +373,13 @@ export type SessionInfo = Message<"cathlab.v1.SessionInfo"> & {
    * @generated from field: string observer_token = 11;
    */
   observerToken: string;
+
+  /**
+   * What the trainee's page shows to guide.
+   *
+   * @generated from field: cathlab.v1.Guidance guidance = 12;
+   */
+  guidance?: Guidance | undefined;
 };
 
 /**
@@ -336,7 +387,7 @@ export type SessionInfo = Message<"cathlab.v1.SessionInfo"> & {
  * Use `create(SessionInfoSchema)` to create a new message.
  */
 export const SessionInfoSchema: GenMessage<SessionInfo> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 10);
+  messageDesc(file_cathlab_v1_simulator, 11);
 
 /**
  * What instructors grade by.
@@ -444,7 +495,7 @@ export type Metrics = Message<"cathlab.v1.Metrics"> & {
  * Use `create(MetricsSchema)` to create a new message.
  */
 export const MetricsSchema: GenMessage<Metrics> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 11);
+  messageDesc(file_cathlab_v1_simulator, 12);
 
 /**
  * Wall-clock timing of the session's threads.
@@ -512,7 +563,7 @@ export type Timing = Message<"cathlab.v1.Timing"> & {
  * Use `create(TimingSchema)` to create a new message.
  */
 export const TimingSchema: GenMessage<Timing> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 12);
+  messageDesc(file_cathlab_v1_simulator, 13);
 
 /**
  * Push/pull.
@@ -547,7 +598,7 @@ export type Insertion = Message<"cathlab.v1.Insertion"> & {
  * Use `create(InsertionSchema)` to create a new message.
  */
 export const InsertionSchema: GenMessage<Insertion> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 13);
+  messageDesc(file_cathlab_v1_simulator, 14);
 
 /**
  * Twist about the device axis at the entry point.
@@ -578,7 +629,7 @@ export type Twist = Message<"cathlab.v1.Twist"> & {
  * Use `create(TwistSchema)` to create a new message.
  */
 export const TwistSchema: GenMessage<Twist> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 14);
+  messageDesc(file_cathlab_v1_simulator, 15);
 
 /**
  * @generated from message cathlab.v1.CArmPose
@@ -604,7 +655,7 @@ export type CArmPose = Message<"cathlab.v1.CArmPose"> & {
  * Use `create(CArmPoseSchema)` to create a new message.
  */
 export const CArmPoseSchema: GenMessage<CArmPose> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 15);
+  messageDesc(file_cathlab_v1_simulator, 16);
 
 /**
  * @generated from message cathlab.v1.Injection
@@ -630,7 +681,7 @@ export type Injection = Message<"cathlab.v1.Injection"> & {
  * Use `create(InjectionSchema)` to create a new message.
  */
 export const InjectionSchema: GenMessage<Injection> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 16);
+  messageDesc(file_cathlab_v1_simulator, 17);
 
 /**
  * @generated from message cathlab.v1.Command
@@ -717,7 +768,7 @@ export type Command = Message<"cathlab.v1.Command"> & {
  * Use `create(CommandSchema)` to create a new message.
  */
 export const CommandSchema: GenMessage<Command> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 17);
+  messageDesc(file_cathlab_v1_simulator, 18);
 
 /**
  * @generated from message cathlab.v1.SendCommandRequest
@@ -746,7 +797,7 @@ export type SendCommandRequest = Message<"cathlab.v1.SendCommandRequest"> & {
  * Use `create(SendCommandRequestSchema)` to create a new message.
  */
 export const SendCommandRequestSchema: GenMessage<SendCommandRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 18);
+  messageDesc(file_cathlab_v1_simulator, 19);
 
 /**
  * @generated from message cathlab.v1.CommandAck
@@ -770,7 +821,7 @@ export type CommandAck = Message<"cathlab.v1.CommandAck"> & {
  * Use `create(CommandAckSchema)` to create a new message.
  */
 export const CommandAckSchema: GenMessage<CommandAck> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 19);
+  messageDesc(file_cathlab_v1_simulator, 20);
 
 /**
  * @generated from message cathlab.v1.ControlInput
@@ -808,7 +859,7 @@ export type ControlInput = Message<"cathlab.v1.ControlInput"> & {
  * Use `create(ControlInputSchema)` to create a new message.
  */
 export const ControlInputSchema: GenMessage<ControlInput> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 20);
+  messageDesc(file_cathlab_v1_simulator, 21);
 
 /**
  * @generated from message cathlab.v1.ControlOutput
@@ -825,7 +876,7 @@ export type ControlOutput = Message<"cathlab.v1.ControlOutput"> & {
  * Use `create(ControlOutputSchema)` to create a new message.
  */
 export const ControlOutputSchema: GenMessage<ControlOutput> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 21);
+  messageDesc(file_cathlab_v1_simulator, 22);
 
 /**
  * @generated from message cathlab.v1.StreamStateRequest
@@ -850,7 +901,7 @@ export type StreamStateRequest = Message<"cathlab.v1.StreamStateRequest"> & {
  * Use `create(StreamStateRequestSchema)` to create a new message.
  */
 export const StreamStateRequestSchema: GenMessage<StreamStateRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 22);
+  messageDesc(file_cathlab_v1_simulator, 23);
 
 /**
  * @generated from message cathlab.v1.Vec3
@@ -877,7 +928,7 @@ export type Vec3 = Message<"cathlab.v1.Vec3"> & {
  * Use `create(Vec3Schema)` to create a new message.
  */
 export const Vec3Schema: GenMessage<Vec3> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 23);
+  messageDesc(file_cathlab_v1_simulator, 24);
 
 /**
  * @generated from message cathlab.v1.WallContact
@@ -903,7 +954,7 @@ export type WallContact = Message<"cathlab.v1.WallContact"> & {
  * Use `create(WallContactSchema)` to create a new message.
  */
 export const WallContactSchema: GenMessage<WallContact> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 24);
+  messageDesc(file_cathlab_v1_simulator, 25);
 
 /**
  * @generated from message cathlab.v1.DeviceState
@@ -1005,7 +1056,7 @@ export type DeviceState = Message<"cathlab.v1.DeviceState"> & {
  * Use `create(DeviceStateSchema)` to create a new message.
  */
 export const DeviceStateSchema: GenMessage<DeviceState> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 25);
+  messageDesc(file_cathlab_v1_simulator, 26);
 
 /**
  * @generated from message cathlab.v1.StreamFramesRequest
@@ -1046,7 +1097,7 @@ export type StreamFramesRequest = Message<"cathlab.v1.StreamFramesRequest"> & {
  * Use `create(StreamFramesRequestSchema)` to create a new message.
  */
 export const StreamFramesRequestSchema: GenMessage<StreamFramesRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 26);
+  messageDesc(file_cathlab_v1_simulator, 27);
 
 /**
  * @generated from message cathlab.v1.XrayFrame
@@ -1122,6 +1173,15 @@ export type XrayFrame = Message<"cathlab.v1.XrayFrame"> & {
    * @generated from field: double kerma_area_product_gy_cm2 = 12;
    */
   kermaAreaProductGyCm2: number;
+
+  /**
+   * The target vessel projected into the image: (x, y) pairs as fractions of the width and
+   * height from the top-left corner, along the vessel to the goal. Empty when the session's
+   * guidance hides the marker.
+   *
+   * @generated from field: repeated float target_outline = 13;
+   */
+  targetOutline: number[];
 };
 
 /**
@@ -1129,7 +1189,7 @@ export type XrayFrame = Message<"cathlab.v1.XrayFrame"> & {
  * Use `create(XrayFrameSchema)` to create a new message.
  */
 export const XrayFrameSchema: GenMessage<XrayFrame> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 27);
+  messageDesc(file_cathlab_v1_simulator, 28);
 
 /**
  * @generated from message cathlab.v1.StreamMetricsRequest
@@ -1146,7 +1206,7 @@ export type StreamMetricsRequest = Message<"cathlab.v1.StreamMetricsRequest"> & 
  * Use `create(StreamMetricsRequestSchema)` to create a new message.
  */
 export const StreamMetricsRequestSchema: GenMessage<StreamMetricsRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 28);
+  messageDesc(file_cathlab_v1_simulator, 29);
 
 /**
  * @generated from message cathlab.v1.Event
@@ -1180,7 +1240,7 @@ export type Event = Message<"cathlab.v1.Event"> & {
  * Use `create(EventSchema)` to create a new message.
  */
 export const EventSchema: GenMessage<Event> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 29);
+  messageDesc(file_cathlab_v1_simulator, 30);
 
 /**
  * @generated from message cathlab.v1.SessionUpdate
@@ -1209,7 +1269,7 @@ export type SessionUpdate = Message<"cathlab.v1.SessionUpdate"> & {
  * Use `create(SessionUpdateSchema)` to create a new message.
  */
 export const SessionUpdateSchema: GenMessage<SessionUpdate> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 30);
+  messageDesc(file_cathlab_v1_simulator, 31);
 
 /**
  * @generated from message cathlab.v1.GetAnatomyRequest
@@ -1226,7 +1286,7 @@ export type GetAnatomyRequest = Message<"cathlab.v1.GetAnatomyRequest"> & {
  * Use `create(GetAnatomyRequestSchema)` to create a new message.
  */
 export const GetAnatomyRequestSchema: GenMessage<GetAnatomyRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 31);
+  messageDesc(file_cathlab_v1_simulator, 32);
 
 /**
  * @generated from message cathlab.v1.Branch
@@ -1257,7 +1317,7 @@ export type Branch = Message<"cathlab.v1.Branch"> & {
  * Use `create(BranchSchema)` to create a new message.
  */
 export const BranchSchema: GenMessage<Branch> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 32);
+  messageDesc(file_cathlab_v1_simulator, 33);
 
 /**
  * @generated from message cathlab.v1.Anatomy
@@ -1298,7 +1358,7 @@ export type Anatomy = Message<"cathlab.v1.Anatomy"> & {
  * Use `create(AnatomySchema)` to create a new message.
  */
 export const AnatomySchema: GenMessage<Anatomy> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 33);
+  messageDesc(file_cathlab_v1_simulator, 34);
 
 /**
  * @generated from message cathlab.v1.ReplaySessionRequest
@@ -1315,7 +1375,7 @@ export type ReplaySessionRequest = Message<"cathlab.v1.ReplaySessionRequest"> & 
  * Use `create(ReplaySessionRequestSchema)` to create a new message.
  */
 export const ReplaySessionRequestSchema: GenMessage<ReplaySessionRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 34);
+  messageDesc(file_cathlab_v1_simulator, 35);
 
 /**
  * @generated from message cathlab.v1.ReplayResult
@@ -1368,7 +1428,7 @@ export type ReplayResult = Message<"cathlab.v1.ReplayResult"> & {
  * Use `create(ReplayResultSchema)` to create a new message.
  */
 export const ReplayResultSchema: GenMessage<ReplayResult> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 35);
+  messageDesc(file_cathlab_v1_simulator, 36);
 
 /**
  * @generated from enum cathlab.v1.SessionStatus
