@@ -121,6 +121,12 @@ pub struct FluoroscopeSettings {
     /// is α·new + (1 − α)·previous, which divides the variance of still parts by
     /// (2 − α)/α (3 at α = 0.5) and lags moving ones by (1 − α)/α frames. 1 is off.
     pub recursive_weight: f64,
+    /// Motion-adaptive recursion: where a pixel changed by more than its quantum noise can
+    /// explain (a moving wire), the filter lets the new value through. The weight rises from
+    /// `recursive_weight` at 2σ of the expected frame-to-memory difference to 1 at 4σ, σ from
+    /// the pixel's own quanta. Still parts keep (almost all of) the filter's noise cut; a
+    /// moving device leaves no lagging ghost.
+    pub motion_adaptive: bool,
     /// How many exposures open a DSA run and are averaged into its mask (their noise
     /// variance in the subtraction falls as 1/k); they show as an empty subtraction.
     pub mask_frames: u32,
@@ -139,6 +145,7 @@ impl FluoroscopeSettings {
         s.dose.automatic = true;
         s.detector.auto_window = true;
         s.recursive_weight = 0.5;
+        s.motion_adaptive = true;
         s.mask_frames = 3;
         s.scatter = Some(ScatterSettings::default());
         s.edge_enhancement = Some(EdgeEnhancement::default());
@@ -175,6 +182,7 @@ impl Default for FluoroscopeSettings {
             roadmap_vessel_depth: 0.35,
             dose: DoseSettings::default(),
             recursive_weight: 1.0,
+            motion_adaptive: false,
             mask_frames: 1,
             scatter: None,
             edge_enhancement: None,
@@ -488,7 +496,7 @@ impl Fluoroscope {
         let mut window = (d.window, d.level);
         match self.mode {
             ImagingMode::Fluoroscopy => {
-                self.recursive_filter(&mut values, scene.carm);
+                self.recursive_filter(&mut values, scene.carm, &detector_settings, None);
                 self.enhance_edges(&mut values, geometry);
                 if d.auto_window {
                     window = detector::auto_window(&values, geometry.width_px, geometry.height_px)
@@ -561,10 +569,11 @@ impl Fluoroscope {
                 let map = m
                     .vessel_map
                     .get_or_insert_with(|| vessel_map(&m.peak_opacity, m.noise_sigma, depth));
+                let live = self.settings.motion_adaptive.then(|| values.clone());
                 for ((v, mask), vessel) in values.iter_mut().zip(&m.mask).zip(map.iter()) {
                     *v = *v - mask - vessel;
                 }
-                self.recursive_filter(&mut values, scene.carm);
+                self.recursive_filter(&mut values, scene.carm, &detector_settings, live.as_deref());
                 self.enhance_edges(&mut values, geometry);
             }
         }
@@ -621,15 +630,43 @@ impl Fluoroscope {
 
     /// Recursive filtering of `values` in place against the last image shown in this mode at
     /// this pose (none after a mode or pose change: the new image shows as it is).
-    fn recursive_filter(&mut self, values: &mut [f32], carm: &CArm) {
+    /// `attenuation` is the exposure's own `−ln(N/N0)` per pixel where `values` are something
+    /// else (a roadmap's subtraction); `None` when `values` are the exposure.
+    fn recursive_filter(
+        &mut self,
+        values: &mut [f32],
+        carm: &CArm,
+        exposure: &DetectorSettings,
+        attenuation: Option<&[f32]>,
+    ) {
         let alpha = self.settings.recursive_weight as f32;
         if alpha >= 1.0 {
             return;
         }
+        // σ of (new − memory) per unit of √(e^v): the new value's quantum noise √(e^v / N0),
+        // less after the detector blur (white noise through a Gaussian of σ_b keeps
+        // 1/(2√π σ_b) of its σ), and the memory's own σ²·α/(2 − α) added.
+        let blur = exposure.blur_sigma_px;
+        let blurred = if blur > 0.5 {
+            (1.0 / (2.0 * std::f64::consts::PI.sqrt() * blur)).min(1.0)
+        } else {
+            1.0
+        };
+        let spread = (blurred / exposure.photons_per_pixel.sqrt()
+            * (2.0 / (2.0 - f64::from(alpha))).sqrt()) as f32;
+        let adaptive = self.settings.motion_adaptive;
         match &mut self.recursion {
             Some(r) if r.carm == *carm && r.mode == self.mode && r.shown.len() == values.len() => {
-                for (v, shown) in values.iter_mut().zip(&mut r.shown) {
-                    *v = alpha * *v + (1.0 - alpha) * *shown;
+                for (i, (v, shown)) in values.iter_mut().zip(&mut r.shown).enumerate() {
+                    let mut a = alpha;
+                    if adaptive {
+                        let log = attenuation.map_or(*shown, |l| l[i]);
+                        let z = (*v - *shown).abs() / (spread * (0.5 * log).exp());
+                        if z.is_finite() {
+                            a += (1.0 - alpha) * (0.5 * (z - 2.0)).clamp(0.0, 1.0);
+                        }
+                    }
+                    *v = a * *v + (1.0 - a) * *shown;
                     *shown = *v;
                 }
             }
