@@ -153,3 +153,89 @@ pub fn unsharp_mask(values: &mut [f32], width: u32, height: u32, sigma_px: f64, 
         }
     }
 }
+
+/// Pixel-shift registration of a DSA mask to a live frame: the translation `(dx, dy)`
+/// (pixels) for which `live(u, v) ≈ mask(u − dx, v − dy)`. Least squares of the zero-mean
+/// difference over the central half of the image (every other pixel; non-finite ones
+/// skipped), searched over whole pixels within `±max_px`, then refined to a fraction of a
+/// pixel by a parabola through the best shift and its neighbours on each axis. Contrast and
+/// devices in the live frame bias it little: they are sparse, and the zero-mean difference
+/// ignores a uniform change of dose.
+pub fn register_shift(
+    mask: &[f32],
+    live: &[f32],
+    width: usize,
+    height: usize,
+    max_px: i32,
+) -> (f64, f64) {
+    let (w, h) = (width as i32, height as i32);
+    let cost = |sx: i32, sy: i32| -> f64 {
+        let (mut sum, mut sum2, mut n) = (0.0f64, 0.0f64, 0usize);
+        for v in (h / 4..3 * h / 4).step_by(2) {
+            let mv = v - sy;
+            if !(0..h).contains(&mv) {
+                continue;
+            }
+            for u in (w / 4..3 * w / 4).step_by(2) {
+                let mu = u - sx;
+                if !(0..w).contains(&mu) {
+                    continue;
+                }
+                let d = f64::from(live[(v * w + u) as usize] - mask[(mv * w + mu) as usize]);
+                if d.is_finite() {
+                    sum += d;
+                    sum2 += d * d;
+                    n += 1;
+                }
+            }
+        }
+        if n < 16 {
+            f64::INFINITY
+        } else {
+            (sum2 - sum * sum / n as f64) / n as f64
+        }
+    };
+    let mut best = (0, 0, cost(0, 0));
+    for sy in -max_px..=max_px {
+        for sx in -max_px..=max_px {
+            let c = cost(sx, sy);
+            if c < best.2 {
+                best = (sx, sy, c);
+            }
+        }
+    }
+    let (bx, by, c0) = best;
+    if !c0.is_finite() {
+        return (0.0, 0.0);
+    }
+    // A parabola through (−1, c−), (0, c0), (1, c+): its vertex, within half a pixel.
+    let vertex = |minus: f64, plus: f64| {
+        let curvature = minus + plus - 2.0 * c0;
+        if curvature > 0.0 && minus.is_finite() && plus.is_finite() {
+            (0.5 * (minus - plus) / curvature).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    };
+    (
+        f64::from(bx) + vertex(cost(bx - 1, by), cost(bx + 1, by)),
+        f64::from(by) + vertex(cost(bx, by - 1), cost(bx, by + 1)),
+    )
+}
+
+/// `image` moved by `(dx, dy)` pixels: `out(u, v) = image(u − dx, v − dy)`, bilinear, the
+/// edges held.
+pub fn shift_image(image: &[f32], width: usize, height: usize, dx: f64, dy: f64) -> Vec<f32> {
+    let at = |u: f64, v: f64| -> f32 {
+        let u = u.clamp(0.0, (width - 1) as f64);
+        let v = v.clamp(0.0, (height - 1) as f64);
+        let (u0, v0) = (u.floor() as usize, v.floor() as usize);
+        let (u1, v1) = ((u0 + 1).min(width - 1), (v0 + 1).min(height - 1));
+        let (fu, fv) = ((u - u0 as f64) as f32, (v - v0 as f64) as f32);
+        let row = |r: usize| image[r * width + u0] * (1.0 - fu) + image[r * width + u1] * fu;
+        row(v0) * (1.0 - fv) + row(v1) * fv
+    };
+    (0..width * height)
+        .map(|i| at((i % width) as f64 - dx, (i / width) as f64 - dy))
+        .collect()
+}

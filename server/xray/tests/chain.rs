@@ -685,3 +685,69 @@ fn motion_adaptive_recursion_keeps_the_noise_cut_and_leaves_no_lag_behind_a_movi
     );
     assert!(lags[1].0 < 0.1 && lags[1].1 > 0.9, "{lags:?}");
 }
+
+/// Water with bony spheres (structure to register on), centred at `centre` (m).
+fn bony(centre: Vector3<f64>) -> Arc<Volume> {
+    let spheres = [
+        (Vector3::new(-0.02, 0.0, 0.015), 0.012),
+        (Vector3::new(0.018, 0.01, -0.02), 0.009),
+        (Vector3::new(0.005, -0.02, 0.025), 0.007),
+        (Vector3::new(-0.015, 0.02, -0.01), 0.01),
+    ];
+    Arc::new(
+        Volume::from_fn([60; 3], Vector3::repeat(2e-3), centre, 2, |p| {
+            let q = p.coords - centre;
+            if q.y.abs() > 0.05 {
+                -1000.0
+            } else if spheres.iter().any(|(c, r)| (q - c).norm() < *r) {
+                1200.0
+            } else {
+                0.0
+            }
+        })
+        .unwrap(),
+    )
+}
+
+#[test]
+fn pixel_shift_registers_the_mask_after_the_patient_moved() {
+    let carm = carm(128);
+    // The patient moves 1.2 mm to the left after the mask: 1.92 pixels at the detector
+    // (0.94 mm pixels, magnification 1.5), on the detector's u axis.
+    let (eu, _) = carm.detector_axes();
+    let moved = Vector3::new(1.2e-3, 0.0, 0.0);
+    let expected = moved.dot(&eu) * carm.magnification() / carm.detector.pixel_pitch_m();
+    let (before, after) = (bony(Vector3::zeros()), bony(moved));
+    let mut residuals = Vec::new();
+    for correct in [false, true] {
+        let mut s = settings(true);
+        s.mask_frames = 3;
+        s.pixel_shift = correct;
+        let mut c = chain(s);
+        c.set_mode(ImagingMode::Subtraction, &carm).unwrap();
+        for _ in 0..3 {
+            shoot(&mut c, &before, &carm, &Layers::new());
+        }
+        let still = shoot(&mut c, &before, &carm, &Layers::new());
+        let live = shoot(&mut c, &after, &carm, &Layers::new());
+        let variance = |f: &Frame| mean_var(f.values.iter().map(|v| f64::from(*v))).1;
+        let (noise, moved_residual) = (variance(&still), variance(&live));
+        let shift = c.pixel_shift().unwrap();
+        println!(
+            "pixel shift {}: subtraction variance {noise:.2e} before the move, {moved_residual:.2e} after; shift found ({:.2}, {:.2}) px, expected ({expected:.2}, 0)",
+            if correct { "on" } else { "off" },
+            shift.0,
+            shift.1
+        );
+        if correct {
+            assert!(
+                (shift.0 - expected).abs() < 0.2 && shift.1.abs() < 0.2,
+                "{shift:?}"
+            );
+        }
+        residuals.push(moved_residual / noise);
+    }
+    // Uncorrected, the spheres' edges stand out of the noise; corrected, they (nearly) vanish.
+    assert!(residuals[0] > 3.0, "{residuals:?}");
+    assert!(residuals[1] < 1.5, "{residuals:?}");
+}
