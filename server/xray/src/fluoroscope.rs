@@ -694,18 +694,23 @@ impl Fluoroscope {
         let adaptive = self.settings.motion_adaptive;
         match &mut self.recursion {
             Some(r) if r.carm == *carm && r.mode == self.mode && r.shown.len() == values.len() => {
-                for (i, (v, shown)) in values.iter_mut().zip(&mut r.shown).enumerate() {
-                    let mut a = alpha;
-                    if adaptive {
-                        let log = attenuation.map_or(*shown, |l| l[i]);
-                        let z = (*v - *shown).abs() / (spread * (0.5 * log).exp());
-                        if z.is_finite() {
-                            a += (1.0 - alpha) * (0.5 * (z - 2.0)).clamp(0.0, 1.0);
+                use rayon::prelude::*;
+                values
+                    .par_iter_mut()
+                    .zip(r.shown.par_iter_mut())
+                    .enumerate()
+                    .for_each(|(i, (v, shown))| {
+                        let mut a = alpha;
+                        if adaptive {
+                            let log = attenuation.map_or(*shown, |l| l[i]);
+                            let z = (*v - *shown).abs() / (spread * (0.5 * log).exp());
+                            if z.is_finite() {
+                                a += (1.0 - alpha) * (0.5 * (z - 2.0)).clamp(0.0, 1.0);
+                            }
                         }
-                    }
-                    *v = a * *v + (1.0 - a) * *shown;
-                    *shown = *v;
-                }
+                        *v = a * *v + (1.0 - a) * *shown;
+                        *shown = *v;
+                    });
             }
             _ => {
                 self.recursion = Some(Recursion {
