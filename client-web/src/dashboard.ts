@@ -211,42 +211,6 @@ $("key-form").addEventListener("submit", (e) => {
   timelineStop.abort();
   polling = new AbortController();
   void poll(polling.signal);
-
-// A session started here for a trainee: guided, or an assessment without guidance. The
-// trainee gets the controller link; the instructor watches it like any other.
-void (async () => {
-  try {
-    const { scenes } = await simulatorClient(base).listScenes({});
-    for (const s of scenes) $<HTMLSelectElement>("new-scene").add(new Option(`${s.name} — ${s.description}`, s.name));
-  } catch {
-    // The poll reports an unreachable server.
-  }
-})();
-$("new-session").addEventListener("submit", async (e) => {
-  e.preventDefault();
-  const link = $("new-link");
-  try {
-    const assessment = $<HTMLInputElement>("new-assessment").checked;
-    const created = await simulatorClient(base).createSession({
-      scene: { case: "sceneName", value: $<HTMLSelectElement>("new-scene").value },
-      label: $<HTMLInputElement>("new-label").value,
-      assessment,
-    });
-    const url = new URL("index.html", location.href);
-    url.search = "";
-    if (params.get("server")) url.searchParams.set("server", params.get("server")!);
-    url.searchParams.set("session", created.sessionId);
-    url.searchParams.set("token", created.controllerToken);
-    link.textContent = `${assessment ? "Assessment" : "Guided"} session started. The trainee's link: `;
-    const a = document.createElement("a");
-    a.href = url.toString();
-    a.textContent = url.toString();
-    a.id = "trainee-link";
-    link.append(a);
-  } catch (err) {
-    link.textContent = `Cannot start the session: ${describe(err)}`;
-  }
-});
 });
 void poll(polling.signal);
 

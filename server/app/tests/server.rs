@@ -129,25 +129,18 @@ async fn push_advances_the_tip_frames_decode_and_observers_see_the_same_state() 
         (pb::FrameEncoding::Raw8, 128),
         (pb::FrameEncoding::Raw16, 0),
     ] {
-        let mut frames = client
-            .stream_frames(authed(
-                pb::StreamFramesRequest {
-                    session_id: id.clone(),
-                    encoding: encoding as i32,
-                    width: size,
-                    height: size,
-                    jpeg_quality: 80,
-                },
-                &session.observer_token,
-            ))
-            .await
-            .unwrap()
-            .into_inner();
-        let frame = tokio::time::timeout(Duration::from_secs(60), frames.message())
-            .await
-            .expect("a frame within a minute")
-            .unwrap()
-            .unwrap();
+        let frame = first_frame(
+            &mut client,
+            pb::StreamFramesRequest {
+                session_id: id.clone(),
+                encoding: encoding as i32,
+                width: size,
+                height: size,
+                jpeg_quality: 80,
+            },
+            &session.observer_token,
+        )
+        .await;
         let side = if size == 0 { 512 } else { size };
         assert_eq!((frame.width, frame.height), (side, side));
         let grey: Vec<u16> = match encoding {
@@ -222,25 +215,18 @@ async fn an_assessment_session_runs_without_guidance() {
     )
     .await
     .unwrap();
-    let mut frames = client
-        .stream_frames(authed(
-            pb::StreamFramesRequest {
-                session_id: session.session_id.clone(),
-                encoding: pb::FrameEncoding::Raw8 as i32,
-                width: 64,
-                height: 64,
-                jpeg_quality: 0,
-            },
-            &session.observer_token,
-        ))
-        .await
-        .unwrap()
-        .into_inner();
-    let frame = tokio::time::timeout(Duration::from_secs(60), frames.message())
-        .await
-        .expect("a frame within a minute")
-        .unwrap()
-        .unwrap();
+    let frame = first_frame(
+        &mut client,
+        pb::StreamFramesRequest {
+            session_id: session.session_id.clone(),
+            encoding: pb::FrameEncoding::Raw8 as i32,
+            width: 64,
+            height: 64,
+            jpeg_quality: 0,
+        },
+        &session.observer_token,
+    )
+    .await;
     assert!(
         frame.target_outline.is_empty(),
         "no marker in an assessment"

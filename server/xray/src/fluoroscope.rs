@@ -130,9 +130,10 @@ pub struct FluoroscopeSettings {
     /// How many exposures open a DSA run and are averaged into its mask (their noise
     /// variance in the subtraction falls as 1/k); they show as an empty subtraction.
     pub mask_frames: u32,
-    /// Pixel-shift correction of DSA: each live frame's mask is moved by the sub-pixel
-    /// translation that best lays it on the frame (searched within ±4 pixels; applied from a
-    /// quarter pixel), so that a patient who moved after the mask leaves no misregistration.
+    /// Pixel-shift correction of DSA: when the patient moved after the mask (another volume),
+    /// the mask is moved by the sub-pixel translation that best lays the anatomy at the mask
+    /// on the anatomy now (noise- and contrast-free, as a registration on a landmark region
+    /// without contrast would; searched within ±4 pixels, applied from a quarter pixel).
     pub pixel_shift: bool,
     /// Patient scatter and the anti-scatter grid; `None` leaves only primary radiation.
     pub scatter: Option<ScatterSettings>,
@@ -248,6 +249,14 @@ struct SubtractionMasks {
     vessel_map: Option<Vec<f32>>,
     /// The pixel shift found for the last live frame (pixels; zero without pixel shift).
     shift: (f64, f64),
+    /// With pixel shift: the patient at the mask and the anatomy's noise-free attenuation
+    /// `−ln T` then, to register a moved patient against.
+    anatomy: Option<(Arc<Volume>, Vec<f32>)>,
+}
+
+/// `−ln T` of detected fractions.
+fn attenuation_of(transmitted: &[f32]) -> Vec<f32> {
+    transmitted.iter().map(|t| -t.max(1e-30).ln()).collect()
 }
 
 /// How far pixel shift searches (pixels either way).
@@ -527,6 +536,16 @@ impl Fluoroscope {
                 window = (self.settings.subtraction_window, 0.0);
                 let wanted = self.settings.mask_frames;
                 let clean = contrast_only.as_ref().unwrap_or(&values);
+                // The noise-free anatomy, when pixel shift needs it: at a run's start, and
+                // when the patient moved since the mask.
+                let same_run = self.masks.as_ref().is_some_and(|m| m.carm == *scene.carm);
+                let moved = self
+                    .masks
+                    .as_ref()
+                    .and_then(|m| m.anatomy.as_ref())
+                    .is_some_and(|(v, _)| !Arc::ptr_eq(v, scene.volume));
+                let anatomy_now = (self.settings.pixel_shift && (!same_run || moved))
+                    .then(|| attenuation_of(&self.detected_fraction(None, geometry)));
                 match &mut self.masks {
                     Some(m) if m.carm == *scene.carm && m.frames < wanted => {
                         // Still building the mask: a running mean.
@@ -539,19 +558,26 @@ impl Fluoroscope {
                     }
                     Some(m) if m.carm == *scene.carm => {
                         let (w, h) = (geometry.width_px as usize, geometry.height_px as usize);
-                        let shifted = if self.settings.pixel_shift {
-                            let (dx, dy) = processing::register_shift(
-                                &m.mask,
-                                clean,
-                                w,
-                                h,
-                                PIXEL_SHIFT_SEARCH_PX,
-                            );
-                            m.shift = (dx, dy);
-                            (dx.hypot(dy) >= PIXEL_SHIFT_MIN_PX)
-                                .then(|| processing::shift_image(&m.mask, w, h, dx, dy))
-                        } else {
-                            None
+                        // Pixel shift: only a patient who moved since the mask (another
+                        // volume) is registered, on the noise-free anatomy, so that neither
+                        // noise nor the contrast itself can pull the mask off a still patient.
+                        let shifted = match (&m.anatomy, &anatomy_now) {
+                            (Some((_, at_mask)), Some(now)) => {
+                                let (dx, dy) = processing::register_shift(
+                                    at_mask,
+                                    now,
+                                    w,
+                                    h,
+                                    PIXEL_SHIFT_SEARCH_PX,
+                                );
+                                m.shift = (dx, dy);
+                                (dx.hypot(dy) >= PIXEL_SHIFT_MIN_PX)
+                                    .then(|| processing::shift_image(&m.mask, w, h, dx, dy))
+                            }
+                            _ => {
+                                m.shift = (0.0, 0.0);
+                                None
+                            }
                         };
                         let mask = shifted.as_ref().unwrap_or(&m.mask);
                         // Collimated (NaN) pixels count as no opacity.
@@ -588,6 +614,7 @@ impl Fluoroscope {
                             noise_sigma: None,
                             vessel_map: None,
                             shift: (0.0, 0.0),
+                            anatomy: anatomy_now.map(|a| (Arc::clone(scene.volume), a)),
                         });
                         values.iter_mut().for_each(|v| *v -= *v);
                     }

@@ -729,6 +729,11 @@ fn pixel_shift_registers_the_mask_after_the_patient_moved() {
             shoot(&mut c, &before, &carm, &Layers::new());
         }
         let still = shoot(&mut c, &before, &carm, &Layers::new());
+        // Contrast arriving in a still patient moves nothing (a regression: registering the
+        // live frame itself let the iodine pull the mask off and printed bone edges into the
+        // roadmap).
+        shoot(&mut c, &before, &carm, &vessel_layer());
+        assert_eq!(c.pixel_shift(), Some((0.0, 0.0)));
         let live = shoot(&mut c, &after, &carm, &Layers::new());
         let variance = |f: &Frame| mean_var(f.values.iter().map(|v| f64::from(*v))).1;
         let (noise, moved_residual) = (variance(&still), variance(&live));

@@ -191,3 +191,21 @@ pub async fn listed_session(
         .find(|s| s.session_id == session_id)
         .expect("the session is listed")
 }
+
+/// The first frame of a session's stream as `token` asks for it (within a minute).
+pub async fn first_frame(
+    client: &mut SimulatorClient<Channel>,
+    request: pb::StreamFramesRequest,
+    token: &str,
+) -> pb::XrayFrame {
+    let mut frames = client
+        .stream_frames(authed(request, token))
+        .await
+        .unwrap()
+        .into_inner();
+    tokio::time::timeout(std::time::Duration::from_secs(60), frames.message())
+        .await
+        .expect("a frame within a minute")
+        .unwrap()
+        .expect("a frame")
+}
