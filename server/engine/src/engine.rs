@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use parking_lot::RwLock;
+use parking_lot::{Mutex, RwLock};
 
 use crate::assets::{AssetCache, SceneAssets};
 use crate::error::{EngineError, Result};
@@ -40,7 +40,24 @@ pub struct Engine {
     catalog: SceneCatalog,
     assets: AssetCache,
     sessions: RwLock<HashMap<String, Arc<Session>>>,
+    /// Sessions admitted and still loading: counted with the running ones under this lock,
+    /// so that concurrent creates cannot pass the limit together.
+    admitting: Mutex<usize>,
     context: SessionContext,
+}
+
+/// A place among the sessions, held while one loads; given back if the load fails.
+struct Admission<'a> {
+    engine: &'a Engine,
+    kept: bool,
+}
+
+impl Drop for Admission<'_> {
+    fn drop(&mut self) {
+        if !self.kept {
+            *self.engine.admitting.lock() -= 1;
+        }
+    }
 }
 
 impl std::fmt::Debug for Engine {
@@ -72,6 +89,7 @@ impl Engine {
             catalog,
             assets: AssetCache::default(),
             sessions: RwLock::new(HashMap::new()),
+            admitting: Mutex::new(0),
         })
     }
 
@@ -115,16 +133,31 @@ impl Engine {
         spec: &SceneSpec,
         base: &Path,
     ) -> Result<Arc<Session>> {
-        if self.sessions.read().len() >= self.settings.max_sessions {
-            return Err(EngineError::FailedPrecondition(format!(
+        let mut admission = self.admit()?;
+        let assets = self.load(spec, base)?;
+        let session = Session::start(id.clone(), label, assets, self.context.clone())?;
+        let mut admitting = self.admitting.lock();
+        self.sessions.write().insert(id, session.clone());
+        *admitting -= 1;
+        admission.kept = true;
+        Ok(session)
+    }
+
+    /// Takes a place among the sessions, or says the server is full. Running and loading
+    /// sessions are counted together under one lock.
+    fn admit(&self) -> Result<Admission<'_>> {
+        let mut admitting = self.admitting.lock();
+        if self.sessions.read().len() + *admitting >= self.settings.max_sessions {
+            return Err(EngineError::Exhausted(format!(
                 "the server runs its maximum of {} sessions",
                 self.settings.max_sessions
             )));
         }
-        let assets = self.load(spec, base)?;
-        let session = Session::start(id.clone(), label, assets, self.context.clone())?;
-        self.sessions.write().insert(id, session.clone());
-        Ok(session)
+        *admitting += 1;
+        Ok(Admission {
+            engine: self,
+            kept: false,
+        })
     }
 
     /// A running session.

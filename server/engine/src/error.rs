@@ -26,6 +26,9 @@ pub enum EngineError {
     /// injection in a scene without flow).
     #[error("{0}")]
     FailedPrecondition(String),
+    /// A limit of the server is reached (sessions, replays): try later.
+    #[error("{0}")]
+    Exhausted(String),
     /// No such scene or session.
     #[error("not found: {0}")]
     NotFound(String),

@@ -209,3 +209,16 @@ pub async fn first_frame(
         .unwrap()
         .expect("a frame")
 }
+
+/// Closes a session with its controller token.
+pub async fn close(client: &mut SimulatorClient<Channel>, session: &pb::CreateSessionResponse) {
+    client
+        .close_session(authed(
+            pb::CloseSessionRequest {
+                session_id: session.session_id.clone(),
+            },
+            &session.controller_token,
+        ))
+        .await
+        .expect("the session closes");
+}
