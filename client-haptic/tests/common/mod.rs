@@ -8,7 +8,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use cathlab_app::config::{RendererChoice, ServerConfig};
+use cathlab_app::config::{InlineScenes, RendererChoice, ServerConfig};
 use serde_json::Value;
 
 pub fn repo() -> PathBuf {
@@ -96,6 +96,8 @@ impl Server {
             scenes: repo().join("scenes"),
             renderer: RendererChoice::Cpu,
             web_root: repo().join("no-web-client"),
+            // The bridge sends its wall scene as a scene text.
+            inline_scenes: InlineScenes::Anyone,
             ..ServerConfig::default()
         };
         let (stop, stopped) = tokio::sync::oneshot::channel::<()>();

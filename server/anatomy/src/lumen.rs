@@ -140,6 +140,24 @@ impl std::fmt::Debug for Lumen {
 }
 
 impl Lumen {
+    /// Heap bytes held (an estimate from the lengths of its arrays; the BVH counted at two
+    /// nodes per triangle): what the server's asset cache charges for it.
+    pub fn memory_bytes(&self) -> usize {
+        use std::mem::size_of;
+        let triangles = self.mesh.triangles.len();
+        let vertices = self.mesh.vertices.len();
+        vertices * (size_of::<Point3<f64>>() + 3 * size_of::<Vector3<f64>>())
+            + triangles
+                * (size_of::<[u32; 3]>() * 2
+                    + size_of::<Vector3<f64>>()
+                    + size_of::<[Point3<f64>; 3]>()
+                    + size_of::<[Vector3<f64>; 3]>()
+                    + 2 * 64)
+            + self.grid.block_of.len() * size_of::<u32>()
+            + self.grid.cells.len() * size_of::<CellEntry>()
+            + self.grid.candidates.len() * size_of::<u32>()
+    }
+
     /// Prepares `mesh`, which must be a closed, consistently oriented 2-manifold; a surface
     /// whose faces all point into the lumen is flipped. `source` names it in errors. The query
     /// grid uses [`GridSettings::default`].

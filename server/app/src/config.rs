@@ -17,6 +17,21 @@ pub enum RendererChoice {
     Gpu,
 }
 
+/// Who may create a session from a scene text (an inline scene) rather than a listed scene.
+/// Inline scenes can name heavy work (a CT segmented at load, a fine phantom), so they are
+/// for instructors unless the server says otherwise.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, clap::ValueEnum, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum InlineScenes {
+    /// Nobody: only the listed scenes.
+    Off,
+    /// Callers with the instructor key.
+    #[default]
+    Instructors,
+    /// Anyone (a trusted network).
+    Anyone,
+}
+
 /// TLS certificate and key (PEM files).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -49,6 +64,11 @@ pub struct ConfigFile {
     pub max_message_bytes: Option<usize>,
     /// The built web client (`client-web/dist`), served at `/`.
     pub web_root: Option<PathBuf>,
+    /// Who may create sessions from scene texts.
+    pub inline_scenes: Option<InlineScenes>,
+    /// Memory the shared scene assets (anatomies, CT volumes) may hold beyond what running
+    /// sessions use (MiB); a scene estimated larger is refused before loading.
+    pub asset_cache_mib: Option<usize>,
 }
 
 impl ConfigFile {
@@ -81,6 +101,10 @@ pub struct ServerConfig {
     pub max_message_bytes: usize,
     /// The built web client, served at `/` (a note page when it is not built).
     pub web_root: PathBuf,
+    /// Who may create sessions from scene texts.
+    pub inline_scenes: InlineScenes,
+    /// Memory budget of the shared scene assets (MiB).
+    pub asset_cache_mib: usize,
 }
 
 impl Default for ServerConfig {
@@ -95,6 +119,8 @@ impl Default for ServerConfig {
             max_sessions: 16,
             max_message_bytes: 1 << 20,
             web_root: PathBuf::from("client-web/dist"),
+            inline_scenes: InlineScenes::Instructors,
+            asset_cache_mib: 2048,
         }
     }
 }
@@ -113,6 +139,8 @@ impl ServerConfig {
             max_sessions: file.max_sessions.unwrap_or(d.max_sessions),
             max_message_bytes: file.max_message_bytes.unwrap_or(d.max_message_bytes),
             web_root: file.web_root.unwrap_or(d.web_root),
+            inline_scenes: file.inline_scenes.unwrap_or(d.inline_scenes),
+            asset_cache_mib: file.asset_cache_mib.unwrap_or(d.asset_cache_mib),
         }
     }
 }

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use cathlab_app::config::{ConfigFile, RendererChoice, ServerConfig, TlsFiles};
+use cathlab_app::config::{ConfigFile, InlineScenes, RendererChoice, ServerConfig, TlsFiles};
 use clap::{Parser, Subcommand};
 
 #[derive(Debug, Parser)]
@@ -41,6 +41,9 @@ struct Options {
     /// TLS private key (PEM).
     #[arg(long, global = true)]
     tls_key: Option<PathBuf>,
+    /// Who may create sessions from scene texts (default: instructors).
+    #[arg(long, value_enum, global = true)]
+    inline_scenes: Option<InlineScenes>,
     /// Shut down gracefully when standard input closes (for supervisors and test harnesses
     /// that hold the server's stdin).
     #[arg(long, global = true)]
@@ -79,6 +82,9 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
     }
     if let Some(v) = options.renderer {
         config.renderer = v;
+    }
+    if let Some(v) = options.inline_scenes {
+        config.inline_scenes = v;
     }
     match (&options.tls_cert, &options.tls_key) {
         (Some(cert), Some(key)) => {

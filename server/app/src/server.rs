@@ -54,6 +54,7 @@ pub fn engine(config: &ServerConfig) -> anyhow::Result<(Arc<Engine>, Arc<Store>,
             scenes_dir: config.scenes.clone(),
             session: SessionSettings::default(),
             max_sessions: config.max_sessions,
+            asset_budget_bytes: config.asset_cache_mib << 20,
         },
         store.clone(),
         renderer,
@@ -74,11 +75,10 @@ pub async fn serve(
         scenes = engine.catalog().scenes().len(),
         "engine ready"
     );
-    let service = Arc::new(SimulatorService::new(
-        engine.clone(),
-        store.clone(),
-        config.instructor_key.clone(),
-    ));
+    let service = Arc::new(
+        SimulatorService::new(engine.clone(), store.clone(), config.instructor_key.clone())
+            .with_inline_scenes(config.inline_scenes),
+    );
     let simulator = SimulatorServer::from_arc(service.clone())
         .max_decoding_message_size(config.max_message_bytes)
         .max_encoding_message_size(64 << 20);

@@ -15,6 +15,8 @@ use cathlab_api::{
 };
 use cathlab_engine::engine::SceneSource;
 use cathlab_engine::scene::GuidanceSpec;
+
+use crate::config::InlineScenes;
 use cathlab_engine::session::Session;
 use cathlab_engine::{CommandRecord, Encoding, Engine, EngineError, SceneFormat, SceneSpec};
 use parking_lot::RwLock;
@@ -51,6 +53,7 @@ pub struct SimulatorService {
     store: Arc<Store>,
     instructor_key: Option<String>,
     tokens: RwLock<HashMap<String, Tokens>>,
+    inline_scenes: InlineScenes,
 }
 
 impl std::fmt::Debug for SimulatorService {
@@ -98,7 +101,14 @@ impl SimulatorService {
             store,
             instructor_key: instructor_key.filter(|k| !k.is_empty()),
             tokens: RwLock::new(HashMap::new()),
+            inline_scenes: InlineScenes::default(),
         }
+    }
+
+    /// Who may create sessions from scene texts.
+    pub fn with_inline_scenes(mut self, inline_scenes: InlineScenes) -> Self {
+        self.inline_scenes = inline_scenes;
+        self
     }
 
     fn is_instructor(&self, token: Option<&str>) -> bool {
@@ -270,7 +280,28 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::CreateSessionRequest>,
     ) -> Result<Response<pb::CreateSessionResponse>, Status> {
+        let instructor = self.is_instructor(bearer(&request).as_deref());
         let r = request.into_inner();
+        let inline = matches!(
+            r.scene,
+            Some(
+                pb::create_session_request::Scene::SceneToml(_)
+                    | pb::create_session_request::Scene::SceneJson(_)
+            )
+        );
+        match (inline, self.inline_scenes) {
+            (true, InlineScenes::Off) => {
+                return Err(Status::permission_denied(
+                    "scene: this server takes only its listed scenes (inline scenes are off)",
+                ));
+            }
+            (true, InlineScenes::Instructors) if !instructor => {
+                return Err(Status::permission_denied(
+                    "scene: an inline scene needs the instructor key (or a listed scene)",
+                ));
+            }
+            _ => {}
+        }
         let source = match r.scene {
             Some(pb::create_session_request::Scene::SceneName(name)) => SceneSource::Named(name),
             Some(pb::create_session_request::Scene::SceneToml(text)) => {

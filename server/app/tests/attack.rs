@@ -70,3 +70,89 @@ async fn concurrent_creates_never_pass_the_session_limit() {
     let again = create(&mut client).await;
     assert!(!again.session_id.is_empty());
 }
+
+/// Resident memory of a process (bytes), from /proc.
+fn rss_bytes(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let kb: u64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .expect("VmRSS");
+    kb * 1024
+}
+
+fn default_scene_text() -> String {
+    std::fs::read_to_string(repo_root().join("scenes/arch_to_cow_lcca.toml")).unwrap()
+}
+
+fn inline(text: String) -> pb::CreateSessionRequest {
+    pb::CreateSessionRequest {
+        scene: Some(pb::create_session_request::Scene::SceneToml(text)),
+        label: "attack".into(),
+        ..Default::default()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn failing_inline_scenes_need_the_key_and_leave_no_memory_behind() {
+    let (server, _dir) = server_with("memory", "asset_cache_mib = 512\n");
+    let mut client = server.client().await;
+    // Without the instructor key an inline scene is refused before anything is read.
+    let anonymous = client
+        .create_session(inline(default_scene_text()))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        anonymous.code(),
+        tonic::Code::PermissionDenied,
+        "{anonymous:?}"
+    );
+    assert!(anonymous.message().contains("instructor key"));
+    // A listed scene warms the cache; then 20 inline scenes that fail only after their CT is
+    // built (each with another spacing, so each builds a new one; the isocenter branch is
+    // unknown).
+    let warm = create(&mut client).await;
+    close(&mut client, &warm).await;
+    let pid = server.child.id();
+    let start = rss_bytes(pid);
+    for i in 0..20 {
+        let text = default_scene_text()
+            .replace(
+                "spacing_mm = 2.0",
+                &format!("spacing_mm = {}", 2.0 + 0.01 * f64::from(i + 1)),
+            )
+            .replace("isocenter_branch = \"LCCA\"", "isocenter_branch = \"nope\"");
+        let error = client
+            .create_session(authed(inline(text), INSTRUCTOR_KEY))
+            .await
+            .unwrap_err();
+        assert_eq!(error.code(), tonic::Code::InvalidArgument, "{error:?}");
+        assert!(
+            error.message().contains("carm.isocenter_branch"),
+            "{error:?}"
+        );
+    }
+    let end = rss_bytes(pid);
+    println!(
+        "20 failing inline scenes: RSS {:.1} → {:.1} MiB",
+        start as f64 / 1048576.0,
+        end as f64 / 1048576.0
+    );
+    assert!(
+        end < start + (50 << 20),
+        "RSS grew {} MiB",
+        (end - start) >> 20
+    );
+    // A phantom too fine for the asset budget (about 1 GiB at 0.5 mm, against 512 MiB) is
+    // refused before loading.
+    let fine = default_scene_text().replace("spacing_mm = 2.0", "spacing_mm = 0.5");
+    let error = client
+        .create_session(authed(inline(fine), INSTRUCTOR_KEY))
+        .await
+        .unwrap_err();
+    println!("0.5 mm phantom: {:?} {}", error.code(), error.message());
+    assert_eq!(error.code(), tonic::Code::ResourceExhausted);
+    assert!(error.message().contains("budget"), "{error:?}");
+}

@@ -438,13 +438,16 @@ async fn bad_input_gets_named_errors() {
         ),
     ] {
         let error = client
-            .create_session(pb::CreateSessionRequest {
-                scene: Some(pb::create_session_request::Scene::SceneToml(
-                    text.to_owned(),
-                )),
-                label: String::new(),
-                ..Default::default()
-            })
+            .create_session(authed(
+                pb::CreateSessionRequest {
+                    scene: Some(pb::create_session_request::Scene::SceneToml(
+                        text.to_owned(),
+                    )),
+                    label: String::new(),
+                    ..Default::default()
+                },
+                INSTRUCTOR_KEY,
+            ))
             .await
             .unwrap_err();
         assert_eq!(error.code(), tonic::Code::InvalidArgument, "{error:?}");
@@ -763,11 +766,14 @@ async fn a_diverging_session_is_reset_and_reported_while_others_go_on() {
         .replace("bend_deg = 90.0", "bend_deg = 180.0")
         .replace("bend_length_mm = 30.0", "bend_length_mm = 10.0");
     let fragile = client
-        .create_session(pb::CreateSessionRequest {
-            scene: Some(pb::create_session_request::Scene::SceneToml(coarse)),
-            label: "coarse".into(),
-            ..Default::default()
-        })
+        .create_session(authed(
+            pb::CreateSessionRequest {
+                scene: Some(pb::create_session_request::Scene::SceneToml(coarse)),
+                label: "coarse".into(),
+                ..Default::default()
+            },
+            INSTRUCTOR_KEY,
+        ))
         .await
         .unwrap()
         .into_inner();

@@ -5,6 +5,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use cathlab_anatomy::real::{Anatomy, load_arch_to_cow};
 use cathlab_anatomy::{Lumen, VesselPath};
@@ -100,13 +101,39 @@ impl SceneAssets {
     }
 }
 
-/// Loads scenes, keeping one copy of every anatomy and volume for all sessions. Entries stay
-/// for the server's lifetime (a handful of scenes).
+/// Bytes the asset cache may hold by default (2 GiB).
+pub const DEFAULT_ASSET_BUDGET_BYTES: usize = 2 << 30;
+
+/// A cached asset: the value, what it costs, and when it was last used.
+struct Cached<T> {
+    value: Arc<T>,
+    bytes: usize,
+    used: u64,
+}
+
+/// What one scene's load made that the cache did not have: kept only if the whole scene
+/// loads, so that a scene failing late leaves nothing behind.
 #[derive(Default)]
+struct Staged {
+    anatomy: Option<(String, Arc<Anatomy>)>,
+    volume: Option<(String, Arc<Volume>)>,
+}
+
+/// Loads scenes, keeping one copy of every anatomy and volume for all sessions. The cache is
+/// bounded by bytes: past its budget, the least recently used scenes and assets that no
+/// session holds are dropped. A scene that fails to load keeps nothing.
 pub struct AssetCache {
-    anatomies: Mutex<HashMap<String, Arc<Anatomy>>>,
-    volumes: Mutex<HashMap<String, Arc<Volume>>>,
-    scenes: Mutex<HashMap<String, Arc<SceneAssets>>>,
+    anatomies: Mutex<HashMap<String, Cached<Anatomy>>>,
+    volumes: Mutex<HashMap<String, Cached<Volume>>>,
+    scenes: Mutex<HashMap<String, Cached<SceneAssets>>>,
+    budget_bytes: usize,
+    clock: AtomicU64,
+}
+
+impl Default for AssetCache {
+    fn default() -> Self {
+        Self::with_budget(DEFAULT_ASSET_BUDGET_BYTES)
+    }
 }
 
 impl std::fmt::Debug for AssetCache {
@@ -114,6 +141,8 @@ impl std::fmt::Debug for AssetCache {
         f.debug_struct("AssetCache")
             .field("anatomies", &self.anatomies.lock().len())
             .field("volumes", &self.volumes.lock().len())
+            .field("bytes", &self.bytes())
+            .field("budget_bytes", &self.budget_bytes)
             .finish()
     }
 }
@@ -148,6 +177,40 @@ pub fn device_of(spec: &DeviceSpec) -> (Device, DeviceAppearance) {
 }
 
 impl AssetCache {
+    /// An empty cache that holds at most `budget_bytes` of assets no session uses.
+    pub fn with_budget(budget_bytes: usize) -> Self {
+        Self {
+            anatomies: Mutex::new(HashMap::new()),
+            volumes: Mutex::new(HashMap::new()),
+            scenes: Mutex::new(HashMap::new()),
+            budget_bytes,
+            clock: AtomicU64::new(0),
+        }
+    }
+
+    /// Bytes held by the cached anatomies and volumes.
+    pub fn bytes(&self) -> usize {
+        self.anatomies
+            .lock()
+            .values()
+            .map(|c| c.bytes)
+            .sum::<usize>()
+            + self.volumes.lock().values().map(|c| c.bytes).sum::<usize>()
+    }
+
+    /// How many anatomies, volumes and scenes are cached.
+    pub fn counts(&self) -> (usize, usize, usize) {
+        (
+            self.anatomies.lock().len(),
+            self.volumes.lock().len(),
+            self.scenes.lock().len(),
+        )
+    }
+
+    fn tick(&self) -> u64 {
+        self.clock.fetch_add(1, Ordering::Relaxed)
+    }
+
     /// Loads `spec` (relative paths from `base`), reusing whatever an identical scene or an
     /// identical anatomy/CT loaded before.
     pub fn load(&self, spec: &SceneSpec, base: &Path) -> Result<Arc<SceneAssets>> {
@@ -156,15 +219,85 @@ impl AssetCache {
             base.display(),
             serde_json::to_string(spec).unwrap_or_default()
         );
-        if let Some(found) = self.scenes.lock().get(&key) {
-            return Ok(found.clone());
+        let now = self.tick();
+        if let Some(found) = self.scenes.lock().get_mut(&key) {
+            found.used = now;
+            return Ok(found.value.clone());
         }
-        let assets = Arc::new(self.build(spec, base)?);
-        self.scenes.lock().insert(key, assets.clone());
+        let mut staged = Staged::default();
+        let assets = Arc::new(self.build(spec, base, &mut staged)?);
+        if let Some((k, anatomy)) = staged.anatomy {
+            let bytes = anatomy.lumen.memory_bytes();
+            self.anatomies.lock().insert(
+                k,
+                Cached {
+                    value: anatomy,
+                    bytes,
+                    used: now,
+                },
+            );
+        }
+        if let Some((k, volume)) = staged.volume {
+            let bytes = volume.memory_bytes();
+            self.volumes.lock().insert(
+                k,
+                Cached {
+                    value: volume,
+                    bytes,
+                    used: now,
+                },
+            );
+        }
+        self.scenes.lock().insert(
+            key,
+            Cached {
+                value: assets.clone(),
+                bytes: 0,
+                used: now,
+            },
+        );
+        self.evict();
         Ok(assets)
     }
 
-    fn anatomy(&self, spec: &AnatomySpec, base: &Path) -> Result<(Arc<Anatomy>, Matrix3<f64>)> {
+    /// Drops the least recently used scenes, then assets, that nothing else holds, until the
+    /// cache is within its budget (or everything left is in use).
+    fn evict(&self) {
+        fn oldest_unused<T>(map: &HashMap<String, Cached<T>>) -> Option<(String, u64)> {
+            map.iter()
+                .filter(|(_, c)| Arc::strong_count(&c.value) == 1)
+                .min_by_key(|(_, c)| c.used)
+                .map(|(k, c)| (k.clone(), c.used))
+        }
+        while self.bytes() > self.budget_bytes {
+            let scene = oldest_unused(&self.scenes.lock());
+            if let Some((k, _)) = scene {
+                self.scenes.lock().remove(&k);
+                continue;
+            }
+            let anatomy = oldest_unused(&self.anatomies.lock());
+            let volume = oldest_unused(&self.volumes.lock());
+            match (anatomy, volume) {
+                (Some((a, ta)), Some((_, tv))) if ta <= tv => {
+                    self.anatomies.lock().remove(&a);
+                }
+                (_, Some((v, _))) => {
+                    self.volumes.lock().remove(&v);
+                }
+                (Some((a, _)), None) => {
+                    self.anatomies.lock().remove(&a);
+                }
+                (None, None) => break,
+            }
+        }
+    }
+
+    fn anatomy(
+        &self,
+        spec: &AnatomySpec,
+        base: &Path,
+        staged: &mut Staged,
+    ) -> Result<(Arc<Anatomy>, Matrix3<f64>)> {
         let (key, to_lps) = match spec {
             AnatomySpec::ArchToCow { dir } => (
                 format!("arch_to_cow:{}", resolve(base, dir).display()),
@@ -181,8 +314,9 @@ impl AssetCache {
                 Matrix3::identity(),
             ),
         };
-        if let Some(found) = self.anatomies.lock().get(&key) {
-            return Ok((found.clone(), to_lps));
+        if let Some(found) = self.anatomies.lock().get_mut(&key) {
+            found.used = self.tick();
+            return Ok((found.value.clone(), to_lps));
         }
         let anatomy = match spec {
             AnatomySpec::ArchToCow { dir } => {
@@ -224,7 +358,7 @@ impl AssetCache {
             }
         };
         let anatomy = Arc::new(anatomy);
-        self.anatomies.lock().insert(key, anatomy.clone());
+        staged.anatomy = Some((key, anatomy.clone()));
         Ok((anatomy, to_lps))
     }
 
@@ -234,6 +368,7 @@ impl AssetCache {
         base: &Path,
         anatomy_key: &str,
         phantom: impl FnOnce() -> cathlab_xray::Result<BodyPhantom>,
+        staged: &mut Staged,
     ) -> Result<Arc<Volume>> {
         let key = match spec {
             CtSpec::Phantom { spacing_mm } => format!("phantom:{spacing_mm}:{anatomy_key}"),
@@ -246,11 +381,14 @@ impl AssetCache {
                 resolve(base, path).display()
             ),
         };
-        if let Some(found) = self.volumes.lock().get(&key) {
-            return Ok(found.clone());
+        if let Some(found) = self.volumes.lock().get_mut(&key) {
+            found.used = self.tick();
+            return Ok(found.value.clone());
         }
         let volume = match spec {
-            CtSpec::Phantom { spacing_mm } => phantom()?.volume(spacing_mm * 1e-3)?,
+            CtSpec::Phantom { spacing_mm } => phantom()?
+                .volume(spacing_mm * 1e-3)
+                .map_err(|e| scene_error("ct.spacing_mm", e))?,
             CtSpec::File {
                 path,
                 hu_slope,
@@ -263,12 +401,12 @@ impl AssetCache {
             }
         };
         let volume = Arc::new(volume);
-        self.volumes.lock().insert(key, volume.clone());
+        staged.volume = Some((key, volume.clone()));
         Ok(volume)
     }
 
-    fn build(&self, spec: &SceneSpec, base: &Path) -> Result<SceneAssets> {
-        let (anatomy, to_lps) = self.anatomy(&spec.anatomy, base)?;
+    fn build(&self, spec: &SceneSpec, base: &Path, staged: &mut Staged) -> Result<SceneAssets> {
+        let (anatomy, to_lps) = self.anatomy(&spec.anatomy, base, staged)?;
         let graph = &anatomy.graph;
         let target_branch = graph
             .branch_id(&spec.target.branch)
@@ -304,9 +442,13 @@ impl AssetCache {
             }
         }
         let anatomy_key = format!("{:?}", spec.anatomy);
-        let volume = self.volume(&spec.ct, base, &anatomy_key, || {
-            BodyPhantom::around_graph(graph, &to_lps)
-        })?;
+        let volume = self.volume(
+            &spec.ct,
+            base,
+            &anatomy_key,
+            || BodyPhantom::around_graph(graph, &to_lps),
+            staged,
+        )?;
         let iso_name = if spec.carm.isocenter_branch.is_empty() {
             &spec.target.branch
         } else {

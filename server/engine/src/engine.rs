@@ -23,6 +23,9 @@ pub struct EngineSettings {
     pub session: SessionSettings,
     /// Most sessions running at once.
     pub max_sessions: usize,
+    /// Bytes the shared scene assets may hold beyond what running sessions use; a scene
+    /// estimated larger is refused before anything loads.
+    pub asset_budget_bytes: usize,
 }
 
 /// Where a session's scene comes from.
@@ -78,6 +81,7 @@ impl Engine {
         metrics: EngineMetrics,
     ) -> Result<Self> {
         let catalog = SceneCatalog::read_dir(&settings.scenes_dir)?;
+        let assets = AssetCache::with_budget(settings.asset_budget_bytes);
         Ok(Self {
             context: SessionContext {
                 recorder,
@@ -87,7 +91,7 @@ impl Engine {
             },
             settings,
             catalog,
-            assets: AssetCache::default(),
+            assets,
             sessions: RwLock::new(HashMap::new()),
             admitting: Mutex::new(0),
         })
@@ -133,6 +137,14 @@ impl Engine {
         spec: &SceneSpec,
         base: &Path,
     ) -> Result<Arc<Session>> {
+        let estimate = spec.estimated_bytes();
+        if estimate > self.settings.asset_budget_bytes {
+            return Err(EngineError::Exhausted(format!(
+                "the scene needs about {} MiB of assets, over the server's budget of {} MiB",
+                estimate >> 20,
+                self.settings.asset_budget_bytes >> 20
+            )));
+        }
         let mut admission = self.admit()?;
         let assets = self.load(spec, base)?;
         let session = Session::start(id.clone(), label, assets, self.context.clone())?;

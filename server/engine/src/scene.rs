@@ -464,6 +464,22 @@ fn scene_error(path: impl Into<String>, reason: impl Into<String>) -> EngineErro
 }
 
 impl SceneSpec {
+    /// A conservative estimate of the memory this scene's assets take (bytes), made before
+    /// anything loads: a phantom CT is sampled over at most 0.34 × 0.30 × 0.60 m at its
+    /// spacing (16-bit voxels), plus 64 MiB for the anatomy, flow network and devices. A CT
+    /// file counts as it is loaded (checked by the loader's own limits), so it adds nothing
+    /// here.
+    pub fn estimated_bytes(&self) -> usize {
+        let ct = match &self.ct {
+            CtSpec::Phantom { spacing_mm } if *spacing_mm > 0.0 => {
+                let voxels = (340.0 / spacing_mm) * (300.0 / spacing_mm) * (600.0 / spacing_mm);
+                (voxels * 2.0) as usize
+            }
+            _ => 0,
+        };
+        ct + (64 << 20)
+    }
+
     /// Parses a scene text; errors name the field path (`fidelity.step_rate_hz`) and the
     /// reason, and the values are checked ([`SceneSpec::validate`]).
     pub fn parse(text: &str, format: SceneFormat) -> Result<Self> {

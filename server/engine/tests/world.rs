@@ -456,3 +456,52 @@ fn a_dsa_run_fires_the_linked_injector_after_its_mask_and_not_once_stopped() {
     }
     assert_eq!(stopped.metrics().contrast_volume_ml, 0.0);
 }
+
+#[test]
+fn the_asset_cache_keeps_nothing_of_a_failed_scene_and_stays_within_its_budget() {
+    // A scene that fails after its anatomy and CT are built (an unknown isocenter branch).
+    let cache = AssetCache::default();
+    let bad = default_text().replace("isocenter_branch = \"LCCA\"", "isocenter_branch = \"nope\"");
+    assert_ne!(bad, default_text());
+    let spec = SceneSpec::parse(&bad, SceneFormat::Toml).unwrap();
+    let error = cache.load(&spec, &scenes()).unwrap_err().to_string();
+    assert!(error.contains("carm.isocenter_branch"), "{error}");
+    assert_eq!(
+        cache.counts(),
+        (0, 0, 0),
+        "the failed scene left assets behind"
+    );
+    assert_eq!(cache.bytes(), 0);
+    // A budget smaller than one scene: a scene in use stays, one no session holds goes when
+    // the next is loaded.
+    let small = AssetCache::with_budget(1);
+    let first = small
+        .load(
+            &SceneSpec::parse(&default_text(), SceneFormat::Toml).unwrap(),
+            &scenes(),
+        )
+        .unwrap();
+    let one_scene = small.bytes();
+    assert!(one_scene > 1 << 20, "{one_scene} bytes");
+    assert_eq!(small.counts(), (1, 1, 1), "in use, so kept");
+    drop(first);
+    let coarser = default_text().replace("spacing_mm = 2.0", "spacing_mm = 3.0");
+    let second = small
+        .load(
+            &SceneSpec::parse(&coarser, SceneFormat::Toml).unwrap(),
+            &scenes(),
+        )
+        .unwrap();
+    println!(
+        "one scene: {:.1} MiB; after a second with the first unused: {:?}, {:.1} MiB",
+        one_scene as f64 / (1 << 20) as f64,
+        small.counts(),
+        small.bytes() as f64 / (1 << 20) as f64
+    );
+    assert_eq!(
+        small.counts(),
+        (1, 1, 1),
+        "the unused scene and its CT went"
+    );
+    assert!(Arc::strong_count(&second) >= 1);
+}

@@ -68,6 +68,8 @@ fn start_server(cli: &Cli, database: &std::path::Path) -> Result<Server> {
         .arg("--scenes")
         .arg(&cli.scenes)
         .arg("--exit-on-stdin-eof")
+        // The 1 kHz probe runs an inline scene.
+        .args(["--inline-scenes", "anyone"])
         .env("CATHLAB_INSTRUCTOR_KEY", "load")
         .env("RUST_LOG", "warn")
         .stdin(Stdio::piped())
