@@ -69,6 +69,9 @@ pub struct ConfigFile {
     /// Memory the shared scene assets (anatomies, CT volumes) may hold beyond what running
     /// sessions use (MiB); a scene estimated larger is refused before loading.
     pub asset_cache_mib: Option<usize>,
+    /// Directories whose files scenes may name (default: the scenes directory and `data`
+    /// beside it).
+    pub data_roots: Option<Vec<PathBuf>>,
 }
 
 impl ConfigFile {
@@ -105,6 +108,9 @@ pub struct ServerConfig {
     pub inline_scenes: InlineScenes,
     /// Memory budget of the shared scene assets (MiB).
     pub asset_cache_mib: usize,
+    /// Directories whose files scenes may name; empty: the scenes directory and `data`
+    /// beside it.
+    pub data_roots: Vec<PathBuf>,
 }
 
 impl Default for ServerConfig {
@@ -121,6 +127,7 @@ impl Default for ServerConfig {
             web_root: PathBuf::from("client-web/dist"),
             inline_scenes: InlineScenes::Instructors,
             asset_cache_mib: 2048,
+            data_roots: Vec::new(),
         }
     }
 }
@@ -141,6 +148,7 @@ impl ServerConfig {
             web_root: file.web_root.unwrap_or(d.web_root),
             inline_scenes: file.inline_scenes.unwrap_or(d.inline_scenes),
             asset_cache_mib: file.asset_cache_mib.unwrap_or(d.asset_cache_mib),
+            data_roots: file.data_roots.unwrap_or(d.data_roots),
         }
     }
 }

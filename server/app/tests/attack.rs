@@ -156,3 +156,75 @@ async fn failing_inline_scenes_need_the_key_and_leave_no_memory_behind() {
     assert_eq!(error.code(), tonic::Code::ResourceExhausted);
     assert!(error.message().contains("budget"), "{error:?}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scenes_cannot_name_files_outside_the_data_roots_nor_echo_them() {
+    // A data root of our own beside the bundled data, with a MetaImage header whose data file
+    // points out of it.
+    let outside = temp_dir("outside");
+    std::fs::write(outside.join("secret.raw"), "top secret contents\n").unwrap();
+    let root = temp_dir("root");
+    std::fs::write(
+        root.join("evil.mhd"),
+        format!(
+            "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\nElementDataFile = {}\n",
+            outside.join("secret.raw").display()
+        ),
+    )
+    .unwrap();
+    std::fs::write(root.join("notes.mha"), "the first line of a text file\n").unwrap();
+    std::os::unix::fs::symlink(outside.join("secret.raw"), root.join("link.mha")).unwrap();
+    let config = format!(
+        "data_roots = [{:?}, {:?}, {:?}]\n",
+        repo_root().join("scenes").display().to_string(),
+        repo_root().join("data").display().to_string(),
+        root.display().to_string()
+    );
+    let (server, _dir) = server_with("paths", &config);
+    let mut client = server.client().await;
+    let ct_file = |path: &str| {
+        default_scene_text().replace(
+            "[ct]\nkind = \"phantom\"\nspacing_mm = 2.0",
+            &format!("[ct]\nkind = \"file\"\npath = {path:?}"),
+        )
+    };
+    assert_ne!(ct_file("x"), default_scene_text());
+    let hostile = [
+        ct_file("/etc/hostname"),
+        ct_file("../../../../../../etc/passwd"),
+        ct_file("../../x.mha"),
+        ct_file(&root.join("evil.mhd").display().to_string()),
+        ct_file(&root.join("notes.mha").display().to_string()),
+        ct_file(&outside.join("secret.raw").display().to_string()),
+        default_scene_text().replace("dir = \"../data/anatomy/arch-to-cow\"", "dir = \"/etc\""),
+        ct_file(&root.join("link.mha").display().to_string()),
+    ];
+    for (i, text) in hostile.into_iter().enumerate() {
+        let error = client
+            .create_session(authed(inline(text), INSTRUCTOR_KEY))
+            .await
+            .unwrap_err();
+        let message = error.message();
+        println!("hostile scene {i}: {:?} {message}", error.code());
+        assert_eq!(error.code(), tonic::Code::InvalidArgument, "{i}: {error:?}");
+        assert!(
+            message.contains("ct.path") || message.contains("anatomy.dir"),
+            "{i}: names the field: {message}"
+        );
+        if [0, 1, 2, 5, 6, 7].contains(&i) {
+            // Missing and outside read alike: no oracle for files outside the roots.
+            assert!(message.contains("names no file in the server's data directories"));
+        }
+        for leak in [
+            "/etc",
+            "/tmp",
+            "secret",
+            "first line",
+            "hostname",
+            "passwd",
+            repo_root().canonicalize().unwrap().to_str().unwrap(),
+        ] {
+            assert!(!message.contains(leak), "{i}: {message:?} shows {leak:?}");
+        }
+    }
+}

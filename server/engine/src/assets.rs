@@ -128,6 +128,8 @@ pub struct AssetCache {
     scenes: Mutex<HashMap<String, Cached<SceneAssets>>>,
     budget_bytes: usize,
     clock: AtomicU64,
+    /// Directories scene files may name files in (canonical); empty: anywhere.
+    roots: Vec<PathBuf>,
 }
 
 impl Default for AssetCache {
@@ -185,7 +187,55 @@ impl AssetCache {
             scenes: Mutex::new(HashMap::new()),
             budget_bytes,
             clock: AtomicU64::new(0),
+            roots: Vec::new(),
         }
+    }
+
+    /// Confines the files scenes may name to `roots` (each must exist).
+    pub fn with_roots(mut self, roots: &[PathBuf]) -> Result<Self> {
+        self.roots = roots
+            .iter()
+            .map(|r| {
+                r.canonicalize().map_err(|source| EngineError::Io {
+                    file: r.clone(),
+                    source,
+                })
+            })
+            .collect::<Result<_>>()?;
+        Ok(self)
+    }
+
+    /// The file `path` (relative to `base`) names, canonical, if it exists inside the data
+    /// roots; a MetaImage header's data file must be inside them too. The errors name
+    /// `field` and never the server's paths.
+    fn resolve(&self, base: &Path, path: &Path, field: &str) -> Result<PathBuf> {
+        let joined = if path.is_absolute() {
+            path.to_owned()
+        } else {
+            base.join(path)
+        };
+        let inside =
+            |p: &Path| self.roots.is_empty() || self.roots.iter().any(|r| p.starts_with(r));
+        // One answer for "missing" and "outside": the error tells nothing of files outside.
+        let refused = || scene_error(field, "names no file in the server's data directories");
+        let canonical = joined.canonicalize().map_err(|_| refused())?;
+        if !inside(&canonical) {
+            return Err(refused());
+        }
+        if let Some(data) = metaimage_data_file(&canonical) {
+            let dir = canonical.parent().unwrap_or(Path::new("/"));
+            let ok = dir
+                .join(&data)
+                .canonicalize()
+                .is_ok_and(|d| inside(&d) && !data.contains('%') && data != "LIST");
+            if !ok {
+                return Err(scene_error(
+                    field,
+                    "its MetaImage data file (ElementDataFile) is missing or outside the server's data directories",
+                ));
+            }
+        }
+        Ok(canonical)
     }
 
     /// Bytes held by the cached anatomies and volumes.
@@ -300,7 +350,10 @@ impl AssetCache {
     ) -> Result<(Arc<Anatomy>, Matrix3<f64>)> {
         let (key, to_lps) = match spec {
             AnatomySpec::ArchToCow { dir } => (
-                format!("arch_to_cow:{}", resolve(base, dir).display()),
+                format!(
+                    "arch_to_cow:{}",
+                    self.resolve(base, dir, "anatomy.dir")?.display()
+                ),
                 Matrix3::from_fn(|r, c| ARCH_TO_COW_TO_LPS[r][c]),
             ),
             AnatomySpec::NeuroPhantom { seed, tortuosity } => {
@@ -309,7 +362,7 @@ impl AssetCache {
             AnatomySpec::CtSegmentation { volume, seed_voxel } => (
                 format!(
                     "segmentation:{}:{seed_voxel:?}",
-                    resolve(base, volume).display()
+                    self.resolve(base, volume, "anatomy.volume")?.display()
                 ),
                 Matrix3::identity(),
             ),
@@ -320,7 +373,8 @@ impl AssetCache {
         }
         let anatomy = match spec {
             AnatomySpec::ArchToCow { dir } => {
-                load_arch_to_cow(&resolve(base, dir)).map_err(|e| scene_error("anatomy.dir", e))?
+                let dir = self.resolve(base, dir, "anatomy.dir")?;
+                load_arch_to_cow(&dir).map_err(|e| unreadable("anatomy.dir", &dir, e))?
             }
             AnatomySpec::NeuroPhantom { seed, tortuosity } => {
                 use cathlab_anatomy::phantom::{NeuroPhantomParams, neuro_phantom};
@@ -336,9 +390,9 @@ impl AssetCache {
             }
             AnatomySpec::CtSegmentation { volume, seed_voxel } => {
                 use cathlab_anatomy::segment::{Seed, SegmentSettings, segment};
-                let path = resolve(base, volume);
+                let path = self.resolve(base, volume, "anatomy.volume")?;
                 let ct = cathlab_anatomy::ScalarVolume::load(&path)
-                    .map_err(|e| scene_error("anatomy.volume", e))?;
+                    .map_err(|e| unreadable("anatomy.volume", &path, e))?;
                 let result = segment(&ct, &Seed::Voxel(*seed_voxel), &SegmentSettings::default())
                     .map_err(|e| scene_error("anatomy.seed_voxel", e))?;
                 // A segmented surface is finely meshed over a large box: the default grid
@@ -378,7 +432,7 @@ impl AssetCache {
                 hu_intercept,
             } => format!(
                 "file:{}:{hu_slope}:{hu_intercept}",
-                resolve(base, path).display()
+                self.resolve(base, path, "ct.path")?.display()
             ),
         };
         if let Some(found) = self.volumes.lock().get_mut(&key) {
@@ -394,8 +448,8 @@ impl AssetCache {
                 hu_slope,
                 hu_intercept,
             } => {
-                let mut v =
-                    Volume::load(&resolve(base, path)).map_err(|e| scene_error("ct.path", e))?;
+                let mut v = Volume::load(&self.resolve(base, path, "ct.path")?)
+                    .map_err(|e| unreadable("ct.path", path, e))?;
                 v.rescale(*hu_slope, *hu_intercept)?;
                 v
             }
@@ -530,10 +584,35 @@ impl AssetCache {
     }
 }
 
-fn resolve(base: &Path, path: &Path) -> PathBuf {
-    if path.is_absolute() {
-        path.to_owned()
-    } else {
-        base.join(path)
+/// A file a scene named could not be read: the detail goes to the log, the client hears only
+/// which field (never the server's paths or the file's contents).
+fn unreadable(field: &str, path: &Path, e: impl std::fmt::Display) -> EngineError {
+    tracing::warn!(field, path = %path.display(), "scene file unreadable: {e}");
+    scene_error(
+        field,
+        "cannot be read as what the field names (the server's log has the detail)",
+    )
+}
+
+/// The `ElementDataFile` of a MetaImage header (`None` for `LOCAL` data or a file that is not
+/// a `.mhd` header).
+fn metaimage_data_file(header: &Path) -> Option<String> {
+    let is_mhd = header
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("mhd"));
+    if !is_mhd {
+        return None;
     }
+    let mut text = Vec::new();
+    use std::io::Read;
+    std::fs::File::open(header)
+        .ok()?
+        .take(64 << 10)
+        .read_to_end(&mut text)
+        .ok()?;
+    String::from_utf8_lossy(&text).lines().find_map(|line| {
+        let (key, value) = line.split_once('=')?;
+        (key.trim() == "ElementDataFile" && value.trim() != "LOCAL")
+            .then(|| value.trim().to_owned())
+    })
 }

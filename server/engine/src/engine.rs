@@ -26,6 +26,9 @@ pub struct EngineSettings {
     /// Bytes the shared scene assets may hold beyond what running sessions use; a scene
     /// estimated larger is refused before anything loads.
     pub asset_budget_bytes: usize,
+    /// Directories whose files scenes may name; empty: the scenes directory and `data`
+    /// beside it.
+    pub data_roots: Vec<PathBuf>,
 }
 
 /// Where a session's scene comes from.
@@ -81,7 +84,18 @@ impl Engine {
         metrics: EngineMetrics,
     ) -> Result<Self> {
         let catalog = SceneCatalog::read_dir(&settings.scenes_dir)?;
-        let assets = AssetCache::with_budget(settings.asset_budget_bytes);
+        let roots = if settings.data_roots.is_empty() {
+            [
+                settings.scenes_dir.clone(),
+                settings.scenes_dir.join("../data"),
+            ]
+            .into_iter()
+            .filter(|d| d.is_dir())
+            .collect()
+        } else {
+            settings.data_roots.clone()
+        };
+        let assets = AssetCache::with_budget(settings.asset_budget_bytes).with_roots(&roots)?;
         Ok(Self {
             context: SessionContext {
                 recorder,
