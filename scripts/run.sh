@@ -4,7 +4,8 @@
 # store in var/, and the web client at the printed URL (trainee view at /, instructor
 # dashboard at /dashboard.html). Extra arguments go to the server (see
 # `cathlab-server --help`), e.g. `scripts/run.sh --listen 0.0.0.0:50051`.
-# The instructor key comes from CATHLAB_INSTRUCTOR_KEY (default here: "instructor").
+# The instructor key comes from CATHLAB_INSTRUCTOR_KEY (default here: "instructor", which the
+# server accepts on 127.0.0.1 only: to listen beyond it, export a random key of 16+ characters).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh

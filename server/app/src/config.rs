@@ -72,6 +72,8 @@ pub struct ConfigFile {
     /// Directories whose files scenes may name (default: the scenes directory and `data`
     /// beside it).
     pub data_roots: Option<Vec<PathBuf>>,
+    /// Wrong instructor keys or tokens one address may send a minute before it is refused.
+    pub auth_failures_per_minute: Option<u32>,
 }
 
 impl ConfigFile {
@@ -111,6 +113,8 @@ pub struct ServerConfig {
     /// Directories whose files scenes may name; empty: the scenes directory and `data`
     /// beside it.
     pub data_roots: Vec<PathBuf>,
+    /// Wrong instructor keys or tokens one address may send a minute before it is refused.
+    pub auth_failures_per_minute: u32,
 }
 
 impl Default for ServerConfig {
@@ -128,6 +132,7 @@ impl Default for ServerConfig {
             inline_scenes: InlineScenes::Instructors,
             asset_cache_mib: 2048,
             data_roots: Vec::new(),
+            auth_failures_per_minute: 20,
         }
     }
 }
@@ -149,6 +154,9 @@ impl ServerConfig {
             inline_scenes: file.inline_scenes.unwrap_or(d.inline_scenes),
             asset_cache_mib: file.asset_cache_mib.unwrap_or(d.asset_cache_mib),
             data_roots: file.data_roots.unwrap_or(d.data_roots),
+            auth_failures_per_minute: file
+                .auth_failures_per_minute
+                .unwrap_or(d.auth_failures_per_minute),
         }
     }
 }

@@ -64,12 +64,39 @@ pub fn engine(config: &ServerConfig) -> anyhow::Result<(Arc<Engine>, Arc<Store>,
     Ok((Arc::new(engine), store, metrics))
 }
 
+/// Instructor keys too weak to stand on a network: the default of `scripts/run.sh` and
+/// anything shorter than 16 characters.
+const WEAK_KEYS: [&str; 2] = ["instructor", "changeme"];
+
+/// Refuses to listen beyond the loopback interface with a weak instructor key: a key that
+/// guards every session's data must be a secret there.
+pub fn check_exposure(config: &ServerConfig) -> anyhow::Result<()> {
+    let loopback = config
+        .listen
+        .parse::<std::net::SocketAddr>()
+        .map(|a| a.ip().is_loopback())
+        .unwrap_or_else(|_| config.listen.starts_with("localhost:"));
+    if let Some(key) = &config.instructor_key
+        && !loopback
+        && (key.chars().count() < 16 || WEAK_KEYS.contains(&key.as_str()))
+    {
+        anyhow::bail!(
+            "refusing to listen on {} (beyond this machine) with a weak instructor key: set \
+             CATHLAB_INSTRUCTOR_KEY (or instructor_key in the configuration file) to a random \
+             secret of 16 characters or more, e.g. `openssl rand -hex 16`",
+            config.listen
+        );
+    }
+    Ok(())
+}
+
 /// Runs the server until `shutdown` resolves, then closes every session and flushes the
 /// store. Prints `cathlab-server listening on ADDR` once the socket is bound.
 pub async fn serve(
     config: ServerConfig,
     shutdown: impl Future<Output = ()> + Send,
 ) -> anyhow::Result<()> {
+    check_exposure(&config)?;
     let (engine, store, metrics) = engine(&config)?;
     tracing::info!(
         renderer = %format!("{:?}", config.renderer),
@@ -78,7 +105,8 @@ pub async fn serve(
     );
     let service = Arc::new(
         SimulatorService::new(engine.clone(), store.clone(), config.instructor_key.clone())
-            .with_inline_scenes(config.inline_scenes),
+            .with_inline_scenes(config.inline_scenes)
+            .with_auth_failures_per_minute(config.auth_failures_per_minute),
     );
     let simulator = SimulatorServer::from_arc(service.clone())
         .max_decoding_message_size(config.max_message_bytes)

@@ -3,6 +3,7 @@
 //! Streams forward the newest value of the engine's latest-value channels.
 
 use std::collections::{HashMap, VecDeque};
+use std::net::IpAddr;
 use std::path::Path;
 use std::pin::Pin;
 use std::sync::Arc;
@@ -16,6 +17,7 @@ use cathlab_api::{
 use cathlab_engine::engine::SceneSource;
 use cathlab_engine::scene::GuidanceSpec;
 
+use crate::auth::{Throttle, same_secret};
 use crate::config::InlineScenes;
 use cathlab_engine::session::Session;
 use cathlab_engine::{CommandRecord, Encoding, Engine, EngineError, SceneFormat, SceneSpec};
@@ -54,6 +56,7 @@ pub struct SimulatorService {
     instructor_key: Option<String>,
     tokens: RwLock<HashMap<String, Tokens>>,
     inline_scenes: InlineScenes,
+    throttle: Throttle,
 }
 
 impl std::fmt::Debug for SimulatorService {
@@ -75,6 +78,16 @@ fn unix_us() -> u64 {
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_micros() as u64)
 }
+
+/// The caller's address (unspecified for in-process callers).
+fn peer_of<T>(request: &Request<T>) -> IpAddr {
+    request
+        .remote_addr()
+        .map_or(IpAddr::from([0, 0, 0, 0]), |a| a.ip())
+}
+
+/// Wrong keys or tokens one address may send a minute before it is refused.
+pub const AUTH_FAILURES_PER_MINUTE: u32 = 20;
 
 fn bearer<T>(request: &Request<T>) -> Option<String> {
     let value = request.metadata().get("authorization")?.to_str().ok()?;
@@ -102,7 +115,14 @@ impl SimulatorService {
             instructor_key: instructor_key.filter(|k| !k.is_empty()),
             tokens: RwLock::new(HashMap::new()),
             inline_scenes: InlineScenes::default(),
+            throttle: Throttle::new(AUTH_FAILURES_PER_MINUTE, Duration::from_secs(60)),
         }
+    }
+
+    /// At most `per_minute` wrong keys or tokens a minute from one address.
+    pub fn with_auth_failures_per_minute(mut self, per_minute: u32) -> Self {
+        self.throttle = Throttle::new(per_minute, Duration::from_secs(60));
+        self
     }
 
     /// Who may create sessions from scene texts.
@@ -112,17 +132,32 @@ impl SimulatorService {
     }
 
     fn is_instructor(&self, token: Option<&str>) -> bool {
-        matches!((token, &self.instructor_key), (Some(t), Some(k)) if t == k)
+        matches!((token, &self.instructor_key), (Some(t), Some(k)) if same_secret(t, k))
+    }
+
+    /// Whether the caller holds the instructor key. An address that guessed wrong too often
+    /// is refused; a wrong key counts as a guess.
+    fn instructor<T>(&self, request: &Request<T>) -> Result<bool, Status> {
+        let peer = peer_of(request);
+        self.throttle.check(peer)?;
+        let token = bearer(request);
+        let ok = self.is_instructor(token.as_deref());
+        if !ok && token.is_some() {
+            self.throttle.failed(peer, "a wrong instructor key");
+        }
+        Ok(ok)
     }
 
     /// Checks the caller's bearer token for `session_id`: NOT_FOUND for an unknown session,
     /// UNAUTHENTICATED without a valid token, PERMISSION_DENIED when reading is not enough.
     fn authorize(
         &self,
+        peer: IpAddr,
         token: Option<&str>,
         session_id: &str,
         control: bool,
     ) -> Result<Role, Status> {
+        self.throttle.check(peer)?;
         let known = self.tokens.read().get(session_id).cloned();
         let role = if self.is_instructor(token) {
             Role::Instructor
@@ -131,9 +166,10 @@ impl SimulatorService {
                 return Err(Status::not_found(format!("session {session_id:?}")));
             };
             match token {
-                Some(t) if t == tokens.controller => Role::Controller,
-                Some(t) if t == tokens.observer => Role::Observer,
+                Some(t) if same_secret(t, &tokens.controller) => Role::Controller,
+                Some(t) if same_secret(t, &tokens.observer) => Role::Observer,
                 Some(_) => {
+                    self.throttle.failed(peer, "a token of no session");
                     return Err(Status::unauthenticated(format!(
                         "the token is not one of session {session_id:?}"
                     )));
@@ -163,7 +199,7 @@ impl SimulatorService {
 
     /// The running session `id` if the request's token may read it.
     fn readable<T>(&self, request: &Request<T>, id: &str) -> Result<Arc<Session>, Status> {
-        self.authorize(bearer(request).as_deref(), id, false)?;
+        self.authorize(peer_of(request), bearer(request).as_deref(), id, false)?;
         self.session(id)
     }
 
@@ -280,7 +316,7 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::CreateSessionRequest>,
     ) -> Result<Response<pb::CreateSessionResponse>, Status> {
-        let instructor = self.is_instructor(bearer(&request).as_deref());
+        let instructor = self.instructor(&request)?;
         let r = request.into_inner();
         let inline = matches!(
             r.scene,
@@ -360,7 +396,7 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::ListSessionsRequest>,
     ) -> Result<Response<pb::ListSessionsResponse>, Status> {
-        if !self.is_instructor(bearer(&request).as_deref()) {
+        if !self.instructor(&request)? {
             return Err(Status::permission_denied(
                 "listing sessions needs the instructor key",
             ));
@@ -395,7 +431,7 @@ impl Simulator for SimulatorService {
     ) -> Result<Response<pb::SessionInfo>, Status> {
         let id = request.get_ref().session_id.clone();
         if let Ok(session) = self.engine.get(&id) {
-            self.authorize(bearer(&request).as_deref(), &id, false)?;
+            self.authorize(peer_of(&request), bearer(&request).as_deref(), &id, false)?;
             return Ok(Response::new(self.info_of(&session)));
         }
         // A recorded session (closed, or from before a restart): instructors only.
@@ -404,7 +440,7 @@ impl Simulator for SimulatorService {
             .session(&id)
             .map_err(store_status)?
             .ok_or_else(|| Status::not_found(format!("session {id:?}")))?;
-        if !self.is_instructor(bearer(&request).as_deref()) {
+        if !self.instructor(&request)? {
             return Err(Status::permission_denied(
                 "recorded sessions are for the instructor key",
             ));
@@ -417,7 +453,7 @@ impl Simulator for SimulatorService {
         request: Request<pb::CloseSessionRequest>,
     ) -> Result<Response<pb::CloseSessionResponse>, Status> {
         let id = request.get_ref().session_id.clone();
-        let role = self.authorize(bearer(&request).as_deref(), &id, false)?;
+        let role = self.authorize(peer_of(&request), bearer(&request).as_deref(), &id, false)?;
         if role == Role::Observer {
             return Err(Status::permission_denied(
                 "an observer cannot close a session",
@@ -442,7 +478,7 @@ impl Simulator for SimulatorService {
         request: Request<pb::SendCommandRequest>,
     ) -> Result<Response<pb::CommandAck>, Status> {
         let id = request.get_ref().session_id.clone();
-        self.authorize(bearer(&request).as_deref(), &id, true)?;
+        self.authorize(peer_of(&request), bearer(&request).as_deref(), &id, true)?;
         let r = request.into_inner();
         let command = command_from_wire(r.command.as_ref())?;
         let session = self.session(&id)?;
@@ -462,7 +498,7 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<Streaming<pb::ControlInput>>,
     ) -> Result<Response<Self::ControlStream>, Status> {
-        let token = bearer(&request);
+        let (token, peer) = (bearer(&request), peer_of(&request));
         let mut inputs = request.into_inner();
         let first = inputs
             .message()
@@ -470,7 +506,7 @@ impl Simulator for SimulatorService {
             .ok_or_else(|| Status::invalid_argument("session_id: the stream sent nothing"))?;
         let id = first.session_id.clone();
         // Authorized with the token from the stream's metadata.
-        self.authorize(token.as_deref(), &id, true)?;
+        self.authorize(peer, token.as_deref(), &id, true)?;
         let session = self.session(&id)?;
         let (out_tx, out_rx) = mpsc::channel::<Result<pb::ControlOutput, Status>>(64);
         let (pending_tx, mut pending_rx) = mpsc::channel::<(
@@ -756,8 +792,8 @@ impl Simulator for SimulatorService {
     ) -> Result<Response<pb::ReplayResult>, Status> {
         let id = request.get_ref().session_id.clone();
         if self.engine.get(&id).is_ok() {
-            self.authorize(bearer(&request).as_deref(), &id, false)?;
-        } else if !self.is_instructor(bearer(&request).as_deref()) {
+            self.authorize(peer_of(&request), bearer(&request).as_deref(), &id, false)?;
+        } else if !self.instructor(&request)? {
             return Err(
                 if self.store.session(&id).map_err(store_status)?.is_some() {
                     Status::permission_denied(

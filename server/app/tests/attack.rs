@@ -228,3 +228,88 @@ async fn scenes_cannot_name_files_outside_the_data_roots_nor_echo_them() {
         }
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn guessing_the_instructor_key_is_throttled() {
+    let (server, _dir) = server_with("guessing", "auth_failures_per_minute = 10\n");
+    let mut client = server.client().await;
+    let started = std::time::Instant::now();
+    let (mut evaluated, mut refused) = (0, 0);
+    for i in 0..200 {
+        let error = client
+            .list_sessions(authed(
+                pb::ListSessionsRequest {
+                    include_recorded: false,
+                },
+                &format!("guess-{i:04}"),
+            ))
+            .await
+            .unwrap_err();
+        match error.code() {
+            tonic::Code::PermissionDenied => evaluated += 1,
+            tonic::Code::ResourceExhausted => refused += 1,
+            other => panic!("{other:?}: {error:?}"),
+        }
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    println!(
+        "200 wrong keys in {seconds:.2} s: {evaluated} evaluated, {refused} refused before the check"
+    );
+    assert_eq!(evaluated, 10);
+    assert_eq!(refused, 190);
+    // Once refused, the address is refused whatever it sends, the right key included (or the
+    // guessing would go on between right and wrong).
+    let right = client
+        .list_sessions(authed(
+            pb::ListSessionsRequest {
+                include_recorded: false,
+            },
+            INSTRUCTOR_KEY,
+        ))
+        .await
+        .unwrap_err();
+    assert_eq!(right.code(), tonic::Code::ResourceExhausted);
+    assert!(right.message().contains("retry in"), "{right:?}");
+}
+
+#[test]
+fn a_weak_instructor_key_is_refused_beyond_loopback() {
+    let dir = temp_dir("exposed");
+    for (listen, key, starts) in [
+        ("0.0.0.0:0", "instructor", false),
+        ("0.0.0.0:0", "short", false),
+        ("127.0.0.1:0", "instructor", true),
+    ] {
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+            .args(["--listen", listen, "--database"])
+            .arg(dir.join(format!("{key}.sqlite")))
+            .arg("--scenes")
+            .arg(repo_root().join("scenes"))
+            .arg("--exit-on-stdin-eof")
+            .env("CATHLAB_INSTRUCTOR_KEY", key)
+            .env("RUST_LOG", "warn")
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        if starts {
+            use std::io::BufRead;
+            let mut line = String::new();
+            std::io::BufReader::new(child.stdout.take().unwrap())
+                .read_line(&mut line)
+                .unwrap();
+            assert!(line.contains("listening"), "{line}");
+            drop(child.stdin.take());
+            child.wait().unwrap();
+        } else {
+            let out = child.wait_with_output().unwrap();
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            println!("{listen} with {key:?}: {}", stderr.trim());
+            assert!(!out.status.success());
+            assert!(
+                stderr.contains("weak instructor key") && stderr.contains("CATHLAB_INSTRUCTOR_KEY")
+            );
+        }
+    }
+}
