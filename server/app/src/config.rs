@@ -74,6 +74,8 @@ pub struct ConfigFile {
     pub data_roots: Option<Vec<PathBuf>>,
     /// Wrong instructor keys or tokens one address may send a minute before it is refused.
     pub auth_failures_per_minute: Option<u32>,
+    /// How long a control stream may go quiet before its setpoints are zeroed (ms).
+    pub control_timeout_ms: Option<u64>,
 }
 
 impl ConfigFile {
@@ -115,6 +117,8 @@ pub struct ServerConfig {
     pub data_roots: Vec<PathBuf>,
     /// Wrong instructor keys or tokens one address may send a minute before it is refused.
     pub auth_failures_per_minute: u32,
+    /// How long a control stream may go quiet before its setpoints are zeroed (ms).
+    pub control_timeout_ms: u64,
 }
 
 impl Default for ServerConfig {
@@ -133,6 +137,7 @@ impl Default for ServerConfig {
             asset_cache_mib: 2048,
             data_roots: Vec::new(),
             auth_failures_per_minute: 20,
+            control_timeout_ms: 250,
         }
     }
 }
@@ -157,6 +162,7 @@ impl ServerConfig {
             auth_failures_per_minute: file
                 .auth_failures_per_minute
                 .unwrap_or(d.auth_failures_per_minute),
+            control_timeout_ms: file.control_timeout_ms.unwrap_or(d.control_timeout_ms),
         }
     }
 }

@@ -106,7 +106,8 @@ pub async fn serve(
     let service = Arc::new(
         SimulatorService::new(engine.clone(), store.clone(), config.instructor_key.clone())
             .with_inline_scenes(config.inline_scenes)
-            .with_auth_failures_per_minute(config.auth_failures_per_minute),
+            .with_auth_failures_per_minute(config.auth_failures_per_minute)
+            .with_control_timeout(std::time::Duration::from_millis(config.control_timeout_ms)),
     );
     let simulator = SimulatorServer::from_arc(service.clone())
         .max_decoding_message_size(config.max_message_bytes)

@@ -20,6 +20,7 @@ use cathlab_engine::scene::GuidanceSpec;
 use crate::auth::{Throttle, same_secret};
 use crate::config::InlineScenes;
 use cathlab_engine::session::Session;
+use cathlab_engine::world::Command;
 use cathlab_engine::{CommandRecord, Encoding, Engine, EngineError, SceneFormat, SceneSpec};
 use parking_lot::RwLock;
 use tokio::sync::{mpsc, oneshot};
@@ -57,6 +58,7 @@ pub struct SimulatorService {
     tokens: RwLock<HashMap<String, Tokens>>,
     inline_scenes: InlineScenes,
     throttle: Throttle,
+    control_timeout: Duration,
 }
 
 impl std::fmt::Debug for SimulatorService {
@@ -89,6 +91,10 @@ fn peer_of<T>(request: &Request<T>) -> IpAddr {
 /// Wrong keys or tokens one address may send a minute before it is refused.
 pub const AUTH_FAILURES_PER_MINUTE: u32 = 20;
 
+/// How long a control stream may go quiet before its setpoints are zeroed (the dead-man
+/// rule; the configuration's default).
+pub const CONTROL_TIMEOUT: Duration = Duration::from_millis(250);
+
 fn bearer<T>(request: &Request<T>) -> Option<String> {
     let value = request.metadata().get("authorization")?.to_str().ok()?;
     value
@@ -116,7 +122,14 @@ impl SimulatorService {
             tokens: RwLock::new(HashMap::new()),
             inline_scenes: InlineScenes::default(),
             throttle: Throttle::new(AUTH_FAILURES_PER_MINUTE, Duration::from_secs(60)),
+            control_timeout: CONTROL_TIMEOUT,
         }
+    }
+
+    /// How long a control stream may go quiet before its setpoints are zeroed.
+    pub fn with_control_timeout(mut self, timeout: Duration) -> Self {
+        self.control_timeout = timeout;
+        self
     }
 
     /// At most `per_minute` wrong keys or tokens a minute from one address.
@@ -517,20 +530,46 @@ impl Simulator for SimulatorService {
         {
             let session = session.clone();
             let out_tx = out_tx.clone();
+            let quiet_after = self.control_timeout;
             tokio::spawn(async move {
                 let mut next = Some(first);
+                let (mut last_seq, mut driving) = (0, true);
+                // The dead-man rule: a stream that goes quiet or away leaves the device still.
+                let stop = |seq: u64, why: &str| {
+                    tracing::info!(session = %session.id(), "control stream {why}: setpoints zeroed");
+                    let _ = session.send(
+                        seq,
+                        Command::Setpoints {
+                            push_m_s: 0.0,
+                            twist_rad_s: 0.0,
+                        },
+                        None,
+                    );
+                };
                 loop {
                     let input = match next.take() {
                         Some(i) => i,
-                        None => match inputs.message().await {
-                            Ok(Some(i)) => i,
-                            Ok(None) => break,
-                            Err(e) => {
+                        None => match tokio::time::timeout(quiet_after, inputs.message()).await {
+                            Ok(Ok(Some(i))) => i,
+                            Ok(Ok(None)) => {
+                                stop(last_seq, "ended");
+                                break;
+                            }
+                            Ok(Err(e)) => {
+                                stop(last_seq, "broke");
                                 let _ = out_tx.send(Err(e)).await;
                                 break;
                             }
+                            Err(_) => {
+                                if driving {
+                                    stop(last_seq, "went quiet");
+                                    driving = false;
+                                }
+                                continue;
+                            }
                         },
                     };
+                    (last_seq, driving) = (input.seq, true);
                     let command = match control_from_wire(&input) {
                         Ok(c) => c,
                         Err(e) => {

@@ -313,3 +313,101 @@ fn a_weak_instructor_key_is_refused_beyond_loopback() {
         }
     }
 }
+
+/// Drives a session through a control stream at 50 mm/s for 1 s from its own connection, then
+/// goes quiet (`hang_up` false: the stream stays open) or drops the connection (true). Returns
+/// how long (simulated s) the device kept advancing after the last input.
+async fn coast_after_the_last_input(server: &ServerProcess, hang_up: bool) -> f64 {
+    let mut client = server.client().await;
+    let session = create(&mut client).await;
+    let url = server.url();
+    let (id, token) = (session.session_id.clone(), session.controller_token.clone());
+    let (quiet_tx, quiet_rx) = tokio::sync::oneshot::channel::<()>();
+    let driver = tokio::spawn(async move {
+        let mut own = pb::simulator_client::SimulatorClient::connect(url)
+            .await
+            .unwrap();
+        let (tx, rx) = tokio::sync::mpsc::channel(16);
+        // The server answers the call once the first input is in: send it before waiting.
+        tx.send(pb::ControlInput {
+            session_id: id.clone(),
+            seq: 1,
+            push_mm_s: 50.0,
+            twist_deg_s: 0.0,
+        })
+        .await
+        .unwrap();
+        let mut outputs = own
+            .control(authed(
+                tokio_stream::wrappers::ReceiverStream::new(rx),
+                &token,
+            ))
+            .await
+            .unwrap()
+            .into_inner();
+        tokio::spawn(async move { while let Ok(Some(_)) = outputs.message().await {} });
+        let mut tick = tokio::time::interval(std::time::Duration::from_millis(10));
+        for seq in 2..=100u64 {
+            tick.tick().await;
+            tx.send(pb::ControlInput {
+                session_id: String::new(),
+                seq,
+                push_mm_s: 50.0,
+                twist_deg_s: 0.0,
+            })
+            .await
+            .unwrap();
+        }
+        let _ = quiet_tx.send(());
+        // Quiet with the stream open, or gone with the connection.
+        if !hang_up {
+            tokio::time::sleep(std::time::Duration::from_secs(3)).await;
+        }
+        drop((tx, own));
+    });
+    quiet_rx.await.unwrap();
+    // Subscribed now: the first state is the one at the last input.
+    let mut states = client
+        .stream_state(authed(
+            pb::StreamStateRequest {
+                session_id: session.session_id.clone(),
+                tip_only: true,
+            },
+            &session.observer_token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let last_input = states.message().await.unwrap().unwrap();
+    let (mut moving_until, mut previous) = (last_input.time_s, last_input.inserted_mm);
+    loop {
+        let s = states.message().await.unwrap().unwrap();
+        if s.inserted_mm > previous + 1e-3 {
+            moving_until = s.time_s;
+        }
+        if std::env::var("ATTACK_DEBUG").is_ok() {
+            println!("t {:.3} inserted {:.3}", s.time_s - last_input.time_s, s.inserted_mm);
+        }
+        previous = s.inserted_mm;
+        if s.time_s > last_input.time_s + 1.5 {
+            break;
+        }
+    }
+    driver.abort();
+    close(&mut client, &session).await;
+    moving_until - last_input.time_s
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_control_stream_that_goes_quiet_or_away_leaves_the_device_still() {
+    let (server, _dir) = server_with("deadman", "control_timeout_ms = 250\n");
+    let quiet = coast_after_the_last_input(&server, false).await;
+    let gone = coast_after_the_last_input(&server, true).await;
+    println!(
+        "after the last input at 50 mm/s the device went on {:.0} ms (stream quiet, 250 ms timeout), {:.0} ms (connection dropped)",
+        quiet * 1e3,
+        gone * 1e3
+    );
+    assert!(quiet > 0.15 && quiet < 0.25 + 0.1, "{quiet}");
+    assert!(gone < 0.25 + 0.1, "{gone}");
+}
