@@ -385,9 +385,6 @@ async fn coast_after_the_last_input(server: &ServerProcess, hang_up: bool) -> f6
         if s.inserted_mm > previous + 1e-3 {
             moving_until = s.time_s;
         }
-        if std::env::var("ATTACK_DEBUG").is_ok() {
-            println!("t {:.3} inserted {:.3}", s.time_s - last_input.time_s, s.inserted_mm);
-        }
         previous = s.inserted_mm;
         if s.time_s > last_input.time_s + 1.5 {
             break;
