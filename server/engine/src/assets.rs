@@ -348,22 +348,25 @@ impl AssetCache {
         base: &Path,
         staged: &mut Staged,
     ) -> Result<(Arc<Anatomy>, Matrix3<f64>)> {
+        // The file the anatomy names, resolved (and checked) once.
+        let file = match spec {
+            AnatomySpec::ArchToCow { dir } => Some(self.resolve(base, dir, "anatomy.dir")?),
+            AnatomySpec::CtSegmentation { volume, .. } => {
+                Some(self.resolve(base, volume, "anatomy.volume")?)
+            }
+            AnatomySpec::NeuroPhantom { .. } => None,
+        };
+        let shown = file.as_deref().unwrap_or(Path::new("")).display();
         let (key, to_lps) = match spec {
-            AnatomySpec::ArchToCow { dir } => (
-                format!(
-                    "arch_to_cow:{}",
-                    self.resolve(base, dir, "anatomy.dir")?.display()
-                ),
+            AnatomySpec::ArchToCow { .. } => (
+                format!("arch_to_cow:{shown}"),
                 Matrix3::from_fn(|r, c| ARCH_TO_COW_TO_LPS[r][c]),
             ),
             AnatomySpec::NeuroPhantom { seed, tortuosity } => {
                 (format!("neuro:{seed}:{tortuosity}"), Matrix3::identity())
             }
-            AnatomySpec::CtSegmentation { volume, seed_voxel } => (
-                format!(
-                    "segmentation:{}:{seed_voxel:?}",
-                    self.resolve(base, volume, "anatomy.volume")?.display()
-                ),
+            AnatomySpec::CtSegmentation { seed_voxel, .. } => (
+                format!("segmentation:{shown}:{seed_voxel:?}"),
                 Matrix3::identity(),
             ),
         };
@@ -372,9 +375,9 @@ impl AssetCache {
             return Ok((found.value.clone(), to_lps));
         }
         let anatomy = match spec {
-            AnatomySpec::ArchToCow { dir } => {
-                let dir = self.resolve(base, dir, "anatomy.dir")?;
-                load_arch_to_cow(&dir).map_err(|e| unreadable("anatomy.dir", &dir, e))?
+            AnatomySpec::ArchToCow { .. } => {
+                let dir = file.as_deref().unwrap_or(Path::new(""));
+                load_arch_to_cow(dir).map_err(|e| unreadable("anatomy.dir", dir, e))?
             }
             AnatomySpec::NeuroPhantom { seed, tortuosity } => {
                 use cathlab_anatomy::phantom::{NeuroPhantomParams, neuro_phantom};
@@ -388,9 +391,9 @@ impl AssetCache {
                 let lumen = Lumen::new(mesh, "neuro phantom")?;
                 Anatomy { graph, lumen }
             }
-            AnatomySpec::CtSegmentation { volume, seed_voxel } => {
+            AnatomySpec::CtSegmentation { seed_voxel, .. } => {
                 use cathlab_anatomy::segment::{Seed, SegmentSettings, segment};
-                let path = self.resolve(base, volume, "anatomy.volume")?;
+                let path = file.unwrap_or_default();
                 let ct = cathlab_anatomy::ScalarVolume::load(&path)
                     .map_err(|e| unreadable("anatomy.volume", &path, e))?;
                 let result = segment(&ct, &Seed::Voxel(*seed_voxel), &SegmentSettings::default())
@@ -424,15 +427,20 @@ impl AssetCache {
         phantom: impl FnOnce() -> cathlab_xray::Result<BodyPhantom>,
         staged: &mut Staged,
     ) -> Result<Arc<Volume>> {
+        // The CT file, resolved (and checked) once.
+        let file = match spec {
+            CtSpec::File { path, .. } => Some(self.resolve(base, path, "ct.path")?),
+            CtSpec::Phantom { .. } => None,
+        };
         let key = match spec {
             CtSpec::Phantom { spacing_mm } => format!("phantom:{spacing_mm}:{anatomy_key}"),
             CtSpec::File {
-                path,
                 hu_slope,
                 hu_intercept,
+                ..
             } => format!(
                 "file:{}:{hu_slope}:{hu_intercept}",
-                self.resolve(base, path, "ct.path")?.display()
+                file.as_deref().unwrap_or(Path::new("")).display()
             ),
         };
         if let Some(found) = self.volumes.lock().get_mut(&key) {
@@ -444,12 +452,12 @@ impl AssetCache {
                 .volume(spacing_mm * 1e-3)
                 .map_err(|e| scene_error("ct.spacing_mm", e))?,
             CtSpec::File {
-                path,
                 hu_slope,
                 hu_intercept,
+                ..
             } => {
-                let mut v = Volume::load(&self.resolve(base, path, "ct.path")?)
-                    .map_err(|e| unreadable("ct.path", path, e))?;
+                let path = file.unwrap_or_default();
+                let mut v = Volume::load(&path).map_err(|e| unreadable("ct.path", &path, e))?;
                 v.rescale(*hu_slope, *hu_intercept)?;
                 v
             }
