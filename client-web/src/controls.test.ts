@@ -67,4 +67,20 @@ describe("drive commands", () => {
     expect(stop).toHaveLength(1);
     expect(stop[0].kind.case === "twist" && stop[0].kind.value.mode).toEqual({ case: "rateDegS", value: 0 });
   });
+  it("sends speeds in hold mode and repeats only those in force", () => {
+    const drive = new DriveCommands();
+    expect(drive.repeat()).toHaveLength(0);
+    const [push] = drive.next({ push: -1, twist: 0 });
+    expect(push.kind.case === "insertion" && push.kind.value.hold).toBe(true);
+    const again = drive.repeat();
+    expect(again).toHaveLength(1);
+    expect(again[0].kind.case === "insertion" && again[0].kind.value.mode).toEqual({
+      case: "velocityMmS",
+      value: -PUSH_MM_S,
+    });
+    drive.next({ push: 0, twist: 0.5 });
+    expect(drive.repeat().map((c) => c.kind.case)).toEqual(["twist"]);
+    drive.next({ push: 0, twist: 0 });
+    expect(drive.repeat()).toHaveLength(0);
+  });
 });

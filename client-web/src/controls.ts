@@ -54,8 +54,14 @@ function clamp(v: number): number {
   return Math.max(-1, Math.min(1, v));
 }
 
+/** How often a held speed is repeated (ms): well inside the server's control timeout (250 ms
+ *  by default), after which a held speed that was not repeated lapses to zero. */
+export const HOLD_REPEAT_MS = 100;
+
 /** Turns successive demands into the commands to send: an insertion speed when the push
- *  changed, a twist rate when the twist changed, nothing when neither did. */
+ *  changed, a twist rate when the twist changed, nothing when neither did. Speeds are sent in
+ *  hold mode: the server stops the device unless they are repeated (`repeat`), so a closed tab
+ *  or a lost network never leaves a device running. */
 export class DriveCommands {
   private last: Demand = { push: 0, twist: 0 };
 
@@ -64,26 +70,34 @@ export class DriveCommands {
     private readonly twistDegS = TWIST_DEG_S,
   ) {}
 
+  private push(demand: number): Command {
+    return create(CommandSchema, {
+      kind: {
+        case: "insertion",
+        value: { mode: { case: "velocityMmS", value: demand * this.pushMmS }, hold: true },
+      },
+    });
+  }
+
+  private twist(demand: number): Command {
+    return create(CommandSchema, {
+      kind: { case: "twist", value: { mode: { case: "rateDegS", value: demand * this.twistDegS }, hold: true } },
+    });
+  }
+
   next(demand: Demand): Command[] {
     const out: Command[] = [];
-    if (demand.push !== this.last.push) {
-      out.push(
-        create(CommandSchema, {
-          kind: {
-            case: "insertion",
-            value: { mode: { case: "velocityMmS", value: demand.push * this.pushMmS } },
-          },
-        }),
-      );
-    }
-    if (demand.twist !== this.last.twist) {
-      out.push(
-        create(CommandSchema, {
-          kind: { case: "twist", value: { mode: { case: "rateDegS", value: demand.twist * this.twistDegS } } },
-        }),
-      );
-    }
+    if (demand.push !== this.last.push) out.push(this.push(demand.push));
+    if (demand.twist !== this.last.twist) out.push(this.twist(demand.twist));
     this.last = { ...demand };
+    return out;
+  }
+
+  /** The non-zero speeds in force, to repeat every `HOLD_REPEAT_MS` while they are held. */
+  repeat(): Command[] {
+    const out: Command[] = [];
+    if (this.last.push !== 0) out.push(this.push(this.last.push));
+    if (this.last.twist !== 0) out.push(this.twist(this.last.twist));
     return out;
   }
 

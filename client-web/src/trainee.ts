@@ -2,7 +2,7 @@
 import { type MessageInitShape, create } from "@bufbuild/protobuf";
 import { Code, ConnectError } from "@connectrpc/connect";
 import { type SimulatorClient, serverUrl, simulatorClient } from "./api.js";
-import { DriveCommands, combine, gamepadDemand, isDriveKey, keyboardDemand } from "./controls.js";
+import { DriveCommands, HOLD_REPEAT_MS, combine, gamepadDemand, isDriveKey, keyboardDemand } from "./controls.js";
 import {
   type Command,
   CommandSchema,
@@ -250,6 +250,11 @@ function controls(client: SimulatorClient, sessionId: string) {
   const update = () => {
     for (const c of drive.next(combine(keyboardDemand(held), pad))) void send(c);
   };
+  // Held speeds are repeated while held: the server lets a held speed lapse when it stops
+  // hearing it (a closed tab, a lost network, a sleeping laptop).
+  setInterval(() => {
+    for (const c of drive.repeat()) void send(c);
+  }, HOLD_REPEAT_MS);
   const HOLD_KEYS: Record<string, string> = { push: "ArrowUp", pull: "ArrowDown", ccw: "ArrowLeft", cw: "ArrowRight" };
   let pedal = false;
   const setPedal = (down: boolean) => {

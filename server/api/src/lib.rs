@@ -276,6 +276,7 @@ mod tests {
         pb::Command {
             kind: Some(pb::command::Kind::Insertion(pb::Insertion {
                 mode: Some(pb::insertion::Mode::VelocityMmS(v)),
+                hold: false,
             })),
         }
     }

@@ -22,7 +22,7 @@ use crate::config::InlineScenes;
 use cathlab_engine::session::Session;
 use cathlab_engine::world::Command;
 use cathlab_engine::{CommandRecord, Encoding, Engine, EngineError, SceneFormat, SceneSpec};
-use parking_lot::RwLock;
+use parking_lot::{Mutex, RwLock};
 use tokio::sync::{mpsc, oneshot};
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::{Stream, StreamExt};
@@ -59,6 +59,31 @@ pub struct SimulatorService {
     inline_scenes: InlineScenes,
     throttle: Throttle,
     control_timeout: Duration,
+    holds: Arc<Mutex<HashMap<(String, Axis), u64>>>,
+}
+
+/// A speed a unary command sets (and a held one lapses).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+enum Axis {
+    Push,
+    Twist,
+}
+
+/// The axis a unary command drives, and whether it asks for hold mode with a non-zero speed
+/// (targets and other commands: `None`, or the axis with `false`).
+fn speed_axis(command: Option<&pb::Command>) -> Option<(Axis, bool)> {
+    use pb::command::Kind;
+    Some(match command?.kind.as_ref()? {
+        Kind::Insertion(i) => match i.mode {
+            Some(pb::insertion::Mode::VelocityMmS(v)) => (Axis::Push, i.hold && v != 0.0),
+            _ => (Axis::Push, false),
+        },
+        Kind::Twist(t) => match t.mode {
+            Some(pb::twist::Mode::RateDegS(w)) => (Axis::Twist, t.hold && w != 0.0),
+            _ => (Axis::Twist, false),
+        },
+        _ => return None,
+    })
 }
 
 impl std::fmt::Debug for SimulatorService {
@@ -123,6 +148,7 @@ impl SimulatorService {
             inline_scenes: InlineScenes::default(),
             throttle: Throttle::new(AUTH_FAILURES_PER_MINUTE, Duration::from_secs(60)),
             control_timeout: CONTROL_TIMEOUT,
+            holds: Arc::default(),
         }
     }
 
@@ -264,6 +290,35 @@ impl SimulatorService {
                 .ok()
                 .map(|spec| guidance_to_wire(&spec.guidance)),
         })
+    }
+
+    /// Hold mode for unary speed commands: a held speed lapses to zero unless a newer
+    /// command on its axis comes within the control timeout (any newer command on the axis
+    /// cancels the lapse).
+    fn hold(&self, session: &Arc<Session>, axis: Axis, hold: bool, seq: u64) {
+        let key = (session.id().to_owned(), axis);
+        let generation = {
+            let mut holds = self.holds.lock();
+            let g = holds.entry(key.clone()).or_insert(0);
+            *g += 1;
+            *g
+        };
+        if !hold {
+            return;
+        }
+        let (holds, session, timeout) = (self.holds.clone(), session.clone(), self.control_timeout);
+        tokio::spawn(async move {
+            tokio::time::sleep(timeout).await;
+            if holds.lock().get(&key) != Some(&generation) {
+                return;
+            }
+            tracing::info!(session = %session.id(), ?axis, "held speed not renewed: zeroed");
+            let zero = match axis {
+                Axis::Push => Command::PushVelocity(0.0),
+                Axis::Twist => Command::TwistRate(0.0),
+            };
+            let _ = session.send(seq, zero, None);
+        });
     }
 
     /// Closes every session and waits for the store (graceful shutdown).
@@ -481,6 +536,7 @@ impl Simulator for SimulatorService {
         self.store.set_status(&id, "closed");
         self.store.flush();
         self.tokens.write().remove(&id);
+        self.holds.lock().retain(|(s, _), _| *s != id);
         Ok(Response::new(pb::CloseSessionResponse {
             info: Some(self.info_of(&session)),
         }))
@@ -499,6 +555,9 @@ impl Simulator for SimulatorService {
             .command(r.seq, command)
             .await
             .map_err(engine_status)?;
+        if let Some((axis, hold)) = speed_axis(r.command.as_ref()) {
+            self.hold(&session, axis, hold, r.seq);
+        }
         Ok(Response::new(pb::CommandAck {
             seq: record.seq,
             step: record.step,

@@ -366,6 +366,17 @@ async fn coast_after_the_last_input(server: &ServerProcess, hang_up: bool) -> f6
         drop((tx, own));
     });
     quiet_rx.await.unwrap();
+    let coast = moving_after_now(&mut client, &session).await;
+    driver.abort();
+    close(&mut client, &session).await;
+    coast
+}
+
+/// How long (simulated s) the session's device goes on advancing from now, watched for 1.5 s.
+async fn moving_after_now(
+    client: &mut pb::simulator_client::SimulatorClient<tonic::transport::Channel>,
+    session: &pb::CreateSessionResponse,
+) -> f64 {
     // Subscribed now: the first state is the one at the last input.
     let mut states = client
         .stream_state(authed(
@@ -390,8 +401,6 @@ async fn coast_after_the_last_input(server: &ServerProcess, hang_up: bool) -> f6
             break;
         }
     }
-    driver.abort();
-    close(&mut client, &session).await;
     moving_until - last_input.time_s
 }
 
@@ -407,4 +416,42 @@ async fn a_control_stream_that_goes_quiet_or_away_leaves_the_device_still() {
     );
     assert!(quiet > 0.15 && quiet < 0.25 + 0.1, "{quiet}");
     assert!(gone < 0.25 + 0.1, "{gone}");
+}
+
+/// Drives a session with unary push commands at 50 mm/s every 50 ms for 1 s (`hold`: in hold
+/// mode), then stops sending; returns how long (simulated s) the device went on.
+async fn coast_after_unary_pushes(server: &ServerProcess, hold: bool) -> f64 {
+    let mut client = server.client().await;
+    let session = create(&mut client).await;
+    let held_push = |hold| {
+        command(pb::command::Kind::Insertion(pb::Insertion {
+            mode: Some(pb::insertion::Mode::VelocityMmS(50.0)),
+            hold,
+        }))
+    };
+    let mut tick = tokio::time::interval(std::time::Duration::from_millis(50));
+    for seq in 1..=20u64 {
+        tick.tick().await;
+        send(&mut client, &session, seq, held_push(hold))
+            .await
+            .unwrap();
+    }
+    let coast = moving_after_now(&mut client, &session).await;
+    close(&mut client, &session).await;
+    coast
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn held_unary_speeds_lapse_when_no_longer_repeated() {
+    let (server, _dir) = server_with("hold", "control_timeout_ms = 250\n");
+    let held = coast_after_unary_pushes(&server, true).await;
+    let unheld = coast_after_unary_pushes(&server, false).await;
+    println!(
+        "after the last unary push at 50 mm/s the device went on {:.0} ms (hold mode, 250 ms timeout), {:.0} ms of a 1.5 s watch (no hold)",
+        held * 1e3,
+        unheld * 1e3
+    );
+    // The held speed lapsed one timeout after the last repeat; without hold it went on.
+    assert!(held > 0.15 && held < 0.25 + 0.1, "{held}");
+    assert!(unheld > 1.4, "{unheld}");
 }

@@ -23,6 +23,7 @@ async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() 
         push(25.0),
         command(pb::command::Kind::Twist(pb::Twist {
             mode: Some(pb::twist::Mode::RateDegS(90.0)),
+            hold: false,
         })),
         command(pb::command::Kind::Fluoroscopy(true)),
         command(pb::command::Kind::Inject(pb::Injection {
@@ -32,6 +33,7 @@ async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() 
         push(40.0),
         command(pb::command::Kind::Twist(pb::Twist {
             mode: Some(pb::twist::Mode::TargetDeg(-45.0)),
+            hold: false,
         })),
         command(pb::command::Kind::Carm(pb::CArmPose {
             primary_deg: 30.0,

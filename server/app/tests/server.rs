@@ -795,6 +795,7 @@ async fn a_diverging_session_is_reset_and_reported_while_others_go_on() {
         2,
         command(pb::command::Kind::Twist(pb::Twist {
             mode: Some(pb::twist::Mode::RateDegS(1700.0)),
+            hold: false,
         })),
     )
     .await

@@ -129,6 +129,7 @@ pub fn command(kind: pb::command::Kind) -> Option<pb::Command> {
 pub fn push(mm_s: f64) -> Option<pb::Command> {
     command(pb::command::Kind::Insertion(pb::Insertion {
         mode: Some(pb::insertion::Mode::VelocityMmS(mm_s)),
+        hold: false,
     }))
 }
 
