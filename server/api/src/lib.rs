@@ -40,6 +40,7 @@ pub fn status_of(error: &EngineError) -> Status {
         }
         EngineError::FailedPrecondition(_) => Status::failed_precondition(error.to_string()),
         EngineError::NotFound(_) => Status::not_found(error.to_string()),
+        EngineError::Cancelled(_) => Status::cancelled(error.to_string()),
         EngineError::Closed(_) => Status::failed_precondition(error.to_string()),
         EngineError::QueueFull(_) | EngineError::Exhausted(_) => {
             Status::resource_exhausted(error.to_string())

@@ -60,6 +60,8 @@ pub struct ConfigFile {
     pub renderer: Option<RendererChoice>,
     /// Most sessions at once.
     pub max_sessions: Option<usize>,
+    /// Most replays at once.
+    pub max_replays: Option<usize>,
     /// Largest request message (bytes).
     pub max_message_bytes: Option<usize>,
     /// The built web client (`client-web/dist`), served at `/`.
@@ -104,6 +106,8 @@ pub struct ServerConfig {
     pub renderer: RendererChoice,
     /// Most sessions at once.
     pub max_sessions: usize,
+    /// Most replays at once (each takes a core, niced below live physics).
+    pub max_replays: usize,
     /// Largest request message (bytes).
     pub max_message_bytes: usize,
     /// The built web client, served at `/` (a note page when it is not built).
@@ -131,6 +135,7 @@ impl Default for ServerConfig {
             tls: None,
             renderer: RendererChoice::Auto,
             max_sessions: 16,
+            max_replays: 1,
             max_message_bytes: 1 << 20,
             web_root: PathBuf::from("client-web/dist"),
             inline_scenes: InlineScenes::Instructors,
@@ -154,6 +159,7 @@ impl ServerConfig {
             tls: file.tls,
             renderer: file.renderer.unwrap_or(d.renderer),
             max_sessions: file.max_sessions.unwrap_or(d.max_sessions),
+            max_replays: file.max_replays.unwrap_or(d.max_replays),
             max_message_bytes: file.max_message_bytes.unwrap_or(d.max_message_bytes),
             web_root: file.web_root.unwrap_or(d.web_root),
             inline_scenes: file.inline_scenes.unwrap_or(d.inline_scenes),

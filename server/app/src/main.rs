@@ -132,8 +132,9 @@ fn main() -> anyhow::Result<()> {
         }
         Action::Replay { session } => {
             let (engine, store, _) = cathlab_app::server::engine(&config)?;
-            let result = cathlab_app::service::replay_stored(&engine, &store, &session)
-                .map_err(|s| anyhow::anyhow!("{}: {}", s.code(), s.message()))?;
+            let result =
+                cathlab_app::service::replay_stored(&engine, &store, &session, &Default::default())
+                    .map_err(|s| anyhow::anyhow!("{}: {}", s.code(), s.message()))?;
             println!(
                 "replayed {} steps, {} commands: {}/{} checkpoints match; last digest recorded \
                  {} replayed {}",

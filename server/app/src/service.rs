@@ -7,6 +7,7 @@ use std::net::IpAddr;
 use std::path::Path;
 use std::pin::Pin;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use cathlab_api::pb::simulator_server::Simulator;
@@ -890,7 +891,14 @@ impl Simulator for SimulatorService {
     ) -> Result<Response<pb::ReplayResult>, Status> {
         let id = request.get_ref().session_id.clone();
         if self.engine.get(&id).is_ok() {
-            self.authorize(peer_of(&request), bearer(&request).as_deref(), &id, false)?;
+            // A live session: its trainee or an instructor (an observer only watches).
+            let role =
+                self.authorize(peer_of(&request), bearer(&request).as_deref(), &id, false)?;
+            if role == Role::Observer {
+                return Err(Status::permission_denied(
+                    "replay is for the session's trainee and instructors, not its observers",
+                ));
+            }
         } else if !self.instructor(&request)? {
             return Err(
                 if self.store.session(&id).map_err(store_status)?.is_some() {
@@ -902,17 +910,47 @@ impl Simulator for SimulatorService {
                 },
             );
         }
-        let engine = self.engine.clone();
-        let store = self.store.clone();
-        let outcome = tokio::task::spawn_blocking(move || replay_stored(&engine, &store, &id))
+        // A place among the replays, then a niced thread of its own; a caller that goes away
+        // abandons the replay (the guard below is dropped with this handler).
+        let permit = self.engine.replay_permit().map_err(engine_status)?;
+        let cancel = CancelOnDrop(Arc::new(AtomicBool::new(false)));
+        let (engine, store, flag) = (self.engine.clone(), self.store.clone(), cancel.0.clone());
+        let (done_tx, done_rx) = oneshot::channel();
+        std::thread::Builder::new()
+            .name("replay".into())
+            .spawn(move || {
+                let _permit = permit;
+                cathlab_engine::priority::lower_current_thread(
+                    cathlab_engine::priority::REPLAY_NICE,
+                );
+                let _ = done_tx.send(replay_stored(&engine, &store, &id, &flag));
+            })
+            .map_err(|e| Status::internal(format!("cannot start a replay thread: {e}")))?;
+        let outcome = done_rx
             .await
-            .map_err(|e| Status::internal(e.to_string()))??;
+            .map_err(|_| Status::internal("the replay thread ended without an answer"))??;
+        drop(cancel);
         Ok(Response::new(outcome))
     }
 }
 
+/// Sets its flag when dropped: work on another thread sees that its caller went away.
+struct CancelOnDrop(Arc<AtomicBool>);
+
+impl Drop for CancelOnDrop {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
+
 /// Replays a stored session from the store (also used by `cathlab-server replay`).
-pub fn replay_stored(engine: &Engine, store: &Store, id: &str) -> Result<pb::ReplayResult, Status> {
+/// `cancel` abandons it.
+pub fn replay_stored(
+    engine: &Engine,
+    store: &Store,
+    id: &str,
+    cancel: &AtomicBool,
+) -> Result<pb::ReplayResult, Status> {
     let stored = store
         .session(id)
         .map_err(store_status)?
@@ -924,7 +962,8 @@ pub fn replay_stored(engine: &Engine, store: &Store, id: &str) -> Result<pb::Rep
         .map_err(engine_status)?;
     let commands = store.commands(id).map_err(store_status)?;
     let checkpoints = store.checkpoints(id).map_err(store_status)?;
-    let outcome = cathlab_engine::replay(assets, &commands, &checkpoints).map_err(engine_status)?;
+    let outcome = cathlab_engine::replay_until(assets, &commands, &checkpoints, cancel)
+        .map_err(engine_status)?;
     Ok(pb::ReplayResult {
         steps: outcome.steps,
         commands: outcome.commands as u32,

@@ -22,6 +22,7 @@ fn server_with(name: &str, config: &str) -> (ServerProcess, PathBuf) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn concurrent_creates_never_pass_the_session_limit() {
+    let _exclusive = EXCLUSIVE.lock().await;
     let (server, _dir) = server_with("admission", "max_sessions = 16\n");
     // Load the scene once, so that the 30 creates race on admission, not on loading.
     let mut client = server.client().await;
@@ -97,6 +98,7 @@ fn inline(text: String) -> pb::CreateSessionRequest {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn failing_inline_scenes_need_the_key_and_leave_no_memory_behind() {
+    let _exclusive = EXCLUSIVE.lock().await;
     let (server, _dir) = server_with("memory", "asset_cache_mib = 512\n");
     let mut client = server.client().await;
     // Without the instructor key an inline scene is refused before anything is read.
@@ -159,6 +161,7 @@ async fn failing_inline_scenes_need_the_key_and_leave_no_memory_behind() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scenes_cannot_name_files_outside_the_data_roots_nor_echo_them() {
+    let _exclusive = EXCLUSIVE.lock().await;
     // A data root of our own beside the bundled data, with a MetaImage header whose data file
     // points out of it.
     let outside = temp_dir("outside");
@@ -231,6 +234,7 @@ async fn scenes_cannot_name_files_outside_the_data_roots_nor_echo_them() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn guessing_the_instructor_key_is_throttled() {
+    let _exclusive = EXCLUSIVE.lock().await;
     let (server, _dir) = server_with("guessing", "auth_failures_per_minute = 10\n");
     let mut client = server.client().await;
     let started = std::time::Instant::now();
@@ -406,6 +410,7 @@ async fn moving_after_now(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_control_stream_that_goes_quiet_or_away_leaves_the_device_still() {
+    let _exclusive = EXCLUSIVE.lock().await;
     let (server, _dir) = server_with("deadman", "control_timeout_ms = 250\n");
     let quiet = coast_after_the_last_input(&server, false).await;
     let gone = coast_after_the_last_input(&server, true).await;
@@ -443,6 +448,7 @@ async fn coast_after_unary_pushes(server: &ServerProcess, hold: bool) -> f64 {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn held_unary_speeds_lapse_when_no_longer_repeated() {
+    let _exclusive = EXCLUSIVE.lock().await;
     let (server, _dir) = server_with("hold", "control_timeout_ms = 250\n");
     let held = coast_after_unary_pushes(&server, true).await;
     let unheld = coast_after_unary_pushes(&server, false).await;
@@ -454,4 +460,104 @@ async fn held_unary_speeds_lapse_when_no_longer_repeated() {
     // The held speed lapsed one timeout after the last repeat; without hold it went on.
     assert!(held > 0.15 && held < 0.25 + 0.1, "{held}");
     assert!(unheld > 1.4, "{unheld}");
+}
+
+/// Tests that measure timing (missed steps, coasting) take this, so that the binary's other
+/// tests do not load the two cores under them.
+static EXCLUSIVE: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
+/// Steps a session has missed so far.
+async fn missed_steps(
+    client: &mut pb::simulator_client::SimulatorClient<tonic::transport::Channel>,
+    session: &pb::CreateSessionResponse,
+) -> u64 {
+    client
+        .get_session(authed(
+            pb::GetSessionRequest {
+                session_id: session.session_id.clone(),
+            },
+            &session.controller_token,
+        ))
+        .await
+        .unwrap()
+        .into_inner()
+        .timing
+        .expect("a live session has timing")
+        .missed_steps
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn replays_are_for_the_trainee_one_at_a_time_and_below_live_physics() {
+    let _exclusive = EXCLUSIVE.lock().await;
+    let (server, _dir) = server_with("replays", "max_replays = 2\n");
+    let mut client = server.client().await;
+    let recorded = create(&mut client).await;
+    let bystander = create(&mut client).await;
+    send(&mut client, &recorded, 1, push(40.0)).await.unwrap();
+    send(&mut client, &bystander, 1, push(20.0)).await.unwrap();
+    tokio::time::sleep(std::time::Duration::from_secs(8)).await;
+    let replayer = client.clone();
+    let replay = |token: String| {
+        let mut client = replayer.clone();
+        let id = recorded.session_id.clone();
+        async move {
+            client
+                .replay_session(authed(pb::ReplaySessionRequest { session_id: id }, &token))
+                .await
+                .map(|r| r.into_inner())
+        }
+    };
+
+    let watching = replay(recorded.observer_token.clone()).await.unwrap_err();
+    assert_eq!(
+        watching.code(),
+        tonic::Code::PermissionDenied,
+        "{watching:?}"
+    );
+
+    // Six at once with a limit of two: two run (niced), four are told to wait, and the live
+    // session beside them keeps its rate. (With a limit of four, niced replays cost it 0-26
+    // missed steps here, replays at normal priority 274.)
+    let missed_before = missed_steps(&mut client, &bystander).await;
+    let started = std::time::Instant::now();
+    let calls: Vec<_> = (0..6)
+        .map(|_| tokio::spawn(replay(recorded.controller_token.clone())))
+        .collect();
+    let mut answers = Vec::new();
+    for call in calls {
+        answers.push(call.await.unwrap());
+    }
+    let took = started.elapsed();
+    let missed = missed_steps(&mut client, &bystander).await - missed_before;
+    let ran: Vec<_> = answers.iter().filter_map(|a| a.as_ref().ok()).collect();
+    let refused = answers
+        .iter()
+        .filter(|a| matches!(a, Err(s) if s.code() == tonic::Code::ResourceExhausted))
+        .count();
+    println!(
+        "6 concurrent replays, limit 2: {} ran ({} steps, {}/{} checkpoints match) in {:.1} s, {refused} refused; the other session missed {missed} steps meanwhile",
+        ran.len(),
+        ran[0].steps,
+        ran[0].matched,
+        ran[0].checkpoints,
+        took.as_secs_f64()
+    );
+    assert_eq!((ran.len(), refused), (2, 4), "{answers:?}");
+    assert!(ran[0].checkpoints >= 5 && ran[0].matched == ran[0].checkpoints);
+    assert_eq!(missed, 0);
+
+    // A caller that goes away abandons its replay and gives its place back.
+    let abandoned = tokio::time::timeout(
+        std::time::Duration::from_millis(100),
+        replay(recorded.controller_token.clone()),
+    )
+    .await;
+    assert!(
+        abandoned.is_err(),
+        "the replay outlived 100 ms: {abandoned:?}"
+    );
+    tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+    replay(INSTRUCTOR_KEY.to_owned())
+        .await
+        .expect("the abandoned replay gave its place back");
 }

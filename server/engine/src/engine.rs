@@ -23,6 +23,9 @@ pub struct EngineSettings {
     pub session: SessionSettings,
     /// Most sessions running at once.
     pub max_sessions: usize,
+    /// Most replays running at once (each takes a core while it runs, niced below live
+    /// physics).
+    pub max_replays: usize,
     /// Bytes the shared scene assets may hold beyond what running sessions use; a scene
     /// estimated larger is refused before anything loads.
     pub asset_budget_bytes: usize,
@@ -46,10 +49,17 @@ pub struct Engine {
     catalog: SceneCatalog,
     assets: AssetCache,
     sessions: RwLock<HashMap<String, Arc<Session>>>,
-    /// Sessions admitted and still loading: counted with the running ones under this lock,
-    /// so that concurrent creates cannot pass the limit together.
-    admitting: Mutex<usize>,
+    /// Sessions admitted and still loading, and replays running: counted with the running
+    /// sessions under this lock, so that concurrent requests cannot pass a limit together.
+    admitted: Arc<Mutex<Admitted>>,
     context: SessionContext,
+}
+
+/// What holds a place besides the running sessions.
+#[derive(Debug, Default)]
+struct Admitted {
+    loading: usize,
+    replays: usize,
 }
 
 /// A place among the sessions, held while one loads; given back if the load fails.
@@ -61,8 +71,20 @@ struct Admission<'a> {
 impl Drop for Admission<'_> {
     fn drop(&mut self) {
         if !self.kept {
-            *self.engine.admitting.lock() -= 1;
+            self.engine.admitted.lock().loading -= 1;
         }
+    }
+}
+
+/// A place among the replays, given back when dropped (the replay ended or was abandoned).
+#[derive(Debug)]
+pub struct ReplayPermit {
+    admitted: Arc<Mutex<Admitted>>,
+}
+
+impl Drop for ReplayPermit {
+    fn drop(&mut self) {
+        self.admitted.lock().replays -= 1;
     }
 }
 
@@ -107,7 +129,7 @@ impl Engine {
             catalog,
             assets,
             sessions: RwLock::new(HashMap::new()),
-            admitting: Mutex::new(0),
+            admitted: Arc::default(),
         })
     }
 
@@ -162,9 +184,9 @@ impl Engine {
         let mut admission = self.admit()?;
         let assets = self.load(spec, base)?;
         let session = Session::start(id.clone(), label, assets, self.context.clone())?;
-        let mut admitting = self.admitting.lock();
+        let mut admitted = self.admitted.lock();
         self.sessions.write().insert(id, session.clone());
-        *admitting -= 1;
+        admitted.loading -= 1;
         admission.kept = true;
         Ok(session)
     }
@@ -172,17 +194,32 @@ impl Engine {
     /// Takes a place among the sessions, or says the server is full. Running and loading
     /// sessions are counted together under one lock.
     fn admit(&self) -> Result<Admission<'_>> {
-        let mut admitting = self.admitting.lock();
-        if self.sessions.read().len() + *admitting >= self.settings.max_sessions {
+        let mut admitted = self.admitted.lock();
+        if self.sessions.read().len() + admitted.loading >= self.settings.max_sessions {
             return Err(EngineError::Exhausted(format!(
                 "the server runs its maximum of {} sessions",
                 self.settings.max_sessions
             )));
         }
-        *admitting += 1;
+        admitted.loading += 1;
         Ok(Admission {
             engine: self,
             kept: false,
+        })
+    }
+
+    /// Takes a place among the replays, or says the server runs its maximum of them.
+    pub fn replay_permit(&self) -> Result<ReplayPermit> {
+        let mut admitted = self.admitted.lock();
+        if admitted.replays >= self.settings.max_replays {
+            return Err(EngineError::Exhausted(format!(
+                "the server runs its maximum of {} replays at once; try again when one ends",
+                self.settings.max_replays
+            )));
+        }
+        admitted.replays += 1;
+        Ok(ReplayPermit {
+            admitted: self.admitted.clone(),
         })
     }
 

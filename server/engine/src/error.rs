@@ -29,6 +29,9 @@ pub enum EngineError {
     /// A limit of the server is reached (sessions, replays): try later.
     #[error("{0}")]
     Exhausted(String),
+    /// Work abandoned because its caller went away.
+    #[error("cancelled: {0}")]
+    Cancelled(String),
     /// No such scene or session.
     #[error("not found: {0}")]
     NotFound(String),

@@ -16,11 +16,11 @@ pub mod telemetry;
 pub mod world;
 
 pub use assets::{AssetCache, SceneAssets};
-pub use engine::{Engine, EngineSettings};
+pub use engine::{Engine, EngineSettings, ReplayPermit};
 pub use error::{EngineError, Result};
 pub use imaging::{Encoding, SharedRenderer, encode_frame};
 pub use metrics::{Event, EventKind, Metrics};
-pub use replay::{ReplayOutcome, replay};
+pub use replay::{ReplayOutcome, replay, replay_until};
 pub use scene::{SceneCatalog, SceneFormat, SceneSpec};
 pub use session::{Checkpoint, CommandRecord, Recorder, RenderedFrame, Session, SessionSettings};
 pub use telemetry::{EngineMetrics, TimingSummary};

@@ -1,9 +1,14 @@
 //! Thread priorities: physics loops keep the default priority; render loops, the rayon pool
 //! and the GPU driver's threads run niced (+10), so that when the cores are busy a frame comes
-//! late rather than a physics step or a command acknowledgement.
+//! late rather than a physics step or a command acknowledgement; replays run niced further
+//! (+19).
 
 /// The nice value of rendering threads.
 pub const RENDER_NICE: i32 = 10;
+
+/// The nice value of replay threads: below rendering, since a replay is batch work that may
+/// take as long as it needs.
+pub const REPLAY_NICE: i32 = 19;
 
 /// Lowers the calling thread's priority to `nice` (Linux: per thread). Raising it needs
 /// privileges and is not attempted. Returns whether it took effect.

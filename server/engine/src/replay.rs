@@ -2,9 +2,10 @@
 //! their recorded steps, and the state digest compared at every recorded checkpoint.
 
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::assets::SceneAssets;
-use crate::error::Result;
+use crate::error::{EngineError, Result};
 use crate::metrics::Metrics;
 use crate::session::{Checkpoint, CommandRecord};
 use crate::world::World;
@@ -34,6 +35,17 @@ pub fn replay(
     assets: Arc<SceneAssets>,
     commands: &[CommandRecord],
     checkpoints: &[Checkpoint],
+) -> Result<ReplayOutcome> {
+    replay_until(assets, commands, checkpoints, &AtomicBool::new(false))
+}
+
+/// [`replay`], abandoned with [`EngineError::Cancelled`] once `cancel` is set (the caller went
+/// away): checked every step.
+pub fn replay_until(
+    assets: Arc<SceneAssets>,
+    commands: &[CommandRecord],
+    checkpoints: &[Checkpoint],
+    cancel: &AtomicBool,
 ) -> Result<ReplayOutcome> {
     let mut world = World::new(assets)?;
     let end = checkpoints
@@ -75,6 +87,12 @@ pub fn replay(
             world.apply(c.seq, &c.command)?;
             outcome.commands += 1;
             next_command += 1;
+        }
+        if cancel.load(Ordering::Relaxed) {
+            return Err(EngineError::Cancelled(format!(
+                "replay abandoned at step {} of {end}",
+                world.step_index()
+            )));
         }
         world.step()?;
         world.take_events();
