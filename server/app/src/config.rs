@@ -78,6 +78,10 @@ pub struct ConfigFile {
     pub auth_failures_per_minute: Option<u32>,
     /// How long a control stream may go quiet before its setpoints are zeroed (ms).
     pub control_timeout_ms: Option<u64>,
+    /// Memory all frame streams' encoded frames may hold together (MiB).
+    pub stream_buffer_mib: Option<usize>,
+    /// How long a frame may wait for its reader before the reader's connection is cut (ms).
+    pub stream_stall_timeout_ms: Option<u64>,
 }
 
 impl ConfigFile {
@@ -123,6 +127,10 @@ pub struct ServerConfig {
     pub auth_failures_per_minute: u32,
     /// How long a control stream may go quiet before its setpoints are zeroed (ms).
     pub control_timeout_ms: u64,
+    /// Memory all frame streams' encoded frames may hold together (MiB).
+    pub stream_buffer_mib: usize,
+    /// How long a frame may wait for its reader before the reader's connection is cut (ms).
+    pub stream_stall_timeout_ms: u64,
 }
 
 impl Default for ServerConfig {
@@ -143,6 +151,8 @@ impl Default for ServerConfig {
             data_roots: Vec::new(),
             auth_failures_per_minute: 20,
             control_timeout_ms: 250,
+            stream_buffer_mib: 256,
+            stream_stall_timeout_ms: 10_000,
         }
     }
 }
@@ -169,6 +179,10 @@ impl ServerConfig {
                 .auth_failures_per_minute
                 .unwrap_or(d.auth_failures_per_minute),
             control_timeout_ms: file.control_timeout_ms.unwrap_or(d.control_timeout_ms),
+            stream_buffer_mib: file.stream_buffer_mib.unwrap_or(d.stream_buffer_mib),
+            stream_stall_timeout_ms: file
+                .stream_stall_timeout_ms
+                .unwrap_or(d.stream_stall_timeout_ms),
         }
     }
 }

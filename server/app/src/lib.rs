@@ -3,6 +3,8 @@
 
 pub mod auth;
 pub mod config;
+pub mod connections;
 pub mod server;
 pub mod service;
 pub mod store;
+pub mod streams;

@@ -6,6 +6,12 @@ use anyhow::Context;
 use cathlab_app::config::{ConfigFile, InlineScenes, RendererChoice, ServerConfig, TlsFiles};
 use clap::{Parser, Subcommand};
 
+/// mimalloc gives freed memory back to the system within milliseconds; glibc's allocator kept
+/// tens of MiB of freed frame buffers in its per-thread arenas for good (24 stalled 2048²
+/// frame streams, then all closed: RSS +57 MiB with glibc).
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 #[derive(Debug, Parser)]
 #[command(name = "cathlab-server", about = "cathlab simulation server")]
 struct Cli {

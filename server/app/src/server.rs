@@ -108,7 +108,11 @@ pub async fn serve(
         SimulatorService::new(engine.clone(), store.clone(), config.instructor_key.clone())
             .with_inline_scenes(config.inline_scenes)
             .with_auth_failures_per_minute(config.auth_failures_per_minute)
-            .with_control_timeout(std::time::Duration::from_millis(config.control_timeout_ms)),
+            .with_control_timeout(std::time::Duration::from_millis(config.control_timeout_ms))
+            .with_stream_limits(
+                config.stream_buffer_mib << 20,
+                std::time::Duration::from_millis(config.stream_stall_timeout_ms),
+            ),
     );
     let simulator = SimulatorServer::from_arc(service.clone())
         .max_decoding_message_size(config.max_message_bytes)
@@ -211,7 +215,10 @@ pub async fn serve(
             "cathlab web client: {scheme}://{host}/ (trainee), {scheme}://{host}/dashboard.html (instructor)"
         );
     }
-    let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
+    // Each connection can be cut (a reader that stalls a frame stream loses its connection).
+    let incoming = crate::connections::tracked(
+        tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true)),
+    );
     // On shutdown, close the sessions first: that ends their streams, which the server's
     // graceful drain would otherwise wait on for ever.
     let closing = service.clone();

@@ -12,14 +12,16 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use cathlab_api::pb::simulator_server::Simulator;
 use cathlab_api::{
-    command_from_wire, control_from_wire, event_to_wire, metrics_to_wire, mode_to_wire, pb,
-    state_to_wire, status_of, timing_to_wire,
+    command_from_wire, control_from_wire, event_to_wire, metrics_to_wire, pb, state_to_wire,
+    status_of, timing_to_wire,
 };
 use cathlab_engine::engine::SceneSource;
 use cathlab_engine::scene::GuidanceSpec;
 
 use crate::auth::{Throttle, same_secret};
 use crate::config::InlineScenes;
+use crate::connections;
+use crate::streams::{FrameRequest, FrameStream, StreamBudget};
 use cathlab_engine::session::Session;
 use cathlab_engine::world::Command;
 use cathlab_engine::{CommandRecord, Encoding, Engine, EngineError, SceneFormat, SceneSpec};
@@ -61,6 +63,8 @@ pub struct SimulatorService {
     throttle: Throttle,
     control_timeout: Duration,
     holds: Arc<Mutex<HashMap<(String, Axis), u64>>>,
+    stream_budget: Arc<StreamBudget>,
+    stream_stall: Duration,
 }
 
 /// A speed a unary command sets (and a held one lapses).
@@ -109,13 +113,19 @@ fn unix_us() -> u64 {
 
 /// The caller's address (unspecified for in-process callers).
 fn peer_of<T>(request: &Request<T>) -> IpAddr {
-    request
-        .remote_addr()
-        .map_or(IpAddr::from([0, 0, 0, 0]), |a| a.ip())
+    connections::address(request)
 }
 
 /// Wrong keys or tokens one address may send a minute before it is refused.
 pub const AUTH_FAILURES_PER_MINUTE: u32 = 20;
+
+/// The bytes all frame streams' encoded frames may hold together (the configuration's
+/// default).
+pub const STREAM_BUFFER_BYTES: usize = 256 << 20;
+
+/// How long an encoded frame may wait for its reader before the reader's connection is cut
+/// (the configuration's default).
+pub const STREAM_STALL: Duration = Duration::from_secs(10);
 
 /// How long a control stream may go quiet before its setpoints are zeroed (the dead-man
 /// rule; the configuration's default).
@@ -142,7 +152,6 @@ impl SimulatorService {
     /// watching every session.
     pub fn new(engine: Arc<Engine>, store: Arc<Store>, instructor_key: Option<String>) -> Self {
         Self {
-            engine,
             store,
             instructor_key: instructor_key.filter(|k| !k.is_empty()),
             tokens: RwLock::new(HashMap::new()),
@@ -150,7 +159,18 @@ impl SimulatorService {
             throttle: Throttle::new(AUTH_FAILURES_PER_MINUTE, Duration::from_secs(60)),
             control_timeout: CONTROL_TIMEOUT,
             holds: Arc::default(),
+            stream_budget: StreamBudget::new(STREAM_BUFFER_BYTES, engine.metrics().clone()),
+            stream_stall: STREAM_STALL,
+            engine,
         }
+    }
+
+    /// The bytes all frame streams' encoded frames may hold together, and how long one may
+    /// wait for its reader before the reader's connection is cut.
+    pub fn with_stream_limits(mut self, budget_bytes: usize, stall: Duration) -> Self {
+        self.stream_budget = StreamBudget::new(budget_bytes, self.engine.metrics().clone());
+        self.stream_stall = stall;
+        self
     }
 
     /// How long a control stream may go quiet before its setpoints are zeroed.
@@ -703,6 +723,8 @@ impl Simulator for SimulatorService {
         request: Request<pb::StreamFramesRequest>,
     ) -> Result<Response<Self::StreamFramesStream>, Status> {
         let session = self.readable(&request, &request.get_ref().session_id)?;
+        let cutter = connections::peer(&request).map(|p| p.cutter.clone());
+        let address = peer_of(&request);
         let r = request.into_inner();
         let encoding = encoding_of(&r)?;
         for (field, v) in [("width", r.width), ("height", r.height)] {
@@ -717,66 +739,17 @@ impl Simulator for SimulatorService {
                 "width, height: give both or neither",
             ));
         }
-        let metrics = self.engine.metrics().clone();
-        let mut frames = session.frames();
-        let (tx, rx) = mpsc::channel::<Result<pb::XrayFrame, Status>>(1);
-        tokio::spawn(async move {
-            let mut last_index: Option<u64> = None;
-            loop {
-                let frame = frames.borrow_and_update().clone();
-                if let Some(frame) = frame {
-                    let skipped = match last_index {
-                        Some(i) if frame.frame.index > i + 1 => frame.frame.index - i - 1,
-                        _ => 0,
-                    };
-                    last_index = Some(frame.frame.index);
-                    let (w, h) = (r.width, r.height);
-                    let encoded = tokio::task::spawn_blocking(move || {
-                        cathlab_engine::encode_frame(&frame.frame, encoding, w, h)
-                            .map(|bytes| (bytes, frame))
-                    })
-                    .await;
-                    let message = match encoded {
-                        Ok(Ok(((data, width, height), frame))) => Ok(pb::XrayFrame {
-                            index: frame.frame.index,
-                            time_s: frame.frame.time_s,
-                            width,
-                            height,
-                            encoding: match encoding {
-                                Encoding::Raw8 => pb::FrameEncoding::Raw8,
-                                Encoding::Raw16 => pb::FrameEncoding::Raw16,
-                                Encoding::Png => pb::FrameEncoding::Png,
-                                Encoding::Jpeg(_) => pb::FrameEncoding::Jpeg,
-                            } as i32,
-                            data,
-                            mode: mode_to_wire(frame.frame.mode) as i32,
-                            held: frame.frame.held,
-                            last_seq: frame.last_seq,
-                            skipped,
-                            reference_air_kerma_mgy: frame.dose.reference_air_kerma_mgy,
-                            kerma_area_product_gy_cm2: frame.dose.kerma_area_product_gy_cm2,
-                            target_outline: frame
-                                .target_outline
-                                .iter()
-                                .flatten()
-                                .copied()
-                                .collect(),
-                        }),
-                        Ok(Err(e)) => Err(engine_status(e)),
-                        Err(e) => Err(Status::internal(e.to_string())),
-                    };
-                    metrics.frames_sent.inc();
-                    metrics.frames_skipped.inc_by(skipped);
-                    if tx.send(message).await.is_err() {
-                        break;
-                    }
-                }
-                if frames.changed().await.is_err() {
-                    break;
-                }
-            }
-        });
-        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+        let stream = FrameStream::new(
+            session.frames(),
+            FrameRequest {
+                encoding,
+                width: r.width,
+                height: r.height,
+            },
+            self.stream_budget.clone(),
+            (address, self.stream_stall, cutter),
+        );
+        Ok(Response::new(Box::pin(stream)))
     }
 
     type StreamMetricsStream = ResponseStream<pb::SessionUpdate>;

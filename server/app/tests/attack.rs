@@ -489,7 +489,7 @@ async fn missed_steps(
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn replays_are_for_the_trainee_one_at_a_time_and_below_live_physics() {
     let _exclusive = EXCLUSIVE.lock().await;
-    let (server, _dir) = server_with("replays", "max_replays = 2\n");
+    let (server, _dir) = server_with("replays", "max_replays = 1\n");
     let mut client = server.client().await;
     let recorded = create(&mut client).await;
     let bystander = create(&mut client).await;
@@ -515,12 +515,12 @@ async fn replays_are_for_the_trainee_one_at_a_time_and_below_live_physics() {
         "{watching:?}"
     );
 
-    // Six at once with a limit of two: two run (niced), four are told to wait, and the live
-    // session beside them keeps its rate. (With a limit of four, niced replays cost it 0-26
-    // missed steps here, replays at normal priority 274.)
+    // Four at once with a limit of one (the default): one runs (niced), three are told to
+    // wait, and the live session beside it keeps its rate. (With a limit of four, niced
+    // replays cost it 0-26 missed steps here, replays at normal priority 274.)
     let missed_before = missed_steps(&mut client, &bystander).await;
     let started = std::time::Instant::now();
-    let calls: Vec<_> = (0..6)
+    let calls: Vec<_> = (0..4)
         .map(|_| tokio::spawn(replay(recorded.controller_token.clone())))
         .collect();
     let mut answers = Vec::new();
@@ -535,14 +535,14 @@ async fn replays_are_for_the_trainee_one_at_a_time_and_below_live_physics() {
         .filter(|a| matches!(a, Err(s) if s.code() == tonic::Code::ResourceExhausted))
         .count();
     println!(
-        "6 concurrent replays, limit 2: {} ran ({} steps, {}/{} checkpoints match) in {:.1} s, {refused} refused; the other session missed {missed} steps meanwhile",
+        "4 concurrent replays, limit 1: {} ran ({} steps, {}/{} checkpoints match) in {:.1} s, {refused} refused; the other session missed {missed} steps meanwhile",
         ran.len(),
         ran[0].steps,
         ran[0].matched,
         ran[0].checkpoints,
         took.as_secs_f64()
     );
-    assert_eq!((ran.len(), refused), (2, 4), "{answers:?}");
+    assert_eq!((ran.len(), refused), (1, 3), "{answers:?}");
     assert!(ran[0].checkpoints >= 5 && ran[0].matched == ran[0].checkpoints);
     assert_eq!(missed, 0);
 
@@ -560,4 +560,112 @@ async fn replays_are_for_the_trainee_one_at_a_time_and_below_live_physics() {
     replay(INSTRUCTOR_KEY.to_owned())
         .await
         .expect("the abandoned replay gave its place back");
+}
+
+/// The server's Prometheus text, one value.
+async fn server_metric(server: &ServerProcess, name: &str) -> f64 {
+    let url = format!("{}/metrics", server.url());
+    let text = tokio::task::spawn_blocking(move || {
+        let out = std::process::Command::new("curl")
+            .args(["-s", &url])
+            .output()
+            .expect("curl");
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    })
+    .await
+    .unwrap();
+    text.lines()
+        .find_map(|l| l.strip_prefix(&format!("{name} ")))
+        .or_else(|| {
+            text.lines()
+                .find_map(|l| l.strip_prefix(&format!("{name}_total ")))
+        })
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("{name} in /metrics"))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn stalled_frame_streams_stay_within_their_budget_and_are_cut() {
+    let _exclusive = EXCLUSIVE.lock().await;
+    let (server, _dir) = server_with(
+        "stalled",
+        "stream_buffer_mib = 128\nstream_stall_timeout_ms = 4000\n",
+    );
+    let pid = server.child.id();
+    let mut client = server.client().await;
+    let bystander = create(&mut client).await;
+    let watched = create(&mut client).await;
+    send(&mut client, &bystander, 1, push(20.0)).await.unwrap();
+    let pedal = command(pb::command::Kind::Fluoroscopy(true));
+    send(&mut client, &watched, 1, pedal).await.unwrap();
+    let request = pb::StreamFramesRequest {
+        session_id: watched.session_id.clone(),
+        encoding: pb::FrameEncoding::Raw16 as i32,
+        width: 2048,
+        height: 2048,
+        ..Default::default()
+    };
+    // One frame read, so the renderer and encoders have warmed up.
+    first_frame(&mut client, request.clone(), &watched.observer_token).await;
+    tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+    let base = rss_bytes(pid);
+    let missed_before = missed_steps(&mut client, &bystander).await;
+
+    // 24 readers that never read, six to a connection.
+    let mut connections = Vec::new();
+    let mut stalled = Vec::new();
+    for _ in 0..4 {
+        let mut own = pb::simulator_client::SimulatorClient::connect(server.url())
+            .await
+            .unwrap()
+            .max_decoding_message_size(64 << 20);
+        for _ in 0..6 {
+            stalled.push(
+                own.stream_frames(authed(request.clone(), &watched.observer_token))
+                    .await
+                    .unwrap()
+                    .into_inner(),
+            );
+        }
+        connections.push(own);
+    }
+    let mut peak = 0;
+    let mut held_peak = 0.0f64;
+    for _ in 0..6 {
+        tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+        peak = peak.max(rss_bytes(pid));
+        held_peak = held_peak.max(server_metric(&server, "cathlab_stream_buffer_bytes").await);
+    }
+    // Past the stall timeout the connections of the streams holding frames are cut (the
+    // others held nothing: their frames were withheld).
+    tokio::time::sleep(std::time::Duration::from_secs(4)).await;
+    let cut = server_metric(&server, "cathlab_stalled_streams_cut").await;
+    let mut ended = 0;
+    for s in &mut stalled {
+        let end = tokio::time::timeout(std::time::Duration::from_millis(100), s.message()).await;
+        ended += usize::from(matches!(end, Ok(Err(_)) | Ok(Ok(None))));
+    }
+    drop((stalled, connections));
+    tokio::time::sleep(std::time::Duration::from_secs(2)).await;
+    let held_after = server_metric(&server, "cathlab_stream_buffer_bytes").await;
+    let after = rss_bytes(pid);
+    let missed = missed_steps(&mut client, &bystander).await - missed_before;
+    // A fresh reader is served again.
+    let frame = first_frame(&mut client, request, &watched.observer_token).await;
+    println!(
+        "24 stalled raw16 2048x2048 frame streams, budget 128 MiB (32 MiB per address): RSS +{:.0} MiB at peak, budget held at peak {:.0} MiB; after the 4 s stall timeout {cut} connections cut ({ended} streams ended); with the clients gone {:.0} MiB held, RSS +{:.0} MiB; the other session missed {missed} steps",
+        (peak as f64 - base as f64) / 1048576.0,
+        held_peak / 1048576.0,
+        held_after / 1048576.0,
+        (after as f64 - base as f64) / 1048576.0,
+    );
+    assert!(held_peak <= 32.0 * 1048576.0, "{held_peak}");
+    // What the streams hold is their address's share (a quarter of the budget); RSS adds
+    // the encoders' working buffers.
+    assert!(peak < base + (32 << 20) + (32 << 20), "{peak} vs {base}");
+    assert!(cut >= 1.0 && ended >= 6, "{cut} {ended}");
+    assert_eq!(held_after, 0.0);
+    assert!(after < base + (16 << 20), "{after} vs {base}");
+    assert_eq!(missed, 0);
+    assert_eq!(frame.width, 2048);
 }

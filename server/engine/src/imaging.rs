@@ -177,3 +177,21 @@ fn size_mismatch() -> EngineError {
         reason: "pixel count does not match the frame size".into(),
     }
 }
+
+/// An encoded frame: the bytes and the size used.
+pub type Encoded = Result<(Vec<u8>, u32, u32)>;
+
+/// [`encode_frame`] on the rayon pool (niced below physics, see `priority`); the answer comes
+/// through the returned channel.
+pub fn encode_in_pool(
+    frame: Arc<crate::session::RenderedFrame>,
+    encoding: Encoding,
+    width: u32,
+    height: u32,
+) -> tokio::sync::oneshot::Receiver<Encoded> {
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    rayon::spawn(move || {
+        let _ = tx.send(encode_frame(&frame.frame, encoding, width, height));
+    });
+    rx
+}

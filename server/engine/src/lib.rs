@@ -18,7 +18,7 @@ pub mod world;
 pub use assets::{AssetCache, SceneAssets};
 pub use engine::{Engine, EngineSettings, ReplayPermit};
 pub use error::{EngineError, Result};
-pub use imaging::{Encoding, SharedRenderer, encode_frame};
+pub use imaging::{Encoded, Encoding, SharedRenderer, encode_frame, encode_in_pool};
 pub use metrics::{Event, EventKind, Metrics};
 pub use replay::{ReplayOutcome, replay, replay_until};
 pub use scene::{SceneCatalog, SceneFormat, SceneSpec};

@@ -24,6 +24,12 @@ pub struct EngineMetrics {
     pub frames_sent: Counter,
     /// Frames a slow client skipped.
     pub frames_skipped: Counter,
+    /// Frames not encoded for a stream because the streams' byte budget was spent.
+    pub frames_withheld: Counter,
+    /// Bytes of encoded frames handed to the transport and not yet taken by their readers.
+    pub stream_buffer_bytes: Gauge,
+    /// Connections cut because a reader stalled a stream past its timeout.
+    pub stalled_streams_cut: Counter,
     /// Steps that started a whole period late.
     pub late_steps: Counter,
     /// Periods dropped when a physics loop fell too far behind.
@@ -42,6 +48,9 @@ impl Default for EngineMetrics {
             sessions: Gauge::default(),
             frames_sent: Counter::default(),
             frames_skipped: Counter::default(),
+            frames_withheld: Counter::default(),
+            stream_buffer_bytes: Gauge::default(),
+            stalled_streams_cut: Counter::default(),
             late_steps: Counter::default(),
             missed_steps: Counter::default(),
             divergences: Counter::default(),
@@ -74,6 +83,21 @@ impl EngineMetrics {
             "frames_skipped",
             "Frames slow clients skipped",
             self.frames_skipped.clone(),
+        );
+        r.register(
+            "frames_withheld",
+            "Frames not encoded because the streams' byte budget was spent",
+            self.frames_withheld.clone(),
+        );
+        r.register(
+            "stream_buffer_bytes",
+            "Bytes of encoded frames waiting for their readers",
+            self.stream_buffer_bytes.clone(),
+        );
+        r.register(
+            "stalled_streams_cut",
+            "Connections cut because a reader stalled a stream past its timeout",
+            self.stalled_streams_cut.clone(),
         );
         r.register(
             "late_steps",
