@@ -4,6 +4,7 @@
 //! messages, and the one place engine errors become gRPC status codes.
 
 use cathlab_engine::telemetry::TimingSummary;
+use cathlab_engine::world::PushLimit;
 use cathlab_engine::{Command, EngineError, Event, Metrics, Snapshot};
 use tonic::Status;
 
@@ -211,6 +212,13 @@ pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::D
         server_unix_us,
         axial_force_n,
         axial_torque_nmm: axial_torque_nm * 1e3,
+        push_limit: match s.push_limit {
+            PushLimit::None => pb::PushLimit::None,
+            PushLimit::Force => pb::PushLimit::Force,
+            PushLimit::Length => pb::PushLimit::Length,
+        } as i32,
+        push_force_limit_n: s.push_force_limit_n,
+        fidelity_level: u32::from(s.fidelity_level),
     }
 }
 

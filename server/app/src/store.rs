@@ -316,7 +316,10 @@ impl Store {
     /// How many commands a session has recorded.
     pub fn command_count(&self, id: &str) -> Result<u64, StoreError> {
         let counts = self.rows(
-            "SELECT COUNT(*) FROM commands WHERE session_id = ?1",
+            // The operator's commands: the overload governor's fidelity changes are recorded
+            // for replay but are not the trainee's.
+            "SELECT COUNT(*) FROM commands WHERE session_id = ?1 \
+             AND command NOT LIKE '{\"fidelity\"%'",
             [id],
             |r| r.get::<_, i64>(0),
         )?;
@@ -459,6 +462,40 @@ fn write_batch(conn: &mut Connection, batch: &[Write]) -> rusqlite::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_governors_commands_are_replayed_but_not_counted_as_the_operators() {
+        use cathlab_engine::world::Command;
+        let dir = std::env::temp_dir().join(format!("cathlab-store-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("governor.sqlite");
+        let _ = std::fs::remove_file(&file);
+        let store = Store::open(&file).unwrap();
+        let commands = [
+            Command::PushVelocity(0.1),
+            Command::Fidelity(2),
+            Command::TwistRate(1.0),
+            Command::Fidelity(1),
+        ];
+        for (ordinal, command) in commands.iter().enumerate() {
+            let record = CommandRecord {
+                ordinal: ordinal as u64,
+                step: 10 * ordinal as u64,
+                seq: 1,
+                command: *command,
+            };
+            Recorder::command(&store, "s1", record, None);
+        }
+        store.flush();
+        assert_eq!(store.command_count("s1").unwrap(), 2);
+        let stored: Vec<Command> = store
+            .commands("s1")
+            .unwrap()
+            .into_iter()
+            .map(|c| c.command)
+            .collect();
+        assert_eq!(stored, commands);
+    }
 
     #[test]
     fn corrupt_rows_are_named_not_trusted() {

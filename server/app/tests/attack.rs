@@ -669,3 +669,88 @@ async fn stalled_frame_streams_stay_within_their_budget_and_are_cut() {
     assert_eq!(missed, 0);
     assert_eq!(frame.width, 2048);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_speed_push_meets_the_device_limits_in_real_time() {
+    let _exclusive = EXCLUSIVE.lock().await;
+    let (server, _dir) = server_with("overload", "");
+    let mut client = server.client().await;
+    let session = create(&mut client).await;
+    let mut events = client
+        .stream_metrics(authed(
+            pb::StreamMetricsRequest {
+                session_id: session.session_id.clone(),
+            },
+            &session.observer_token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let mut states = client
+        .stream_state(authed(
+            pb::StreamStateRequest {
+                session_id: session.session_id.clone(),
+                tip_only: true,
+            },
+            &session.observer_token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let missed_before = missed_steps(&mut client, &session).await;
+    send(&mut client, &session, 1, push(500.0)).await.unwrap();
+    let start = states.message().await.unwrap().unwrap();
+    let (mut max_force, mut last) = (0.0f64, start.clone());
+    let (mut held, mut lowest_fidelity) = (0, 0);
+    while last.time_s < start.time_s + 20.0 {
+        last = states.message().await.unwrap().unwrap();
+        max_force = max_force.max(last.axial_force_n);
+        held += usize::from(last.push_limit != pb::PushLimit::None as i32);
+        lowest_fidelity = lowest_fidelity.max(last.fidelity_level);
+    }
+    let info = client
+        .get_session(authed(
+            pb::GetSessionRequest {
+                session_id: session.session_id.clone(),
+            },
+            &session.controller_token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let timing = info.timing.unwrap();
+    let missed = timing.missed_steps - missed_before;
+    let mut said = Vec::new();
+    while let Ok(Ok(Some(u))) =
+        tokio::time::timeout(std::time::Duration::from_millis(200), events.message()).await
+    {
+        if let Some(pb::session_update::Kind::Event(e)) = u.kind {
+            said.push(format!("{} {}", e.kind, e.message));
+        }
+    }
+    println!(
+        "500 mm/s push for 20 s: inserted {:.0} -> {:.0} mm, largest axial force {max_force:.1} N (limit {:.0} N, held in {held} states), fidelity down to level {lowest_fidelity}, missed {missed} steps, step p50 {:.2} p99 {:.2} max {:.1} ms; events: {said:?}",
+        start.inserted_mm,
+        last.inserted_mm,
+        last.push_force_limit_n,
+        timing.step_time_p50_ms,
+        timing.step_time_p99_ms,
+        timing.step_time_max_ms
+    );
+    // The rate held: no step was missed.
+    assert_eq!(missed, 0);
+    // The push met the hand's 10 N and was held there (within a step's rise), and said so.
+    assert_eq!(last.push_force_limit_n, 10.0);
+    assert!(
+        held > 0 && max_force < 2.0 * last.push_force_limit_n,
+        "{max_force}"
+    );
+    assert!(
+        said.iter().any(|e| e.starts_with("limit push held")),
+        "{said:?}"
+    );
+    // What kept the rate was reported, not hidden.
+    if lowest_fidelity > 0 {
+        assert!(said.iter().any(|e| e.starts_with("overload")), "{said:?}");
+    }
+}

@@ -764,7 +764,10 @@ async fn a_diverging_session_is_reset_and_reported_while_others_go_on() {
         // wire this scene stopped diverging once elements took the exact mean of the rest
         // curvature instead of its mid-point value.)
         .replace("bend_deg = 90.0", "bend_deg = 180.0")
-        .replace("bend_length_mm = 30.0", "bend_length_mm = 10.0");
+        .replace("bend_length_mm = 30.0", "bend_length_mm = 10.0")
+        // A hand that pushes through anything (the 10 N default holds the push back
+        // before the hook breaks the coarse elements).
+        + "\n[limits]\npush_force_n = 10000.0\nunsupported_mm = 5.0\n";
     let fragile = client
         .create_session(authed(
             pb::CreateSessionRequest {
@@ -788,11 +791,12 @@ async fn a_diverging_session_is_reset_and_reported_while_others_go_on() {
         .unwrap()
         .into_inner();
     let before = state(&mut client, &healthy.session_id, &healthy.observer_token).await;
-    send(&mut client, &fragile, 1, push(500.0)).await.unwrap();
+    // Twisting first, then pushing (the push meets its force limit soon; the twist must
+    // already be turning the hook by then).
     send(
         &mut client,
         &fragile,
-        2,
+        1,
         command(pb::command::Kind::Twist(pb::Twist {
             mode: Some(pb::twist::Mode::RateDegS(1700.0)),
             hold: false,
@@ -800,6 +804,7 @@ async fn a_diverging_session_is_reset_and_reported_while_others_go_on() {
     )
     .await
     .unwrap();
+    send(&mut client, &fragile, 2, push(500.0)).await.unwrap();
     let deadline = Instant::now() + Duration::from_secs(60);
     let event = loop {
         assert!(Instant::now() < deadline, "no divergence reported");

@@ -69,6 +69,11 @@ pub enum EventKind {
     Reset,
     /// The session closed.
     Closed,
+    /// A limit held the push back: the force the hand or device can push with, or the
+    /// device's length.
+    Limit,
+    /// The server lowered (or restored) the session's fidelity to keep its step rate.
+    Overload,
 }
 
 impl EventKind {
@@ -82,6 +87,8 @@ impl EventKind {
             EventKind::Device => "device",
             EventKind::Reset => "reset",
             EventKind::Closed => "closed",
+            EventKind::Limit => "limit",
+            EventKind::Overload => "overload",
         }
     }
 }

@@ -8,14 +8,15 @@ use crate::assets::SceneAssets;
 use crate::error::{EngineError, Result};
 use crate::metrics::Metrics;
 use crate::session::{Checkpoint, CommandRecord};
-use crate::world::World;
+use crate::world::{Command, World};
 
 /// What a replay found.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReplayOutcome {
     /// Steps re-run.
     pub steps: u64,
-    /// Commands applied.
+    /// The operator's commands applied (the overload governor's fidelity changes apply too,
+    /// uncounted).
     pub commands: usize,
     /// Checkpoints compared.
     pub checkpoints: usize,
@@ -85,7 +86,7 @@ pub fn replay_until(
             let c = &commands[next_command];
             // A command that applied live applies again; report it if not.
             world.apply(c.seq, &c.command)?;
-            outcome.commands += 1;
+            outcome.commands += usize::from(!matches!(c.command, Command::Fidelity(_)));
             next_command += 1;
         }
         if cancel.load(Ordering::Relaxed) {

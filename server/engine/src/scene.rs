@@ -46,6 +46,34 @@ pub struct SceneSpec {
     /// assessment session turns it off).
     #[serde(default)]
     pub guidance: GuidanceSpec,
+    /// What the trainee's hand meets: the device's length and the force it can push with.
+    #[serde(default)]
+    pub limits: LimitsSpec,
+}
+
+/// The physical limits of a push. The force limit of a device is the smaller of the
+/// operator's and the Euler buckling load of its proximal shaft over the unsupported length
+/// between the hand and the sheath's valve (clamped at both ends): about 1.9 N for a 0.014"
+/// micro-guidewire over 30 mm, so that wire buckles outside before the hand's 10 N.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LimitsSpec {
+    /// The most a hand pushes with (N).
+    pub push_force_n: f64,
+    /// Length of device unsupported between the hand and the sheath's valve (mm).
+    pub unsupported_mm: f64,
+    /// Length of device that stays outside the access: sheath, valve, hub and grip (mm).
+    pub outside_mm: f64,
+}
+
+impl Default for LimitsSpec {
+    fn default() -> Self {
+        Self {
+            push_force_n: 10.0,
+            unsupported_mm: 30.0,
+            outside_mm: 150.0,
+        }
+    }
 }
 
 /// What the trainee's page may show to guide; an instructor turns it off for assessment.
@@ -633,6 +661,10 @@ impl SceneSpec {
             range("flow.agent_mg_per_ml", flow.agent_mg_per_ml, 50.0, 400.0)?;
         }
         range("target.reach_mm", self.target.reach_mm, 0.0, 500.0)?;
+        let l = &self.limits;
+        range("limits.push_force_n", l.push_force_n, 0.1, 10_000.0)?;
+        range("limits.unsupported_mm", l.unsupported_mm, 5.0, 500.0)?;
+        range("limits.outside_mm", l.outside_mm, 0.0, 2000.0)?;
         let q = &self.fidelity;
         range("fidelity.step_rate_hz", q.step_rate_hz, 100.0, 2000.0)?;
         range("fidelity.tip_element_mm", q.tip_element_mm, 0.25, 10.0)?;

@@ -359,6 +359,73 @@ fn checkpoint_of(world: &World) -> Checkpoint {
     }
 }
 
+/// The overload governor: watches each step's cost against its period and how far the loop
+/// is behind, lowers the world's fidelity (a recorded command, so replays agree) before steps
+/// are missed, and raises it again once the load has stayed low.
+#[derive(Debug)]
+pub struct Governor {
+    level: u8,
+    /// Exponentially weighted step cost over its period (≈ the last 20 steps).
+    load: f64,
+    /// Steps before the level may change again.
+    cooldown: u32,
+    /// Steps the load has stayed low.
+    calm: u32,
+    /// Steps of low load before the level goes back up.
+    calm_steps: u32,
+}
+
+impl Governor {
+    /// Load above which (or a backlog of more than `BEHIND_PERIODS` steps) the level drops.
+    pub const HIGH: f64 = 0.7;
+    /// Load below which the level may rise again.
+    pub const LOW: f64 = 0.25;
+    /// Backlog (periods) that lowers the level at once.
+    pub const BEHIND_PERIODS: f64 = 5.0;
+
+    /// A governor for a loop at `rate_hz`: the level rises again after 5 s of low load.
+    pub fn new(rate_hz: f64) -> Self {
+        Self {
+            level: 0,
+            load: 0.0,
+            cooldown: 0,
+            calm: 0,
+            calm_steps: (5.0 * rate_hz) as u32,
+        }
+    }
+
+    /// After a step that took `load` of its period with the loop `behind` periods late:
+    /// the new level, when it changes.
+    pub fn update(&mut self, load: f64, behind: f64) -> Option<u8> {
+        self.load = 0.95 * self.load + 0.05 * load;
+        self.cooldown = self.cooldown.saturating_sub(1);
+        if self.load < Self::LOW && behind < 1.0 {
+            self.calm += 1;
+        } else {
+            self.calm = 0;
+        }
+        if self.cooldown > 0 {
+            return None;
+        }
+        if (self.load > Self::HIGH || behind > Self::BEHIND_PERIODS)
+            && self.level < crate::world::MAX_FIDELITY_LEVEL
+        {
+            self.level += 1;
+            // Give the cheaper steps time to show in the load before judging again.
+            self.cooldown = 50;
+            self.load = Self::HIGH * 0.9;
+            return Some(self.level);
+        }
+        if self.calm >= self.calm_steps && self.level > 0 {
+            self.level -= 1;
+            self.calm = 0;
+            self.cooldown = 50;
+            return Some(self.level);
+        }
+        None
+    }
+}
+
 struct PhysicsLoop {
     id: String,
     world: World,
@@ -379,6 +446,7 @@ fn physics_loop(mut p: PhysicsLoop) {
         n => n,
     };
     let catch_up = period * p.ctx.settings.catch_up_periods;
+    let mut governor = Governor::new(1.0 / dt);
     let mut ordinal = 0u64;
     let mut next = Instant::now();
     while !p.stop.load(Ordering::Relaxed) {
@@ -452,6 +520,32 @@ fn physics_loop(mut p: PhysicsLoop) {
         p.timing.step(took);
         p.ctx.metrics.step_seconds.observe(took);
         next += period;
+        // The governor's command applies at this step boundary, recorded like the others.
+        let behind = Instant::now().saturating_duration_since(next).as_secs_f64() / dt;
+        if let Some(level) = governor.update(took / dt, behind) {
+            let (step, seq, command) = (
+                p.world.step_index(),
+                p.world.last_seq(),
+                Command::Fidelity(level),
+            );
+            if p.world.apply(seq, &command).is_ok() {
+                let record = CommandRecord {
+                    ordinal,
+                    step,
+                    seq,
+                    command,
+                };
+                ordinal += 1;
+                // Not counted among the operator's commands.
+                p.ctx.metrics.fidelity_changes.inc();
+                p.ctx.recorder.command(&p.id, record, None);
+                for event in p.world.take_events() {
+                    tracing::warn!(session = %p.id, "{}", event.message);
+                    p.ctx.recorder.event(&p.id, &event);
+                    let _ = p.events.send(event);
+                }
+            }
+        }
     }
     // Refuse what is still queued.
     while let Ok(q) = p.commands.try_recv() {

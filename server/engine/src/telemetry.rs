@@ -30,6 +30,8 @@ pub struct EngineMetrics {
     pub stream_buffer_bytes: Gauge,
     /// Connections cut because a reader stalled a stream past its timeout.
     pub stalled_streams_cut: Counter,
+    /// Times the overload governor changed a session's fidelity.
+    pub fidelity_changes: Counter,
     /// Steps that started a whole period late.
     pub late_steps: Counter,
     /// Periods dropped when a physics loop fell too far behind.
@@ -51,6 +53,7 @@ impl Default for EngineMetrics {
             frames_withheld: Counter::default(),
             stream_buffer_bytes: Gauge::default(),
             stalled_streams_cut: Counter::default(),
+            fidelity_changes: Counter::default(),
             late_steps: Counter::default(),
             missed_steps: Counter::default(),
             divergences: Counter::default(),
@@ -93,6 +96,11 @@ impl EngineMetrics {
             "stream_buffer_bytes",
             "Bytes of encoded frames waiting for their readers",
             self.stream_buffer_bytes.clone(),
+        );
+        r.register(
+            "fidelity_changes",
+            "Times the overload governor changed a session's fidelity",
+            self.fidelity_changes.clone(),
         );
         r.register(
             "stalled_streams_cut",

@@ -6,7 +6,7 @@
 use std::sync::Arc;
 
 use cathlab_hemo::{Contrast, ContrastSettings, FlowSolver, Injection};
-use cathlab_physics::{Insertion, Navigation, NavigationSettings, Refinement, Twist};
+use cathlab_physics::{Effort, Insertion, Navigation, NavigationSettings, Refinement, Twist};
 use cathlab_xray::{ContrastTube, PulseRate};
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -51,6 +51,10 @@ pub enum Command {
         /// CRA + / CAU −.
         secondary_deg: f64,
     },
+    /// The overload governor's effort level: 0 is the scene's fidelity, up to
+    /// [`MAX_FIDELITY_LEVEL`] does less work a step (see [`fidelity_effort`]). Issued by the
+    /// session's physics loop, recorded like any command so that replays agree.
+    Fidelity(u8),
     /// Inject contrast through the device tip: volume (mL) at a rate (mL/s).
     Inject {
         /// Volume (mL).
@@ -131,6 +135,57 @@ pub struct Snapshot {
     pub contrast: Arc<Vec<ContrastTube>>,
     /// Metrics so far.
     pub metrics: Metrics,
+    /// What held the push back in the last step, if anything.
+    pub push_limit: PushLimit,
+    /// The active device's push force limit (N).
+    pub push_force_limit_n: f64,
+    /// The overload governor's level (0: the scene's fidelity).
+    pub fidelity_level: u8,
+}
+
+/// What holds a push back: the force the hand or the device can push with, or the device's
+/// length (its hub at the sheath).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PushLimit {
+    /// Nothing: the device advances as commanded.
+    #[default]
+    None,
+    /// The proximal force reached the limit: the hand cannot push harder, or the device
+    /// would buckle outside the sheath.
+    Force,
+    /// The device is in to its hub.
+    Length,
+}
+
+/// The push limits of one device in a scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeviceLimits {
+    /// The most the proximal end is pushed with (N).
+    pub force_n: f64,
+    /// Whether that is the device's buckling load (else the hand's strength).
+    pub buckling: bool,
+    /// The most that can be inserted (m): the device's length less what stays outside.
+    pub max_inserted_m: f64,
+}
+
+impl DeviceLimits {
+    /// The limits of `device` under `limits`: the force is the smaller of the hand's and the
+    /// Euler load of the proximal shaft over the unsupported length, clamped at both ends
+    /// (effective length half of it): P = π²·EI / (L/2)².
+    pub fn of(device: &cathlab_physics::Device, limits: &crate::scene::LimitsSpec) -> Self {
+        let ei = device
+            .sections
+            .first()
+            .map_or(0.0, |s| s.beam_properties().bending_stiffness_nm2);
+        let effective = 0.5 * limits.unsupported_mm * 1e-3;
+        let buckling = std::f64::consts::PI.powi(2) * ei / (effective * effective);
+        Self {
+            force_n: buckling.min(limits.push_force_n),
+            buckling: buckling < limits.push_force_n,
+            max_inserted_m: device.length_m() - limits.outside_mm * 1e-3,
+        }
+    }
 }
 
 impl Snapshot {
@@ -198,7 +253,60 @@ pub struct World {
     previous_tip: Vector3<f64>,
     events: Vec<Event>,
     proximal: [f64; 6],
+    limits: DeviceLimits,
+    push_limit: PushLimit,
+    /// Whether the next time a limit holds the push back is reported (re-armed after the push
+    /// has been free for `LIMIT_REARM_S`).
+    limit_armed: bool,
+    push_free_since_s: f64,
+    fidelity: u8,
 }
+
+/// The lowest fidelity the overload governor may set.
+pub const MAX_FIDELITY_LEVEL: u8 = 3;
+
+/// What a fidelity level allows a step: the physics' effort, a cap on the push speed (m/s),
+/// and a description for the event.
+pub fn fidelity_effort(level: u8) -> (Effort, Option<f64>, &'static str) {
+    match level {
+        0 => (Effort::FULL, None, "the scene's fidelity"),
+        1 => (
+            Effort {
+                max_substep_depth: 1,
+                max_detection_rounds: 2,
+                ..Effort::FULL
+            },
+            None,
+            "one sub-step halving, two detection rounds",
+        ),
+        2 => (
+            Effort {
+                max_substep_depth: 0,
+                max_detection_rounds: 1,
+                max_sweeps: 60,
+                polish: true,
+                refinement_scale: 2.0,
+            },
+            None,
+            "no sub-steps, one detection round, 60 contact sweeps, refinement halved",
+        ),
+        _ => (
+            Effort {
+                max_substep_depth: 0,
+                max_detection_rounds: 1,
+                max_sweeps: 20,
+                polish: false,
+                refinement_scale: 4.0,
+            },
+            Some(0.03),
+            "no sub-steps, one detection round, 20 contact sweeps, refinement quartered, \
+             pushes slowed to 30 mm/s",
+        ),
+    }
+}
+
+/// How long a push must go unhindered before the next limit it meets is reported again (s).
+const LIMIT_REARM_S: f64 = 0.5;
 
 impl std::fmt::Debug for World {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -277,6 +385,8 @@ impl World {
         };
         let tip = nav.tip_position();
         let target_remaining_m = assets.remaining_to_target_m(&Point3::from(tip));
+        let assets_devices_0 = assets.devices[0].0.clone();
+        let assets_limits = assets.spec.limits;
         Ok(Self {
             imaging: Imaging {
                 pedal: false,
@@ -300,12 +410,27 @@ impl World {
             previous_tip: tip,
             events: Vec::new(),
             proximal: [0.0; 6],
+            limits: DeviceLimits::of(&assets_devices_0, &assets_limits),
+            push_limit: PushLimit::None,
+            limit_armed: true,
+            push_free_since_s: 0.0,
+            fidelity: 0,
         })
     }
 
     /// The scene.
     pub fn assets(&self) -> &Arc<SceneAssets> {
         &self.assets
+    }
+
+    /// The sequence number of the last command applied.
+    pub fn last_seq(&self) -> u64 {
+        self.last_seq
+    }
+
+    /// The overload governor's level in force.
+    pub fn fidelity_level(&self) -> u8 {
+        self.fidelity
     }
 
     /// Steps taken.
@@ -452,6 +577,23 @@ impl World {
                     format!("{volume_ml:.1} mL of contrast at {rate_ml_s:.1} mL/s"),
                 );
             }
+            Command::Fidelity(level) => {
+                let level = level.min(MAX_FIDELITY_LEVEL);
+                if level != self.fidelity {
+                    let (effort, _, what) = fidelity_effort(level);
+                    self.nav.set_effort(effort)?;
+                    let message = if level > self.fidelity {
+                        format!(
+                            "the server is overloaded: fidelity lowered to level {level} of \
+                             {MAX_FIDELITY_LEVEL} ({what})"
+                        )
+                    } else {
+                        format!("fidelity raised to level {level} ({what})")
+                    };
+                    self.fidelity = level;
+                    self.event(EventKind::Overload, message);
+                }
+            }
             Command::Reset => {
                 self.restart_device(self.active_device)?;
                 // A new attempt: the target is to be reached again.
@@ -463,6 +605,87 @@ impl World {
         }
         self.last_seq = seq;
         Ok(())
+    }
+
+    /// The command this step runs instead of the operator's when a limit holds the push back
+    /// (None: the operator's). The force limit looks at the last step's proximal reaction: a
+    /// push that met it holds the device where it is (the hand pushes no harder), so the
+    /// device advances only as fast as the force allows. Reports each new hold once.
+    fn limited_command(
+        &mut self,
+        operator: cathlab_physics::Command,
+        dt: f64,
+    ) -> Option<cathlab_physics::Command> {
+        let inserted = self.nav.inserted_m();
+        let advance = match operator.insertion {
+            Insertion::Velocity(v) => v * dt,
+            Insertion::Target(x) => x - inserted,
+        };
+        let force = self.axial_force_n();
+        let limits = self.limits;
+        let cap = fidelity_effort(self.fidelity).1;
+        let (limit, insertion) = if advance <= 0.0 {
+            (PushLimit::None, None)
+        } else if inserted + advance > limits.max_inserted_m {
+            (
+                PushLimit::Length,
+                Some(Insertion::Target(limits.max_inserted_m.max(inserted))),
+            )
+        } else if force >= limits.force_n {
+            (PushLimit::Force, Some(Insertion::Velocity(0.0)))
+        } else if let Some(cap) = cap
+            && advance > cap * dt
+        {
+            (PushLimit::None, Some(Insertion::Velocity(cap)))
+        } else {
+            (PushLimit::None, None)
+        };
+        let now = self.metrics.procedure_time_s;
+        if limit == PushLimit::None {
+            if self.push_limit != PushLimit::None {
+                self.push_free_since_s = now;
+            }
+            if now - self.push_free_since_s >= LIMIT_REARM_S {
+                self.limit_armed = true;
+            }
+        } else if self.limit_armed {
+            self.limit_armed = false;
+            let name = self.assets.devices[self.active_device].0.name.clone();
+            let message = match limit {
+                PushLimit::Force if limits.buckling => format!(
+                    "push held at {force:.1} N: the {name} buckles outside the sheath at {:.1} N",
+                    limits.force_n
+                ),
+                PushLimit::Force => format!(
+                    "push held at {force:.1} N: the hand's limit is {:.0} N",
+                    limits.force_n
+                ),
+                _ => format!(
+                    "the {name} is in to its hub: {:.0} mm inserted, {:.0} mm outside",
+                    limits.max_inserted_m * 1e3,
+                    self.assets.spec.limits.outside_mm
+                ),
+            };
+            self.event(EventKind::Limit, message);
+        }
+        self.push_limit = limit;
+        insertion.map(|insertion| cathlab_physics::Command {
+            insertion,
+            twist: operator.twist,
+        })
+    }
+
+    /// The last step's proximal reaction along the device axis: positive when the device
+    /// resists a push (N).
+    fn axial_force_n(&self) -> f64 {
+        let positions = self.nav.model().positions();
+        let Some(axis) = (match positions {
+            [a, b, ..] => (b - a).try_normalize(1e-12),
+            _ => None,
+        }) else {
+            return 0.0;
+        };
+        Vector3::new(self.proximal[0], self.proximal[1], self.proximal[2]).dot(&axis)
     }
 
     fn nav_command(&self) -> cathlab_physics::Command {
@@ -478,6 +701,9 @@ impl World {
     fn restart_device(&mut self, index: usize) -> Result<()> {
         self.nav = start_navigation(&self.assets, index)?;
         self.active_device = index;
+        self.limits = DeviceLimits::of(&self.assets.devices[index].0, &self.assets.spec.limits);
+        self.push_limit = PushLimit::None;
+        self.nav.set_effort(fidelity_effort(self.fidelity).0)?;
         self.previous_tip = self.nav.tip_position();
         if let Some(hemo) = &mut self.hemo
             && hemo.injection.is_some()
@@ -581,7 +807,15 @@ impl World {
     /// back at its start, reports it and counts it; the world stays usable.
     pub fn step(&mut self) -> Result<()> {
         let dt = self.assets.spec.time_step_s();
+        let operator = self.nav.current_command();
+        let limited = self.limited_command(operator, dt);
+        if let Some(command) = limited {
+            self.nav.set_command(command)?;
+        }
         let outcome = self.nav.step();
+        if limited.is_some() {
+            self.nav.set_command(operator)?;
+        }
         let diverged = match outcome {
             Ok(_) => {
                 let tip = self.nav.tip_position();
@@ -741,6 +975,9 @@ impl World {
                 .map(|h| h.tubes.clone())
                 .unwrap_or_default(),
             metrics: self.metrics,
+            push_limit: self.push_limit,
+            push_force_limit_n: self.limits.force_n,
+            fidelity_level: self.fidelity,
         }
     }
 

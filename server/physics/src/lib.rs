@@ -32,7 +32,7 @@ pub use contact::{Contact, ContactResponse, ContactSettings};
 pub use device::{Device, RestArc, RestShape, Section, presets};
 pub use error::{DivergenceCheck, PhysicsError, Result};
 pub use navigation::{
-    Command, Insertion, Navigation, NavigationReport, NavigationSettings, Refinement, Twist,
+    Command, Effort, Insertion, Navigation, NavigationReport, NavigationSettings, Refinement, Twist,
 };
 pub use section::{BeamProperties, CircularSection, Material};
 pub use stack::{Coupling, InstrumentSpec, InstrumentView, ProximalReaction, Stack, StackReport};

@@ -111,6 +111,35 @@ impl Default for NavigationSettings {
 /// How many times a step may be halved when it would penetrate the wall.
 pub const MAX_SUBSTEP_DEPTH: usize = 3;
 
+/// How much work a step may do, below what the settings allow: the knobs an overload
+/// governor turns to keep the step rate when a scene gets expensive (a long device looped
+/// against the wall). [`Effort::FULL`] leaves the settings as they are.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Effort {
+    /// Halvings of a step that would penetrate the wall (at most [`MAX_SUBSTEP_DEPTH`]).
+    pub max_substep_depth: usize,
+    /// Detection-and-solve rounds per step (at most the contact settings').
+    pub max_detection_rounds: usize,
+    /// Gauss–Seidel sweeps (at most the contact settings').
+    pub max_sweeps: usize,
+    /// Whether the active-set polish may finish an unconverged contact solve (O(A³)).
+    pub polish: bool,
+    /// Scale of the refinement thresholds (≥ 1): elements bend and touch this much more
+    /// before they split, and merge back sooner.
+    pub refinement_scale: f64,
+}
+
+impl Effort {
+    /// No cap.
+    pub const FULL: Effort = Effort {
+        max_substep_depth: MAX_SUBSTEP_DEPTH,
+        max_detection_rounds: usize::MAX,
+        max_sweeps: usize::MAX,
+        polish: true,
+        refinement_scale: 1.0,
+    };
+}
+
 /// Push/pull command.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Insertion {
@@ -183,6 +212,7 @@ pub struct Navigation<W: Wall> {
     last: Option<ContactStep>,
     /// Material coordinates and local forces of the last contacts (for warm starts).
     previous_contacts: Vec<(f64, Vector3<f64>)>,
+    effort: Effort,
 }
 
 impl<W: Wall> Navigation<W> {
@@ -291,7 +321,26 @@ impl<W: Wall> Navigation<W> {
             time_s: 0.0,
             last: None,
             previous_contacts: Vec::new(),
+            effort: Effort::FULL,
         })
+    }
+
+    /// Caps the work of the following steps (see [`Effort`]).
+    pub fn set_effort(&mut self, effort: Effort) -> Result<()> {
+        if !(effort.refinement_scale.is_finite() && effort.refinement_scale >= 1.0) {
+            return Err(PhysicsError::OutOfRange {
+                what: "effort.refinement_scale".into(),
+                range: "[1, ∞)",
+                value: effort.refinement_scale,
+            });
+        }
+        self.effort = effort;
+        Ok(())
+    }
+
+    /// The work cap in force.
+    pub fn effort(&self) -> Effort {
+        self.effort
     }
 
     /// Replaces the operator's command (applied from the next step on).
@@ -429,7 +478,8 @@ impl<W: Wall> Navigation<W> {
     /// by more than the sub-step threshold (a violent event: buckling, a slide along a curved
     /// wall), the step is undone and taken as two halves, up to [`MAX_SUBSTEP_DEPTH`] times.
     fn advance(&mut self, push: f64, turn: f64, depth: usize) -> Result<NavigationReport> {
-        let saved = (depth < MAX_SUBSTEP_DEPTH).then(|| {
+        let max_depth = self.effort.max_substep_depth.min(MAX_SUBSTEP_DEPTH);
+        let saved = (depth < max_depth).then(|| {
             (
                 self.model.snapshot(),
                 self.material.clone(),
@@ -466,9 +516,24 @@ impl<W: Wall> Navigation<W> {
         let material = &self.material;
         let previous = &self.previous_contacts;
         let tolerance = self.settings.sample_spacing_m;
+        let contact = ContactSettings {
+            max_iterations: self
+                .settings
+                .contact
+                .max_iterations
+                .min(self.effort.max_sweeps),
+            detection_rounds: self
+                .settings
+                .contact
+                .detection_rounds
+                .min(self.effort.max_detection_rounds)
+                .max(1),
+            polish: self.settings.contact.polish && self.effort.polish,
+            ..self.settings.contact
+        };
         let step = self.model.step_with_contacts(
             |positions, _rotations, free| Ok(detect(wall, &samples, positions, free, margin)),
-            &self.settings.contact,
+            &contact,
             |contacts| warm_start(contacts, material, previous, tolerance),
         )?;
         self.previous_contacts = step
@@ -562,9 +627,11 @@ impl<W: Wall> Navigation<W> {
     /// need to be apart (see [`Refinement`]). The element at the entry point is left to
     /// [`Self::slide`]. Runs between steps, so the last contacts decide.
     fn refine(&mut self) -> Result<()> {
-        let Some(refinement) = self.settings.refinement else {
+        let Some(mut refinement) = self.settings.refinement else {
             return Ok(());
         };
+        refinement.max_bend_rad *= self.effort.refinement_scale;
+        refinement.contact_element_m *= self.effort.refinement_scale;
         let length = self.device.length_m();
         let shortest = self.settings.tip_element_m;
         // Material coordinates of the active contacts, ordered along the device.
