@@ -1,6 +1,6 @@
 import { create } from "@bufbuild/protobuf";
 import { describe, expect, it } from "vitest";
-import { DeviceStateSchema, MetricsSchema } from "./gen/cathlab/v1/simulator_pb.js";
+import { DeviceStateSchema, MetricsSchema, PushLimit } from "./gen/cathlab/v1/simulator_pb.js";
 import {
   WALL_FORCE_WARNING_N,
   clock,
@@ -77,5 +77,16 @@ describe("HUD", () => {
     const lines = hudLines(undefined, metrics, "lcca");
     expect(lines).toMatchObject({ inserted: "—", fluoroscopy: "1:15", contrast: "12.3 mL", target: "lcca reached in 2:10" });
     expect(Object.fromEntries(metricRows(metrics))).toMatchObject({ Fluoro: "1:15", Target: "reached in 2:10" });
+  });
+  it("says what holds a push back and when fidelity is reduced", () => {
+    const held = create(DeviceStateSchema, {
+      insertedMm: 412.34,
+      pushLimit: PushLimit.FORCE,
+      pushForceLimitN: 1.93,
+      fidelityLevel: 2,
+    });
+    expect(hudLines(held, undefined, "").inserted).toBe("412.3 mm · push held at 1.9 N · reduced fidelity (2)");
+    const hub = create(DeviceStateSchema, { insertedMm: 1350, pushLimit: PushLimit.LENGTH });
+    expect(hudLines(hub, undefined, "").inserted).toBe("1350.0 mm · in to the hub");
   });
 });

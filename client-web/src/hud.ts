@@ -1,5 +1,5 @@
 //! The heads-up display's figures: formatting and the wall-force warning.
-import type { DeviceState, Metrics, XrayFrame } from "./gen/cathlab/v1/simulator_pb.js";
+import { type DeviceState, type Metrics, PushLimit, type XrayFrame } from "./gen/cathlab/v1/simulator_pb.js";
 
 /** Wall force (N) above which the HUD warns: a training threshold (a tenth of a newton on
  *  a wire tip is a hard push), not a clinical limit. */
@@ -44,7 +44,7 @@ export function hudLines(
   const force = state ? largestWallForce(state) : 0;
   const reached = metrics?.targetReached ?? false;
   return {
-    inserted: state ? `${state.insertedMm.toFixed(1)} mm` : "—",
+    inserted: state ? insertedLine(state) : "—",
     twist: state ? twistLine(state.twistDeg) : "—",
     fluoroscopy: clock(metrics?.fluoroscopyTimeS ?? 0),
     contrast: `${(metrics?.contrastVolumeMl ?? 0).toFixed(1)} mL`,
@@ -59,6 +59,18 @@ export function hudLines(
       : "—",
     reached,
   };
+}
+
+/** The inserted length, with what holds the push back and whether the server has lowered
+ *  the fidelity to keep up. */
+export function insertedLine(
+  state: Pick<DeviceState, "insertedMm" | "pushLimit" | "pushForceLimitN" | "fidelityLevel">,
+): string {
+  let line = `${state.insertedMm.toFixed(1)} mm`;
+  if (state.pushLimit === PushLimit.FORCE) line += ` · push held at ${state.pushForceLimitN.toFixed(1)} N`;
+  else if (state.pushLimit === PushLimit.LENGTH) line += " · in to the hub";
+  if (state.fidelityLevel > 0) line += ` · reduced fidelity (${state.fidelityLevel})`;
+  return line;
 }
 
 /** The metric rows a card shows. */
