@@ -80,6 +80,10 @@ pub struct ConfigFile {
     pub control_timeout_ms: Option<u64>,
     /// Memory all frame streams' encoded frames may hold together (MiB).
     pub stream_buffer_mib: Option<usize>,
+    /// Control inputs one stream may send a second.
+    pub control_inputs_per_second: Option<u32>,
+    /// Web origins whose pages may call the API (CORS); none by default.
+    pub cors_origins: Option<Vec<String>>,
     /// How long a frame may wait for its reader before the reader's connection is cut (ms).
     pub stream_stall_timeout_ms: Option<u64>,
 }
@@ -129,6 +133,11 @@ pub struct ServerConfig {
     pub control_timeout_ms: u64,
     /// Memory all frame streams' encoded frames may hold together (MiB).
     pub stream_buffer_mib: usize,
+    /// Control inputs one stream may send a second.
+    pub control_inputs_per_second: u32,
+    /// Web origins whose pages may call the API (CORS); the built-in web client is
+    /// same-origin and needs none.
+    pub cors_origins: Vec<String>,
     /// How long a frame may wait for its reader before the reader's connection is cut (ms).
     pub stream_stall_timeout_ms: u64,
 }
@@ -152,6 +161,8 @@ impl Default for ServerConfig {
             auth_failures_per_minute: 20,
             control_timeout_ms: 250,
             stream_buffer_mib: 256,
+            control_inputs_per_second: 2000,
+            cors_origins: Vec::new(),
             stream_stall_timeout_ms: 10_000,
         }
     }
@@ -180,6 +191,10 @@ impl ServerConfig {
                 .unwrap_or(d.auth_failures_per_minute),
             control_timeout_ms: file.control_timeout_ms.unwrap_or(d.control_timeout_ms),
             stream_buffer_mib: file.stream_buffer_mib.unwrap_or(d.stream_buffer_mib),
+            control_inputs_per_second: file
+                .control_inputs_per_second
+                .unwrap_or(d.control_inputs_per_second),
+            cors_origins: file.cors_origins.unwrap_or(d.cors_origins),
             stream_stall_timeout_ms: file
                 .stream_stall_timeout_ms
                 .unwrap_or(d.stream_stall_timeout_ms),

@@ -50,6 +50,10 @@ struct Options {
     /// Who may create sessions from scene texts (default: instructors).
     #[arg(long, value_enum, global = true)]
     inline_scenes: Option<InlineScenes>,
+    /// A web origin (`https://host:port`) whose pages may call the API from the browser
+    /// (repeatable; the built-in web client is same-origin and needs none).
+    #[arg(long = "cors-origin", global = true)]
+    cors_origins: Vec<String>,
     /// Shut down gracefully when standard input closes (for supervisors and test harnesses
     /// that hold the server's stdin).
     #[arg(long, global = true)]
@@ -91,6 +95,9 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
     }
     if let Some(v) = options.inline_scenes {
         config.inline_scenes = v;
+    }
+    if !options.cors_origins.is_empty() {
+        config.cors_origins = options.cors_origins.clone();
     }
     match (&options.tls_cert, &options.tls_key) {
         (Some(cert), Some(key)) => {

@@ -109,6 +109,7 @@ pub async fn serve(
             .with_inline_scenes(config.inline_scenes)
             .with_auth_failures_per_minute(config.auth_failures_per_minute)
             .with_control_timeout(std::time::Duration::from_millis(config.control_timeout_ms))
+            .with_control_inputs_per_second(config.control_inputs_per_second)
             .with_stream_limits(
                 config.stream_buffer_mib << 20,
                 std::time::Duration::from_millis(config.stream_stall_timeout_ms),
@@ -132,6 +133,7 @@ pub async fn serve(
         .add_service(health_service)
         .add_service(reflection)
         .into_axum_router()
+        .layer(axum::middleware::map_response(undecodable_is_invalid))
         // gRPC-Web for the gRPC routes only: tonic-web answers 400 to any other HTTP/1.1
         // request, and /metrics (added after the layer) is plain HTTP.
         .layer(tonic_web::GrpcWebLayer::new())
@@ -175,14 +177,34 @@ pub async fn serve(
             async move { (axum::http::StatusCode::NOT_FOUND, note) }
         })
     };
+    // CORS only for the configured origins, with the headers gRPC-Web and Connect send.
+    let origins = config
+        .cors_origins
+        .iter()
+        .map(|o| {
+            o.parse::<axum::http::HeaderValue>()
+                .with_context(|| format!("cors_origins: {o:?} is not an origin"))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let cors = CorsLayer::new()
-        .allow_origin(AllowOrigin::mirror_request())
+        .allow_origin(AllowOrigin::list(origins))
         .allow_methods([
             http_method("POST"),
             http_method("GET"),
             http_method("OPTIONS"),
         ])
-        .allow_headers(tower_http::cors::Any)
+        .allow_headers(
+            [
+                "authorization",
+                "content-type",
+                "x-grpc-web",
+                "x-user-agent",
+                "grpc-timeout",
+                "connect-protocol-version",
+                "connect-timeout-ms",
+            ]
+            .map(axum::http::HeaderName::from_static),
+        )
         .expose_headers([
             "grpc-status".parse()?,
             "grpc-message".parse()?,
@@ -237,6 +259,26 @@ pub async fn serve(
     tokio::task::spawn_blocking(move || closing.shutdown()).await?;
     result?;
     Ok(())
+}
+
+/// tonic answers a request message that does not decode with INTERNAL; it is the caller's
+/// fault: INVALID_ARGUMENT.
+async fn undecodable_is_invalid(
+    mut response: axum::response::Response,
+) -> axum::response::Response {
+    let headers = response.headers_mut();
+    let undecodable = headers.get("grpc-status").is_some_and(|s| s == "13")
+        && headers
+            .get("grpc-message")
+            .and_then(|m| m.to_str().ok())
+            .is_some_and(|m| {
+                m.starts_with("failed to decode Protobuf message")
+                    || m.starts_with("failed%20to%20decode")
+            });
+    if undecodable {
+        headers.insert("grpc-status", axum::http::HeaderValue::from_static("3"));
+    }
+    response
 }
 
 fn http_method(name: &str) -> axum::http::Method {

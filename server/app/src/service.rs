@@ -65,6 +65,7 @@ pub struct SimulatorService {
     holds: Arc<Mutex<HashMap<(String, Axis), u64>>>,
     stream_budget: Arc<StreamBudget>,
     stream_stall: Duration,
+    control_inputs_per_second: u32,
 }
 
 /// A speed a unary command sets (and a held one lapses).
@@ -127,9 +128,32 @@ pub const STREAM_BUFFER_BYTES: usize = 256 << 20;
 /// (the configuration's default).
 pub const STREAM_STALL: Duration = Duration::from_secs(10);
 
+/// Control inputs one stream may send a second (the configuration's default): twice the
+/// haptic bridge's 1 kHz, which is already more than the 500 Hz physics can apply.
+pub const CONTROL_INPUTS_PER_SECOND: u32 = 2000;
+
 /// How long a control stream may go quiet before its setpoints are zeroed (the dead-man
 /// rule; the configuration's default).
 pub const CONTROL_TIMEOUT: Duration = Duration::from_millis(250);
+
+/// `id` if it can be a session id (at most 64 letters, digits, `-` or `_`); else
+/// INVALID_ARGUMENT that says what it is without echoing it.
+fn checked_id(id: &str) -> Result<&str, Status> {
+    if id.is_empty() {
+        return Err(Status::invalid_argument("session_id: missing"));
+    }
+    if id.len() > 64
+        || !id
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_')
+    {
+        return Err(Status::invalid_argument(format!(
+            "session_id: {} bytes that are not a session id",
+            id.len()
+        )));
+    }
+    Ok(id)
+}
 
 fn bearer<T>(request: &Request<T>) -> Option<String> {
     let value = request.metadata().get("authorization")?.to_str().ok()?;
@@ -161,6 +185,7 @@ impl SimulatorService {
             holds: Arc::default(),
             stream_budget: StreamBudget::new(STREAM_BUFFER_BYTES, engine.metrics().clone()),
             stream_stall: STREAM_STALL,
+            control_inputs_per_second: CONTROL_INPUTS_PER_SECOND,
             engine,
         }
     }
@@ -170,6 +195,13 @@ impl SimulatorService {
     pub fn with_stream_limits(mut self, budget_bytes: usize, stall: Duration) -> Self {
         self.stream_budget = StreamBudget::new(budget_bytes, self.engine.metrics().clone());
         self.stream_stall = stall;
+        self
+    }
+
+    /// Control inputs one stream may send a second; past it the stream ends with
+    /// RESOURCE_EXHAUSTED (the device stops).
+    pub fn with_control_inputs_per_second(mut self, per_second: u32) -> Self {
+        self.control_inputs_per_second = per_second.max(1);
         self
     }
 
@@ -218,6 +250,7 @@ impl SimulatorService {
         control: bool,
     ) -> Result<Role, Status> {
         self.throttle.check(peer)?;
+        checked_id(session_id)?;
         let known = self.tokens.read().get(session_id).cloned();
         let role = if self.is_instructor(token) {
             Role::Instructor
@@ -518,7 +551,7 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::GetSessionRequest>,
     ) -> Result<Response<pb::SessionInfo>, Status> {
-        let id = request.get_ref().session_id.clone();
+        let id = checked_id(&request.get_ref().session_id)?.to_owned();
         if let Ok(session) = self.engine.get(&id) {
             self.authorize(peer_of(&request), bearer(&request).as_deref(), &id, false)?;
             return Ok(Response::new(self.info_of(&session)));
@@ -606,14 +639,21 @@ impl Simulator for SimulatorService {
             u64,
             oneshot::Receiver<cathlab_engine::Result<CommandRecord>>,
         )>(4096);
+        // Dropped when the inputs end: the outputs then end too (a half-closed stream ends).
+        let (inputs_done, mut inputs_ended) = oneshot::channel::<()>();
         // Inputs: validate and queue; a bad input ends the stream with its error.
         {
             let session = session.clone();
             let out_tx = out_tx.clone();
             let quiet_after = self.control_timeout;
+            let per_second = self.control_inputs_per_second;
             tokio::spawn(async move {
+                let _inputs_done = inputs_done;
                 let mut next = Some(first);
                 let (mut last_seq, mut driving) = (0, true);
+                let mut previous: Option<u64> = None;
+                // A token bucket: `per_second` inputs a second, a second's worth at once.
+                let (mut tokens, mut refilled) = (per_second as f64, tokio::time::Instant::now());
                 // The dead-man rule: a stream that goes quiet or away leaves the device still.
                 let stop = |seq: u64, why: &str| {
                     tracing::info!(session = %session.id(), "control stream {why}: setpoints zeroed");
@@ -649,6 +689,33 @@ impl Simulator for SimulatorService {
                             }
                         },
                     };
+                    if let Some(p) = previous
+                        && input.seq <= p
+                    {
+                        stop(last_seq, "sent a sequence number that does not increase");
+                        let _ = out_tx
+                            .send(Err(Status::invalid_argument(format!(
+                                "seq: {} does not increase (the last was {p})",
+                                input.seq
+                            ))))
+                            .await;
+                        break;
+                    }
+                    let now = tokio::time::Instant::now();
+                    tokens = (tokens + (now - refilled).as_secs_f64() * per_second as f64)
+                        .min(per_second as f64);
+                    refilled = now;
+                    if tokens < 1.0 {
+                        stop(last_seq, "sent too fast");
+                        let _ = out_tx
+                            .send(Err(Status::resource_exhausted(format!(
+                                "control inputs: more than {per_second} a second"
+                            ))))
+                            .await;
+                        break;
+                    }
+                    tokens -= 1.0;
+                    previous = Some(input.seq);
                     (last_seq, driving) = (input.seq, true);
                     let command = match control_from_wire(&input) {
                         Ok(c) => c,
@@ -673,9 +740,24 @@ impl Simulator for SimulatorService {
             let mut state = session.state();
             tokio::spawn(async move {
                 let mut pending: VecDeque<(u64, oneshot::Receiver<_>)> = VecDeque::new();
+                let mut ending = false;
                 loop {
-                    if state.changed().await.is_err() {
-                        break;
+                    if ending {
+                        // The inputs ended: answer what was sent, then end.
+                        if pending.is_empty() && pending_rx.is_empty() {
+                            break;
+                        }
+                        if state.changed().await.is_err() {
+                            break;
+                        }
+                    } else {
+                        tokio::select! {
+                            changed = state.changed() => if changed.is_err() { break },
+                            _ = &mut inputs_ended => {
+                                ending = true;
+                                continue;
+                            }
+                        }
                     }
                     let snapshot = state.borrow_and_update().clone();
                     while let Ok(p) = pending_rx.try_recv() {
@@ -862,7 +944,7 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::ReplaySessionRequest>,
     ) -> Result<Response<pb::ReplayResult>, Status> {
-        let id = request.get_ref().session_id.clone();
+        let id = checked_id(&request.get_ref().session_id)?.to_owned();
         if self.engine.get(&id).is_ok() {
             // A live session: its trainee or an instructor (an observer only watches).
             let role =

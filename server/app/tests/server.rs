@@ -15,7 +15,10 @@ fn shared() -> &'static ServerProcess {
     static SERVER: OnceLock<ServerProcess> = OnceLock::new();
     SERVER.get_or_init(|| {
         let dir = temp_dir("shared");
-        ServerProcess::start(&dir.join("cathlab.sqlite"), &[])
+        ServerProcess::start(
+            &dir.join("cathlab.sqlite"),
+            &["--cors-origin", "http://localhost:8080"],
+        )
     })
 }
 
@@ -300,6 +303,45 @@ async fn grpc_web_over_http1_and_cors() {
     assert_eq!(
         response.headers()["access-control-allow-origin"],
         "http://localhost:8080"
+    );
+
+    // A message that does not decode is the caller's error, not the server's.
+    let garbage = [0u8, 0, 0, 0, 3, 0x0a, 0xff, 0xff];
+    let request = hyper::Request::post("/cathlab.v1.Simulator/GetSession")
+        .header("host", &server.address)
+        .header("content-type", "application/grpc-web+proto")
+        .header("x-grpc-web", "1")
+        .body(Full::new(Bytes::copy_from_slice(&garbage)))
+        .unwrap();
+    let mut sender = connect().await;
+    let response = sender.send_request(request).await.unwrap();
+    let status = response
+        .headers()
+        .get("grpc-status")
+        .map(|v| v.to_str().unwrap().to_owned());
+    let bytes = response.into_body().collect().await.unwrap().to_bytes();
+    let text = format!("{status:?} {}", String::from_utf8_lossy(&bytes));
+    assert!(
+        status.as_deref() == Some("3") || text.contains("grpc-status:3"),
+        "{text}"
+    );
+
+    // An origin the server was not told of gets no CORS grant (it used to be mirrored).
+    let foreign = hyper::Request::options("/cathlab.v1.Simulator/SendCommand")
+        .header("host", &server.address)
+        .header("origin", "http://evil.example")
+        .header("access-control-request-method", "POST")
+        .header("access-control-request-headers", "authorization")
+        .body(Full::new(Bytes::new()))
+        .unwrap();
+    let mut sender = connect().await;
+    let response = sender.send_request(foreign).await.unwrap();
+    assert!(
+        !response
+            .headers()
+            .contains_key("access-control-allow-origin"),
+        "{:?}",
+        response.headers()
     );
 }
 
