@@ -85,8 +85,8 @@ describe("HUD", () => {
       pushForceLimitN: 1.93,
       fidelityLevel: 2,
     });
-    expect(hudLines(held, undefined, "").inserted).toBe("412.3 mm · push held at 1.9 N · reduced fidelity (2)");
+    expect(hudLines(held, undefined, "").inserted).toBe("412.3 mm · held 1.9 N · lo-fi 2");
     const hub = create(DeviceStateSchema, { insertedMm: 1350, pushLimit: PushLimit.LENGTH });
-    expect(hudLines(hub, undefined, "").inserted).toBe("1350.0 mm · in to the hub");
+    expect(hudLines(hub, undefined, "").inserted).toBe("1350.0 mm · hub");
   });
 });

@@ -67,9 +67,10 @@ export function insertedLine(
   state: Pick<DeviceState, "insertedMm" | "pushLimit" | "pushForceLimitN" | "fidelityLevel">,
 ): string {
   let line = `${state.insertedMm.toFixed(1)} mm`;
-  if (state.pushLimit === PushLimit.FORCE) line += ` · push held at ${state.pushForceLimitN.toFixed(1)} N`;
-  else if (state.pushLimit === PushLimit.LENGTH) line += " · in to the hub";
-  if (state.fidelityLevel > 0) line += ` · reduced fidelity (${state.fidelityLevel})`;
+  // Short, so the HUD keeps its one line per figure (the events say the rest).
+  if (state.pushLimit === PushLimit.FORCE) line += ` · held ${state.pushForceLimitN.toFixed(1)} N`;
+  else if (state.pushLimit === PushLimit.LENGTH) line += " · hub";
+  if (state.fidelityLevel > 0) line += ` · lo-fi ${state.fidelityLevel}`;
   return line;
 }
 
