@@ -648,3 +648,18 @@ fn the_governor_lowers_fidelity_under_load_and_raises_it_when_calm() {
     );
     assert!(raised[0].0 >= 2500);
 }
+
+#[test]
+fn a_bad_guidance_or_limits_table_is_named() {
+    for (extra, field) in [
+        ("\n[guidance]\ntarget_marker = \"yes\"\n", "guidance"),
+        ("\n[guidance]\nhints = true\n", "guidance"),
+        ("\n[limits]\npush_force_n = -1.0\n", "limits.push_force_n"),
+        ("\n[limits]\noutside_mm = 1e9\n", "limits.outside_mm"),
+    ] {
+        let error = SceneSpec::parse(&(default_text() + extra), SceneFormat::Toml)
+            .expect_err(extra)
+            .to_string();
+        assert!(error.contains(field), "{extra:?}: {error}");
+    }
+}
