@@ -4,6 +4,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::service;
+
 /// Which renderer the sessions share.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, clap::ValueEnum, Default)]
 #[serde(rename_all = "snake_case")]
@@ -158,12 +160,12 @@ impl Default for ServerConfig {
             inline_scenes: InlineScenes::Instructors,
             asset_cache_mib: 2048,
             data_roots: Vec::new(),
-            auth_failures_per_minute: 20,
-            control_timeout_ms: 250,
-            stream_buffer_mib: 256,
-            control_inputs_per_second: 2000,
+            auth_failures_per_minute: service::AUTH_FAILURES_PER_MINUTE,
+            control_timeout_ms: service::CONTROL_TIMEOUT.as_millis() as u64,
+            stream_buffer_mib: service::STREAM_BUFFER_BYTES >> 20,
+            control_inputs_per_second: service::CONTROL_INPUTS_PER_SECOND,
             cors_origins: Vec::new(),
-            stream_stall_timeout_ms: 10_000,
+            stream_stall_timeout_ms: service::STREAM_STALL.as_millis() as u64,
         }
     }
 }
