@@ -64,6 +64,8 @@ pub struct ConfigFile {
     pub max_sessions: Option<usize>,
     /// Most replays at once.
     pub max_replays: Option<usize>,
+    /// Most commands one session's recording holds.
+    pub max_recorded_commands: Option<u64>,
     /// Largest request message (bytes).
     pub max_message_bytes: Option<usize>,
     /// The built web client (`client-web/dist`), served at `/`.
@@ -118,6 +120,9 @@ pub struct ServerConfig {
     pub max_sessions: usize,
     /// Most replays at once (each takes a core, niced below live physics).
     pub max_replays: usize,
+    /// Most commands one session's recording holds (about 100 bytes each); past it the
+    /// session refuses commands (RESOURCE_EXHAUSTED).
+    pub max_recorded_commands: u64,
     /// Largest request message (bytes).
     pub max_message_bytes: usize,
     /// The built web client, served at `/` (a note page when it is not built).
@@ -155,6 +160,7 @@ impl Default for ServerConfig {
             renderer: RendererChoice::Auto,
             max_sessions: 16,
             max_replays: 1,
+            max_recorded_commands: cathlab_engine::session::MAX_RECORDED_COMMANDS,
             max_message_bytes: 1 << 20,
             web_root: PathBuf::from("client-web/dist"),
             inline_scenes: InlineScenes::Instructors,
@@ -183,6 +189,9 @@ impl ServerConfig {
             renderer: file.renderer.unwrap_or(d.renderer),
             max_sessions: file.max_sessions.unwrap_or(d.max_sessions),
             max_replays: file.max_replays.unwrap_or(d.max_replays),
+            max_recorded_commands: file
+                .max_recorded_commands
+                .unwrap_or(d.max_recorded_commands),
             max_message_bytes: file.max_message_bytes.unwrap_or(d.max_message_bytes),
             web_root: file.web_root.unwrap_or(d.web_root),
             inline_scenes: file.inline_scenes.unwrap_or(d.inline_scenes),

@@ -52,7 +52,10 @@ pub fn engine(config: &ServerConfig) -> anyhow::Result<(Arc<Engine>, Arc<Store>,
     let engine = Engine::new(
         EngineSettings {
             scenes_dir: config.scenes.clone(),
-            session: SessionSettings::default(),
+            session: SessionSettings {
+                max_recorded_commands: config.max_recorded_commands,
+                ..SessionSettings::default()
+            },
             max_sessions: config.max_sessions,
             max_replays: config.max_replays,
             asset_budget_bytes: config.asset_cache_mib << 20,

@@ -238,6 +238,24 @@ impl AssetCache {
         Ok(canonical)
     }
 
+    /// Checks that every file `spec` names (relative to `base`) exists inside the data roots,
+    /// MetaImage data files included, without loading anything; the error names the field.
+    pub fn check_files(&self, spec: &SceneSpec, base: &Path) -> Result<()> {
+        match &spec.anatomy {
+            AnatomySpec::ArchToCow { dir } => {
+                self.resolve(base, dir, "anatomy.dir")?;
+            }
+            AnatomySpec::CtSegmentation { volume, .. } => {
+                self.resolve(base, volume, "anatomy.volume")?;
+            }
+            AnatomySpec::NeuroPhantom { .. } => {}
+        }
+        if let CtSpec::File { path, .. } = &spec.ct {
+            self.resolve(base, path, "ct.path")?;
+        }
+        Ok(())
+    }
+
     /// Bytes held by the cached anatomies and volumes.
     pub fn bytes(&self) -> usize {
         self.anatomies

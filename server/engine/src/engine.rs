@@ -118,6 +118,18 @@ impl Engine {
             settings.data_roots.clone()
         };
         let assets = AssetCache::with_budget(settings.asset_budget_bytes).with_roots(&roots)?;
+        // A catalog scene naming a missing file, or one outside the data roots, stops the
+        // server at start rather than a trainee at CreateSession.
+        for (spec, file) in catalog.scenes() {
+            let base = file.parent().unwrap_or(Path::new("."));
+            assets.check_files(spec, base).map_err(|e| match e {
+                EngineError::Scene { path, reason } => EngineError::Scene {
+                    path: format!("{}: {path}", file.display()),
+                    reason,
+                },
+                other => other,
+            })?;
+        }
         Ok(Self {
             context: SessionContext {
                 recorder,
@@ -181,6 +193,7 @@ impl Engine {
                 self.settings.asset_budget_bytes >> 20
             )));
         }
+        self.assets.check_files(spec, base)?;
         let mut admission = self.admit()?;
         let assets = self.load(spec, base)?;
         let session = Session::start(id.clone(), label, assets, self.context.clone())?;

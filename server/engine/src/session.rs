@@ -104,7 +104,14 @@ pub struct SessionSettings {
     pub checkpoint_every_steps: u64,
     /// How often the render thread looks for a due pulse (s).
     pub render_tick_s: f64,
+    /// Commands a session's recording may hold; past it, clients' commands are refused
+    /// (RESOURCE_EXHAUSTED) and the dead-man rule stops the device. Bounds the recording
+    /// (about 100 bytes a command in SQLite) whatever a client sends.
+    pub max_recorded_commands: u64,
 }
+
+/// The default bound of a session's recording: an hour of a control stream at 1.1 kHz.
+pub const MAX_RECORDED_COMMANDS: u64 = 4_000_000;
 
 impl Default for SessionSettings {
     fn default() -> Self {
@@ -113,6 +120,7 @@ impl Default for SessionSettings {
             catch_up_periods: 25,
             checkpoint_every_steps: 0,
             render_tick_s: 0.004,
+            max_recorded_commands: MAX_RECORDED_COMMANDS,
         }
     }
 }
@@ -263,6 +271,12 @@ impl Session {
     pub fn send(&self, seq: u64, command: Command, ack: Option<Ack>) -> Result<()> {
         if !self.is_running() {
             return Err(EngineError::Closed(self.id.clone()));
+        }
+        if self.commands_recorded() >= self.settings.max_recorded_commands {
+            return Err(EngineError::Exhausted(format!(
+                "the session's recording is full ({} commands); start a new session",
+                self.settings.max_recorded_commands
+            )));
         }
         match self.commands.try_send(Queued { seq, command, ack }) {
             Ok(()) => Ok(()),

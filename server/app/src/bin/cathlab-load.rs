@@ -6,8 +6,10 @@
 //! received, the server's resident memory per session, the command-to-state latency of unary
 //! commands and the round trip of the bidirectional control stream at 1 kHz.
 
+mod harness;
+
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
@@ -15,6 +17,7 @@ use cathlab_api::authorized as authed;
 use cathlab_api::pb;
 use cathlab_api::pb::simulator_client::SimulatorClient;
 use clap::Parser;
+use harness::{Server, rss_mib};
 use tonic::transport::Channel;
 
 #[derive(Debug, Parser)]
@@ -40,65 +43,16 @@ struct Cli {
     renderer: String,
 }
 
-struct Server {
-    child: Child,
-    address: String,
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
 fn start_server(cli: &Cli, database: &std::path::Path) -> Result<Server> {
-    use std::io::BufRead;
-    let binary = match &cli.server {
-        Some(p) => p.clone(),
-        None => std::env::current_exe()?
-            .parent()
-            .context("no parent directory")?
-            .join("cathlab-server"),
-    };
-    let mut child = Command::new(&binary)
-        .args(["--listen", "127.0.0.1:0", "--renderer", &cli.renderer])
-        .arg("--database")
-        .arg(database)
-        .arg("--scenes")
-        .arg(&cli.scenes)
-        .arg("--exit-on-stdin-eof")
-        // The 1 kHz probe runs an inline scene.
-        .args(["--inline-scenes", "anyone"])
-        .env("CATHLAB_INSTRUCTOR_KEY", "load")
-        .env("RUST_LOG", "warn")
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .with_context(|| format!("starting {}", binary.display()))?;
-    let stdout = child.stdout.take().context("no stdout")?;
-    let mut lines = std::io::BufReader::new(stdout).lines();
-    let address = loop {
-        let line = lines.next().context("the server exited")??;
-        if let Some(a) = line.strip_prefix("cathlab-server listening on ") {
-            break a.trim().to_owned();
-        }
-    };
-    std::thread::spawn(move || for _ in lines {});
-    Ok(Server { child, address })
-}
-
-fn rss_mib(pid: u32) -> f64 {
-    std::fs::read_to_string(format!("/proc/{pid}/status"))
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmRSS:"))
-                .and_then(|l| l.split_whitespace().nth(1))
-                .and_then(|kb| kb.parse::<f64>().ok())
-        })
-        .map_or(f64::NAN, |kb| kb / 1024.0)
+    // The 1 kHz probe runs an inline scene.
+    Server::start(
+        &Server::binary(cli.server.as_deref())?,
+        database,
+        &cli.scenes,
+        "load",
+        &["--renderer", &cli.renderer, "--inline-scenes", "anyone"],
+        Stdio::inherit(),
+    )
 }
 
 fn command(kind: pb::command::Kind) -> Option<pb::Command> {

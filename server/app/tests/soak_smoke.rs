@@ -1,0 +1,43 @@
+//! The soak test runs end to end, briefly: three rounds of random clients, valid and invalid,
+//! beside a watched session (`cathlab-soak`; the full 10⁶-step run is in the README). It fails
+//! on a panic, an INTERNAL answer, a missed step in the watched session or resting memory
+//! more than 10 % over the first round's.
+
+mod common;
+
+#[test]
+fn a_short_soak_passes() {
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-soak"))
+        .args([
+            "--steps",
+            "60000",
+            "--round-seconds",
+            "15",
+            "--max-seconds",
+            "300",
+        ])
+        .arg("--server")
+        .arg(env!("CARGO_BIN_EXE_cathlab-server"))
+        .arg("--scenes")
+        .arg(common::repo_root().join("scenes"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&output.stdout);
+    println!("{text}");
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    // The mix reached the server: sessions were made, bad commands refused, streams opened.
+    for row in [
+        "| create | OK |",
+        "| invalid command | InvalidArgument |",
+        "| frame stream | OK |",
+        "| control stream | OK |",
+        "| hostile scene |",
+    ] {
+        assert!(text.contains(row), "{row} in {text}");
+    }
+    assert!(text.contains("soak passed"), "{text}");
+}
