@@ -84,6 +84,12 @@ impl Server {
         rss_mib(self.child.id())
     }
 
+    /// Resident anonymous memory (MiB: the heap and stacks, without the pages of mapped
+    /// files such as the binary's own code), NaN when it cannot be read.
+    pub fn anon_mib(&self) -> f64 {
+        status_mib(self.child.id(), "RssAnon:")
+    }
+
     /// One sample of a Prometheus family (`name` or `name_total`) from `/metrics`.
     pub async fn metric(&self, name: &str) -> Result<f64> {
         use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -111,11 +117,17 @@ impl Server {
 
 /// Resident memory of process `pid` (MiB), NaN when it cannot be read.
 pub fn rss_mib(pid: u32) -> f64 {
+    status_mib(pid, "VmRSS:")
+}
+
+/// A memory line of `/proc/PID/status` (`VmRSS:`, `RssAnon:`, `RssFile:`) in MiB, NaN when
+/// it cannot be read.
+pub fn status_mib(pid: u32, field: &str) -> f64 {
     std::fs::read_to_string(format!("/proc/{pid}/status"))
         .ok()
         .and_then(|s| {
             s.lines()
-                .find(|l| l.starts_with("VmRSS:"))
+                .find(|l| l.starts_with(field))
                 .and_then(|l| l.split_whitespace().nth(1))
                 .and_then(|kb| kb.parse::<f64>().ok())
         })
