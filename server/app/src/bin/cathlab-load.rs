@@ -8,7 +8,6 @@
 
 mod harness;
 
-use std::path::PathBuf;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
@@ -17,7 +16,7 @@ use cathlab_api::authorized as authed;
 use cathlab_api::pb;
 use cathlab_api::pb::simulator_client::SimulatorClient;
 use clap::Parser;
-use harness::{Server, rss_mib};
+use harness::{Server, ServerArgs, rss_mib};
 use tonic::transport::Channel;
 
 #[derive(Debug, Parser)]
@@ -32,25 +31,23 @@ struct Cli {
     /// Latency samples (unary) and control inputs (1 kHz stream).
     #[arg(long, default_value_t = 2000)]
     samples: usize,
-    /// The server binary (default: next to this one).
-    #[arg(long)]
-    server: Option<PathBuf>,
-    /// Scene directory.
-    #[arg(long, default_value = "scenes")]
-    scenes: PathBuf,
-    /// Renderer (auto, cpu, gpu).
-    #[arg(long, default_value = "auto")]
-    renderer: String,
+    #[command(flatten)]
+    target: ServerArgs,
 }
 
 fn start_server(cli: &Cli, database: &std::path::Path) -> Result<Server> {
     // The 1 kHz probe runs an inline scene.
     Server::start(
-        &Server::binary(cli.server.as_deref())?,
+        &Server::binary(cli.target.server.as_deref())?,
         database,
-        &cli.scenes,
+        &cli.target.scenes,
         "load",
-        &["--renderer", &cli.renderer, "--inline-scenes", "anyone"],
+        &[
+            "--renderer",
+            &cli.target.renderer,
+            "--inline-scenes",
+            "anyone",
+        ],
         Stdio::inherit(),
     )
 }
@@ -331,7 +328,7 @@ async fn main() -> Result<()> {
 
     // Latency on an otherwise idle server (one session, fluoroscopy on), at the default 500 Hz
     // physics and on the same scene at 1 kHz (the haptic bridge's rate).
-    let default_scene = std::fs::read_to_string(cli.scenes.join("arch_to_cow_lcca.toml"))?;
+    let default_scene = std::fs::read_to_string(cli.target.scenes.join("arch_to_cow_lcca.toml"))?;
     for rate in [500, 1000] {
         let text = default_scene.replace("step_rate_hz = 500", &format!("step_rate_hz = {rate}"));
         let probe = load_scene(

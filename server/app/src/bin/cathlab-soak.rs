@@ -12,7 +12,6 @@
 mod harness;
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 use std::process::Stdio;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -23,7 +22,7 @@ use cathlab_api::authorized as authed;
 use cathlab_api::pb;
 use cathlab_api::pb::simulator_client::SimulatorClient;
 use clap::Parser;
-use harness::Server;
+use harness::{Server, ServerArgs};
 use parking_lot::Mutex;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
@@ -50,15 +49,8 @@ struct Cli {
     /// Resting anonymous memory may grow this fraction over the first round's.
     #[arg(long, default_value_t = 0.10)]
     rss_tolerance: f64,
-    /// The server binary (default: next to this one).
-    #[arg(long)]
-    server: Option<PathBuf>,
-    /// Scene directory.
-    #[arg(long, default_value = "scenes")]
-    scenes: PathBuf,
-    /// Renderer (auto, cpu, gpu).
-    #[arg(long, default_value = "auto")]
-    renderer: String,
+    #[command(flatten)]
+    target: ServerArgs,
 }
 
 const KEY: &str = "soak-instructor-key";
@@ -743,13 +735,13 @@ async fn main() -> Result<()> {
     std::fs::write(dir.join("server.toml"), CONFIG)?;
     let config = dir.join("server.toml");
     let mut server = Server::start(
-        &Server::binary(cli.server.as_deref())?,
+        &Server::binary(cli.target.server.as_deref())?,
         &dir.join("soak.sqlite"),
-        &cli.scenes,
+        &cli.target.scenes,
         KEY,
         &[
             "--renderer",
-            &cli.renderer,
+            &cli.target.renderer,
             "--config",
             config.to_str().context("a UTF-8 temporary path")?,
         ],

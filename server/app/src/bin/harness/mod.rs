@@ -10,6 +10,20 @@ use std::process::{Child, Command, Stdio};
 
 use anyhow::{Context, Result};
 
+/// The flags both benchmarks take to start their server.
+#[derive(Debug, clap::Args)]
+pub struct ServerArgs {
+    /// The server binary (default: next to this one).
+    #[arg(long)]
+    pub server: Option<PathBuf>,
+    /// Scene directory.
+    #[arg(long, default_value = "scenes")]
+    pub scenes: PathBuf,
+    /// Renderer (auto, cpu, gpu).
+    #[arg(long, default_value = "auto")]
+    pub renderer: String,
+}
+
 /// A `cathlab-server` child process; killed when dropped.
 pub struct Server {
     /// The process.
