@@ -131,6 +131,12 @@ pub async fn serve(
         .build_v1()?;
     let mut registry = Registry::default();
     metrics.register(&mut registry);
+    let heap = prometheus_client::metrics::gauge::Gauge::<i64>::default();
+    registry.register(
+        "cathlab_heap_bytes",
+        "Bytes live on the heap (allocated and not freed; 0 when not counted)",
+        heap.clone(),
+    );
     let registry = Arc::new(registry);
     let router = Routes::new(simulator)
         .add_service(health_service)
@@ -143,8 +149,9 @@ pub async fn serve(
         .route(
             "/metrics",
             get(move || {
-                let registry = registry.clone();
+                let (registry, heap) = (registry.clone(), heap.clone());
                 async move {
+                    heap.set(crate::heap::live_bytes().map_or(0, |b| b as i64));
                     let mut text = String::new();
                     match prometheus_client::encoding::text::encode(&mut text, &registry) {
                         Ok(()) => (

@@ -5,9 +5,10 @@
 //! number of physics steps. It runs in rounds; after each, the random clients stop, their
 //! sessions close and the server's resident memory is read at rest. It fails (exit status 1)
 //! on a panic in the server's log, an INTERNAL or UNKNOWN answer, a missed step in the
-//! control session, resting anonymous memory (the heap: what a leak grows; the binary's code
-//! pages, file-backed, grow as code paths are first run and are bounded by its size) more
-//! than 10 % above the first round's, or a server that stops answering.
+//! control session, resting resident memory (VmRSS) or resting live heap (the bytes the
+//! server's counting allocator has out: what a leak grows, whatever the allocator keeps) more
+//! than 10 % above the first round's, or a server that stops answering. Resting anonymous
+//! memory is shown beside them.
 
 mod harness;
 
@@ -46,11 +47,64 @@ struct Cli {
     /// Seed of the random clients.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Resting anonymous memory may grow this fraction over the first round's.
+    /// Resting resident memory and live heap may each grow this fraction over the first
+    /// round's.
     #[arg(long, default_value_t = 0.10)]
     rss_tolerance: f64,
+    /// Only these actions (comma-separated; default all, at their usual weights): to find
+    /// which one grows memory.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    actions: Vec<Action>,
     #[command(flatten)]
     target: ServerArgs,
+}
+
+/// What a random client may do, and how often (weights out of 100).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Action {
+    Create,
+    Close,
+    ValidCommand,
+    InvalidCommand,
+    Frames,
+    Control,
+    Watch,
+    Query,
+    HostileScene,
+    Garbage,
+    Replay,
+}
+
+impl Action {
+    const ALL: [Action; 11] = [
+        Action::Create,
+        Action::Close,
+        Action::ValidCommand,
+        Action::InvalidCommand,
+        Action::Frames,
+        Action::Control,
+        Action::Watch,
+        Action::Query,
+        Action::HostileScene,
+        Action::Garbage,
+        Action::Replay,
+    ];
+
+    fn weight(self) -> u32 {
+        match self {
+            Action::Create => 8,
+            Action::Close => 3,
+            Action::ValidCommand => 30,
+            Action::InvalidCommand => 15,
+            Action::Frames => 10,
+            Action::Control => 8,
+            Action::Watch => 8,
+            Action::Query => 8,
+            Action::HostileScene => 5,
+            Action::Garbage => 3,
+            Action::Replay => 2,
+        }
+    }
 }
 
 const KEY: &str = "soak-instructor-key";
@@ -108,6 +162,8 @@ struct Chaos {
     tally: Arc<Tally>,
     /// Streams left stalled, dropped by their own tasks.
     stalls: Vec<tokio::task::JoinHandle<()>>,
+    /// What it may do (never empty).
+    actions: Vec<Action>,
 }
 
 fn command(kind: pb::command::Kind) -> Option<pb::Command> {
@@ -122,7 +178,13 @@ fn speed(mm_s: f64, hold: bool) -> pb::command::Kind {
 }
 
 impl Chaos {
-    async fn new(url: String, address: String, seed: u64, tally: Arc<Tally>) -> Result<Self> {
+    async fn new(
+        url: String,
+        address: String,
+        seed: u64,
+        tally: Arc<Tally>,
+        actions: Vec<Action>,
+    ) -> Result<Self> {
         let client = SimulatorClient::connect(url.clone())
             .await?
             .max_decoding_message_size(64 << 20);
@@ -135,6 +197,7 @@ impl Chaos {
             seq: 0,
             tally,
             stalls: Vec::new(),
+            actions,
         })
     }
 
@@ -158,19 +221,28 @@ impl Chaos {
 
     async fn act(&mut self) {
         self.tally.actions.fetch_add(1, Ordering::Relaxed);
-        let roll = self.rng.random_range(0..100);
-        let acted = match roll {
-            0..8 => self.create().await,
-            8..11 => self.close().await,
-            11..41 => self.valid_command().await,
-            41..56 => self.invalid_command().await,
-            56..66 => self.frames().await,
-            66..74 => self.control().await,
-            74..82 => self.watch().await,
-            82..90 => self.query().await,
-            90..95 => self.hostile_scene().await,
-            95..98 => self.garbage().await,
-            _ => self.replay().await,
+        let total: u32 = self.actions.iter().map(|a| a.weight()).sum();
+        let mut roll = self.rng.random_range(0..total);
+        let mut action = self.actions[0];
+        for &a in &self.actions {
+            if roll < a.weight() {
+                action = a;
+                break;
+            }
+            roll -= a.weight();
+        }
+        let acted = match action {
+            Action::Create => self.create().await,
+            Action::Close => self.close().await,
+            Action::ValidCommand => self.valid_command().await,
+            Action::InvalidCommand => self.invalid_command().await,
+            Action::Frames => self.frames().await,
+            Action::Control => self.control().await,
+            Action::Watch => self.watch().await,
+            Action::Query => self.query().await,
+            Action::HostileScene => self.hostile_scene().await,
+            Action::Garbage => self.garbage().await,
+            Action::Replay => self.replay().await,
         };
         if let Err(e) = acted {
             // Transport failures of abandoned streams are part of the game; record them.
@@ -793,6 +865,8 @@ async fn main() -> Result<()> {
     let steps_at_start = server.metric("cathlab_physics_step_seconds_count").await?;
     let tally = Arc::new(Tally::default());
     let mut resting = Vec::new();
+    let mut live = Vec::new();
+    let mut anonymous = Vec::new();
     let mut failures = Vec::new();
     for round in 0u64.. {
         let stop = Arc::new(AtomicBool::new(false));
@@ -803,6 +877,11 @@ async fn main() -> Result<()> {
                 server.address.clone(),
                 cli.seed.wrapping_mul(1_000_003) ^ (round << 16) ^ i,
                 tally.clone(),
+                if cli.actions.is_empty() {
+                    Action::ALL.to_vec()
+                } else {
+                    cli.actions.clone()
+                },
             )
             .await?;
             let stop = stop.clone();
@@ -824,11 +903,25 @@ async fn main() -> Result<()> {
         // At rest: only the watched session is left; give the streams' ends a moment.
         tokio::time::sleep(Duration::from_secs(3)).await;
         let (rss, anon) = (server.rss_mib(), server.anon_mib());
-        resting.push(anon);
+        resting.push(rss);
+        anonymous.push(anon);
+        // Live heap bytes (the server's counting allocator): a leak grows these; memory the
+        // allocator keeps after frees grows only the resident figures. The least of three
+        // samples, so that a frame of the watched session in flight does not count.
+        let mut heap = f64::INFINITY;
+        for _ in 0..3 {
+            let bytes = server
+                .metric("cathlab_heap_bytes")
+                .await
+                .unwrap_or(f64::NAN);
+            heap = heap.min(bytes / 1048576.0);
+            tokio::time::sleep(Duration::from_millis(300)).await;
+        }
+        live.push(heap);
         let steps = server.metric("cathlab_physics_step_seconds_count").await? - steps_at_start;
         let t = timing(&mut client, &watched).await?;
         println!(
-            "round {round}: {:.0} s, {steps:.0} physics steps, {} actions, resting RSS {rss:.1} MiB ({anon:.1} anonymous), watched session missed {} steps ({} frames read)",
+            "round {round}: {:.0} s, {steps:.0} physics steps, {} actions, resting RSS {rss:.1} MiB ({anon:.1} anonymous, {heap:.1} live heap), watched session missed {} steps ({} frames read)",
             started.elapsed().as_secs_f64(),
             tally.actions.load(Ordering::Relaxed),
             t.missed_steps - first.missed_steps,
@@ -887,23 +980,36 @@ async fn main() -> Result<()> {
         println!("| {} | {} | {n} | {example} |", key.0, key.1);
     }
     drop(examples);
-    let baseline = resting[0];
-    let highest = resting.iter().copied().fold(f64::NAN, f64::max);
+    let rounded = |v: &[f64]| {
+        v.iter()
+            .map(|v| (v * 10.0).round() / 10.0)
+            .collect::<Vec<_>>()
+    };
+    let growth = |v: &[f64]| {
+        let highest = v.iter().copied().fold(f64::NAN, f64::max);
+        (v[0], highest, (highest / v[0] - 1.0) * 100.0)
+    };
+    let (baseline, highest, rss_growth) = growth(&resting);
+    let (heap_first, heap_highest, heap_growth) = growth(&live);
     println!();
     println!(
-        "{steps:.0} physics steps in {:.0} s, {} actions; panics {}, faults {}, log warnings {}; watched session missed {missed} of {} steps; resting anonymous RSS {:?} MiB (first {baseline:.1}, highest {highest:.1}, {:+.1} %)",
+        "{steps:.0} physics steps in {:.0} s, {} actions; panics {}, faults {}, log warnings {}; watched session missed {missed} of {} steps",
         started.elapsed().as_secs_f64(),
         tally.actions.load(Ordering::Relaxed),
         panics.load(Ordering::Relaxed),
         tally.faults.lock().len(),
         warnings.load(Ordering::Relaxed),
         last.steps - first.steps,
-        resting
-            .iter()
-            .map(|v| (v * 10.0).round() / 10.0)
-            .collect::<Vec<_>>(),
-        (highest / baseline - 1.0) * 100.0
     );
+    println!(
+        "resting RSS {:?} MiB (first {baseline:.1}, highest {highest:.1}, {rss_growth:+.1} %)",
+        rounded(&resting)
+    );
+    println!(
+        "resting live heap {:?} MiB (first {heap_first:.1}, highest {heap_highest:.1}, {heap_growth:+.1} %)",
+        rounded(&live)
+    );
+    println!("resting anonymous RSS {:?} MiB", rounded(&anonymous));
     drop(server);
     let _ = reader.join();
     let _ = std::fs::remove_dir_all(&dir);
@@ -922,7 +1028,13 @@ async fn main() -> Result<()> {
     }
     if highest > baseline * (1.0 + cli.rss_tolerance) {
         failures.push(format!(
-            "resting anonymous RSS grew from {baseline:.1} to {highest:.1} MiB"
+            "resting RSS grew from {baseline:.1} to {highest:.1} MiB"
+        ));
+    }
+    // A live heap that could not be read (NaN) fails too.
+    if heap_highest.is_nan() || heap_highest > heap_first * (1.0 + cli.rss_tolerance) {
+        failures.push(format!(
+            "resting live heap grew from {heap_first:.1} to {heap_highest:.1} MiB"
         ));
     }
     if !failures.is_empty() {
