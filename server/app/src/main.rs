@@ -15,12 +15,13 @@ static ALLOCATOR: cap::Cap<mimalloc::MiMalloc> = cap::Cap::new(mimalloc::MiMallo
 
 /// mimalloc's settings for a long-running server, which it reads from the environment as the
 /// process starts (before `main`). Its defaults back the arenas with transparent huge pages,
-/// which `khugepaged` keeps filling back in after frees, and return freed pages after a second:
-/// the soak's resting memory was 152–175 MiB anonymous for a 40 MiB live heap, and drifted up.
-/// Without huge pages and with frees returned at once: 64–74 MiB, 0 missed steps
-/// (`cathlab-soak`, docs/reliability.md). A variable already set is left as it is.
+/// which `khugepaged` fills back in after frees, and give freed pages back a second later and
+/// only when their heap allocates again: the soak's resting memory was 152–187 MiB anonymous
+/// for a 40 MiB live heap, and drifted up. Without huge pages and with a 100 ms delay: 90–108
+/// MiB, flat; no delay at all saved 30 MiB more but cost 10 % of the frames with 4 sessions
+/// (docs/reliability.md). A variable already set is left as it is.
 const ALLOCATOR_ENV: [(&str, &str); 2] =
-    [("MIMALLOC_ALLOW_THP", "0"), ("MIMALLOC_PURGE_DELAY", "0")];
+    [("MIMALLOC_ALLOW_THP", "0"), ("MIMALLOC_PURGE_DELAY", "100")];
 
 /// Restarts this process in place (same pid, arguments and descriptors) with
 /// [`ALLOCATOR_ENV`] when any of it is missing; returns only when it need not or cannot
