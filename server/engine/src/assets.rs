@@ -486,6 +486,14 @@ impl AssetCache {
     }
 
     fn build(&self, spec: &SceneSpec, base: &Path, staged: &mut Staged) -> Result<SceneAssets> {
+        if !spec.stack.is_empty() {
+            // The scene format and its checks come first (issue 21); the world that runs a
+            // stack comes next. Until then such a scene is refused before anything loads.
+            return Err(scene_error(
+                "stack",
+                "coaxial stacks are checked but not yet run by the engine; use `devices`",
+            ));
+        }
         let (anatomy, to_lps) = self.anatomy(&spec.anatomy, base, staged)?;
         let graph = &anatomy.graph;
         let target_branch = graph

@@ -23,8 +23,14 @@ pub struct SceneSpec {
     pub anatomy: AnatomySpec,
     /// The CT behind the vessels.
     pub ct: CtSpec,
-    /// Devices the trainee may select; the first is inserted at the start.
+    /// Devices the trainee may select, one at a time; the first is inserted at the start.
+    /// A scene has these or a [`SceneSpec::stack`].
+    #[serde(default)]
     pub devices: Vec<DeviceSpec>,
+    /// A coaxial stack from the device catalogue, outermost first (a guide, a catheter or
+    /// microcatheter, a wire), each instrument driven by its own hand.
+    #[serde(default)]
+    pub stack: Vec<StackEntry>,
     /// Where the device enters.
     #[serde(default)]
     pub start: StartSpec,
@@ -209,6 +215,27 @@ impl DeviceSpec {
             DeviceSpec::Catheter5f => "catheter_5f".into(),
         }
     }
+}
+
+/// One instrument of a scene's coaxial stack.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StackEntry {
+    /// Identifier in the device catalogue (`server/physics/devices/catalogue.toml`), e.g.
+    /// `catheter-5f-vertebral`.
+    pub device: String,
+    /// Where its tip starts (mm beyond the entry point; negative: still inside the instrument
+    /// around it, proximal of the entry).
+    pub inserted_mm: f64,
+}
+
+/// Most instruments in a stack (guide, intermediate catheter, microcatheter, wire).
+pub const MAX_STACK: usize = cathlab_physics::stack::MAX_INSTRUMENTS;
+
+/// The built-in device catalogue, parsed once.
+pub fn catalogue() -> &'static cathlab_physics::Catalogue {
+    static CATALOGUE: std::sync::OnceLock<cathlab_physics::Catalogue> = std::sync::OnceLock::new();
+    CATALOGUE.get_or_init(cathlab_physics::Catalogue::builtin)
 }
 
 /// Where the device enters the vessels.
@@ -568,8 +595,20 @@ impl SceneSpec {
                 Err(scene_error(path, format!("{value} is outside {lo}..={hi}")))
             }
         };
-        if self.devices.is_empty() {
-            return Err(scene_error("devices", "at least one device is needed"));
+        match (self.devices.is_empty(), self.stack.is_empty()) {
+            (true, true) => {
+                return Err(scene_error(
+                    "devices",
+                    "a scene needs `devices` (one at a time) or a `stack` (coaxial)",
+                ));
+            }
+            (false, false) => {
+                return Err(scene_error(
+                    "stack",
+                    "a scene has `devices` (one at a time) or a `stack` (coaxial), not both",
+                ));
+            }
+            _ => {}
         }
         for (i, d) in self.devices.iter().enumerate() {
             if let DeviceSpec::Guidewire035Shaped {
@@ -683,6 +722,71 @@ impl SceneSpec {
             1.0,
             100.0,
         )?;
+        // Last: it needs `limits` checked.
+        self.validate_stack()
+    }
+
+    /// Checks the stack: at most [`MAX_STACK`] instruments, each in the catalogue, each
+    /// fitting inside the one around it, each starting between the hub of the one around it
+    /// and its own hub. Errors name `stack[i].device` or `stack[i].inserted_mm`.
+    fn validate_stack(&self) -> Result<()> {
+        if self.stack.len() > MAX_STACK {
+            return Err(scene_error(
+                "stack",
+                format!(
+                    "{} instruments; a stack holds at most {MAX_STACK}",
+                    self.stack.len()
+                ),
+            ));
+        }
+        let mut outer: Option<cathlab_physics::Device> = None;
+        for (i, entry) in self.stack.iter().enumerate() {
+            let device = catalogue().device(&entry.device).map_err(|_| {
+                scene_error(
+                    format!("stack[{i}].device"),
+                    format!(
+                        "'{}' is not in the device catalogue (known: {})",
+                        entry.device.chars().take(64).collect::<String>(),
+                        catalogue()
+                            .entries()
+                            .iter()
+                            .map(|e| e.id.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                )
+            })?;
+            let inserted = entry.inserted_mm;
+            let hub = device.length_m() * 1e3 - self.limits.outside_mm;
+            let lowest = match &outer {
+                None => 2.0,
+                Some(o) => {
+                    cathlab_physics::stack::check_fit(o, &device).map_err(|e| {
+                        scene_error(
+                            format!("stack[{i}].device"),
+                            format!("does not fit inside stack[{}]: {e}", i - 1),
+                        )
+                    })?;
+                    self.stack[i - 1].inserted_mm - o.length_m() * 1e3 + self.limits.outside_mm
+                }
+            };
+            if !(inserted.is_finite() && inserted >= lowest && inserted <= hub) {
+                return Err(scene_error(
+                    format!("stack[{i}].inserted_mm"),
+                    format!(
+                        "{inserted} is outside {lowest:.0}..={hub:.0} (between {} and this \
+                         instrument's hub, {} mm staying outside)",
+                        if outer.is_some() {
+                            "the hub of the instrument around it"
+                        } else {
+                            "one tip element"
+                        },
+                        self.limits.outside_mm
+                    ),
+                ));
+            }
+            outer = Some(device);
+        }
         Ok(())
     }
 

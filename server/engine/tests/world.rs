@@ -48,6 +48,87 @@ fn fragile_text() -> String {
         + "\n[limits]\npush_force_n = 10000.0\nunsupported_mm = 5.0\n"
 }
 
+/// The default scene with `stack` (TOML `[[stack]]` tables, outermost first) instead of its
+/// selectable devices.
+fn stack_text(stack: &[(&str, f64)]) -> String {
+    let text = default_text();
+    let from = text.find("[[devices]]").unwrap();
+    let to = text.find("[start]").unwrap();
+    let tables: String = stack
+        .iter()
+        .map(|(id, mm)| format!("[[stack]]\ndevice = \"{id}\"\ninserted_mm = {mm}\n\n"))
+        .collect();
+    format!("{}{tables}{}", &text[..from], &text[to..])
+}
+
+#[test]
+fn a_stack_is_checked_against_the_catalogue_and_the_fit_of_each_instrument() {
+    let catheter = ("catheter-5f-vertebral", 40.0);
+    let wire = ("guidewire-035-angled-hydrophilic", 60.0);
+    let good = stack_text(&[("guide-6f-071-90", 20.0), catheter, wire]);
+    let spec = SceneSpec::parse(&good, SceneFormat::Toml).unwrap();
+    assert_eq!(spec.stack.len(), 3);
+    assert!(spec.devices.is_empty());
+    let cases = [
+        (
+            stack_text(&[catheter, ("guidewire-099", 60.0)]),
+            "stack[1].device",
+            "not in the device catalogue",
+        ),
+        (
+            // A 0.035" wire in a 0.017" microcatheter.
+            stack_text(&[("microcatheter-017-150", 40.0), wire]),
+            "stack[1].device",
+            "does not fit",
+        ),
+        (
+            // The wire's tip behind the catheter's hub.
+            stack_text(&[catheter, ("guidewire-035-angled-hydrophilic", -2000.0)]),
+            "stack[1].inserted_mm",
+            "outside",
+        ),
+        (
+            // Past its own hub.
+            stack_text(&[catheter, ("guidewire-035-angled-hydrophilic", 1600.0)]),
+            "stack[1].inserted_mm",
+            "outside",
+        ),
+        (
+            stack_text(&[("catheter-5f-vertebral", f64::INFINITY)]),
+            "stack[0].inserted_mm",
+            "outside",
+        ),
+        (
+            stack_text(&[("sheath-088-90", 20.0); 5]),
+            "stack",
+            "at most 4",
+        ),
+        (
+            good.replace(
+                "[start]",
+                "[[devices]]\npreset = \"catheter_5f\"\n\n[start]",
+            ),
+            "stack",
+            "not both",
+        ),
+        (stack_text(&[]), "devices", "or a `stack`"),
+    ];
+    for (text, path, reason) in cases {
+        match SceneSpec::parse(&text, SceneFormat::Toml) {
+            Err(EngineError::Scene { path: p, reason: r }) => {
+                assert_eq!(p, path, "{r}");
+                assert!(r.contains(reason), "{reason}: got {r}");
+            }
+            other => panic!("{path}: {other:?}"),
+        }
+    }
+    // Until the world runs stacks, a stack scene is refused before anything loads.
+    match cache().load(&spec, &scenes()) {
+        Err(EngineError::Scene { path, .. }) => assert_eq!(path, "stack"),
+        other => panic!("{other:?}"),
+    }
+}
+
 #[test]
 fn scene_errors_name_the_field_and_the_reason() {
     let cases = [
