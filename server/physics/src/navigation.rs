@@ -138,6 +138,42 @@ impl Effort {
         polish: true,
         refinement_scale: 1.0,
     };
+
+    /// Checks the effort's values.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.refinement_scale.is_finite() && self.refinement_scale >= 1.0) {
+            return Err(PhysicsError::OutOfRange {
+                what: "effort.refinement_scale".into(),
+                range: "[1, ∞)",
+                value: self.refinement_scale,
+            });
+        }
+        Ok(())
+    }
+
+    /// `base` with its sweeps, detection rounds (at least one) and polish capped by this
+    /// effort.
+    pub fn contact(&self, base: &ContactSettings) -> ContactSettings {
+        ContactSettings {
+            max_iterations: base.max_iterations.min(self.max_sweeps),
+            detection_rounds: base.detection_rounds.min(self.max_detection_rounds).max(1),
+            polish: base.polish && self.polish,
+            ..*base
+        }
+    }
+
+    /// `base` with its thresholds scaled by [`Effort::refinement_scale`].
+    pub fn refinement(&self, base: Refinement) -> Refinement {
+        Refinement {
+            max_bend_rad: base.max_bend_rad * self.refinement_scale,
+            contact_element_m: base.contact_element_m * self.refinement_scale,
+        }
+    }
+
+    /// The deepest step halving allowed, at most `ceiling`.
+    pub fn substep_depth(&self, ceiling: usize) -> usize {
+        self.max_substep_depth.min(ceiling)
+    }
 }
 
 /// Push/pull command.
@@ -327,13 +363,7 @@ impl<W: Wall> Navigation<W> {
 
     /// Caps the work of the following steps (see [`Effort`]).
     pub fn set_effort(&mut self, effort: Effort) -> Result<()> {
-        if !(effort.refinement_scale.is_finite() && effort.refinement_scale >= 1.0) {
-            return Err(PhysicsError::OutOfRange {
-                what: "effort.refinement_scale".into(),
-                range: "[1, ∞)",
-                value: effort.refinement_scale,
-            });
-        }
+        effort.validate()?;
         self.effort = effort;
         Ok(())
     }
@@ -478,7 +508,7 @@ impl<W: Wall> Navigation<W> {
     /// by more than the sub-step threshold (a violent event: buckling, a slide along a curved
     /// wall), the step is undone and taken as two halves, up to [`MAX_SUBSTEP_DEPTH`] times.
     fn advance(&mut self, push: f64, turn: f64, depth: usize) -> Result<NavigationReport> {
-        let max_depth = self.effort.max_substep_depth.min(MAX_SUBSTEP_DEPTH);
+        let max_depth = self.effort.substep_depth(MAX_SUBSTEP_DEPTH);
         let saved = (depth < max_depth).then(|| {
             (
                 self.model.snapshot(),
@@ -516,21 +546,7 @@ impl<W: Wall> Navigation<W> {
         let material = &self.material;
         let previous = &self.previous_contacts;
         let tolerance = self.settings.sample_spacing_m;
-        let contact = ContactSettings {
-            max_iterations: self
-                .settings
-                .contact
-                .max_iterations
-                .min(self.effort.max_sweeps),
-            detection_rounds: self
-                .settings
-                .contact
-                .detection_rounds
-                .min(self.effort.max_detection_rounds)
-                .max(1),
-            polish: self.settings.contact.polish && self.effort.polish,
-            ..self.settings.contact
-        };
+        let contact = self.effort.contact(&self.settings.contact);
         let step = self.model.step_with_contacts(
             |positions, _rotations, free| Ok(detect(wall, &samples, positions, free, margin)),
             &contact,
@@ -627,11 +643,10 @@ impl<W: Wall> Navigation<W> {
     /// need to be apart (see [`Refinement`]). The element at the entry point is left to
     /// [`Self::slide`]. Runs between steps, so the last contacts decide.
     fn refine(&mut self) -> Result<()> {
-        let Some(mut refinement) = self.settings.refinement else {
+        let Some(refinement) = self.settings.refinement else {
             return Ok(());
         };
-        refinement.max_bend_rad *= self.effort.refinement_scale;
-        refinement.contact_element_m *= self.effort.refinement_scale;
+        let refinement = self.effort.refinement(refinement);
         let length = self.device.length_m();
         let shortest = self.settings.tip_element_m;
         // Material coordinates of the active contacts, ordered along the device.

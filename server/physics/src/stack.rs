@@ -32,7 +32,7 @@ use crate::beam::{
 use crate::device::Device;
 use crate::error::{PhysicsError, Result, require_finite, require_positive};
 use crate::navigation::{
-    Command, Insertion, NavigationSettings, Sample, Twist, detect, material_of,
+    Command, Effort, Insertion, NavigationSettings, Sample, Twist, detect, material_of,
     push_element_samples, spacing, warm_start,
 };
 use crate::section::BeamProperties;
@@ -173,6 +173,8 @@ pub struct Stack<W: Wall> {
     chains: Vec<Option<Stack<FreeSpace>>>,
     /// Nested mode: the last step's contacts (for warm starts and the penetration check).
     nested_last: nested::NestedStep,
+    /// The work cap of the following steps (an overload governor lowers it).
+    effort: Effort,
 }
 
 /// Everything [`Stack::advance`] needs to undo a step.
@@ -428,11 +430,25 @@ impl<W: Wall> Stack<W> {
             coupling,
             chains: Vec::new(),
             nested_last: nested::NestedStep::default(),
+            effort: Effort::FULL,
         };
         if coupling == Coupling::Nested {
             stack.update_chains()?;
         }
         Ok(stack)
+    }
+
+    /// Caps the work of the following steps: step halvings, detection rounds, contact sweeps,
+    /// polish and refinement, as for a single device ([`Effort`]).
+    pub fn set_effort(&mut self, effort: Effort) -> Result<()> {
+        effort.validate()?;
+        self.effort = effort;
+        Ok(())
+    }
+
+    /// The work cap in force.
+    pub fn effort(&self) -> Effort {
+        self.effort
     }
 
     /// How the instruments are coupled.
@@ -861,16 +877,17 @@ impl<W: Wall> Stack<W> {
     /// where that solve still penetrates the wall beyond the sub-step threshold, in two halves
     /// (up to [`MAX_SUBSTEP_DEPTH`] times).
     fn advance(&mut self, targets: &[(f64, f64)], depth: usize) -> Result<StackReport> {
-        let saved: Option<Saved> = (depth < MAX_SUBSTEP_DEPTH).then(|| Saved {
-            model: self.model.snapshot(),
-            nodes: self.nodes.clone(),
-            specs: self.specs.clone(),
-            instruments: self.instruments.clone(),
-            previous_contacts: self.previous_contacts.clone(),
-            next_id: self.next_id,
-            chains: self.chains.clone(),
-            nested_last: self.nested_last.clone(),
-        });
+        let saved: Option<Saved> =
+            (depth < self.effort.substep_depth(MAX_SUBSTEP_DEPTH)).then(|| Saved {
+                model: self.model.snapshot(),
+                nodes: self.nodes.clone(),
+                specs: self.specs.clone(),
+                instruments: self.instruments.clone(),
+                previous_contacts: self.previous_contacts.clone(),
+                next_id: self.next_id,
+                chains: self.chains.clone(),
+                nested_last: self.nested_last.clone(),
+            });
         let report = match self.coupling {
             Coupling::Merged => self.single_step(targets)?,
             Coupling::Nested => self.nested_step(targets)?,
@@ -926,7 +943,7 @@ impl<W: Wall> Stack<W> {
         let tolerance = self.settings.sample_spacing_m;
         let step = self.model.step_with_contacts(
             |positions, _rotations, free| Ok(detect(wall, &samples, positions, free, margin)),
-            &self.settings.contact,
+            &self.effort.contact(&self.settings.contact),
             |contacts| warm_start(contacts, &sigma, previous, tolerance),
         )?;
         self.previous_contacts = step
@@ -1159,7 +1176,7 @@ impl<W: Wall> Stack<W> {
     /// 1.25 nominal spacings, bend little and touch nothing.
     fn refine(&mut self) {
         let shortest = self.settings.tip_element_m;
-        let refinement = self.settings.refinement;
+        let refinement = self.settings.refinement.map(|r| self.effort.refinement(r));
         let active: Vec<f64> = self
             .previous_contacts
             .iter()

@@ -994,3 +994,91 @@ fn merged_and_nested_follow_the_same_scripted_push_up_the_aorta() {
         );
     }
 }
+
+/// A stack pushed round a ring of tube (contacts along its outer wall), under `effort`:
+/// per step, the contact sweeps and the element count; and the final node positions.
+fn ring_run(effort: Option<cathlab_physics::Effort>) -> (Vec<(usize, usize)>, Vec<Vector3<f64>>) {
+    use cathlab_physics::wall::RingTube;
+    let settings = NavigationSettings::default();
+    let (tube, wire) = straight_pair();
+    let ring = RingTube {
+        center: Vector3::new(0.0, 0.03, 0.0),
+        axis: Vector3::z(),
+        major_radius_m: 0.03,
+        minor_radius_m: 2e-3,
+    };
+    let mut stack = Stack::with_coupling(
+        vec![
+            InstrumentSpec::new(tube, 0.02, &settings),
+            InstrumentSpec::new(wire, 0.03, &settings),
+        ],
+        ring,
+        Vector3::zeros(),
+        Vector3::x(),
+        settings,
+        Coupling::Merged,
+    )
+    .unwrap();
+    if let Some(effort) = effort {
+        stack.set_effort(effort).unwrap();
+    }
+    let push = Command {
+        insertion: Insertion::Velocity(0.05),
+        twist: Twist::Rate(0.0),
+    };
+    stack.set_command(0, push).unwrap();
+    stack.set_command(1, push).unwrap();
+    let work = (0..400)
+        .map(|_| {
+            let report = stack.step().unwrap();
+            (report.sweeps, report.elements)
+        })
+        .collect();
+    (work, stack.model().positions().to_vec())
+}
+
+/// The overload governor's effort caps a stack's work as it does a single device's: full
+/// effort changes nothing (bit for bit), a capped one never sweeps past its cap and refines
+/// less, and a refinement scale below 1 is refused by name.
+#[test]
+fn a_stack_under_a_capped_effort_does_less_work() {
+    use cathlab_physics::Effort;
+    let (default_work, default_nodes) = ring_run(None);
+    let (full_work, full_nodes) = ring_run(Some(Effort::FULL));
+    assert_eq!(default_work, full_work);
+    assert_eq!(default_nodes, full_nodes);
+    let capped = Effort {
+        max_substep_depth: 0,
+        max_detection_rounds: 1,
+        max_sweeps: 5,
+        polish: false,
+        refinement_scale: 4.0,
+    };
+    let (capped_work, _) = ring_run(Some(capped));
+    let most_sweeps = |w: &[(usize, usize)]| w.iter().map(|x| x.0).max().unwrap();
+    let elements = |w: &[(usize, usize)]| w.iter().map(|x| x.1).sum::<usize>();
+    println!(
+        "ring, 400 steps: most sweeps a step {} (full) / {} (capped at 5 + 5 normal-only); element-steps {} / {}",
+        most_sweeps(&full_work),
+        most_sweeps(&capped_work),
+        elements(&full_work),
+        elements(&capped_work)
+    );
+    assert!(
+        most_sweeps(&full_work) > 5,
+        "the ring must need more than the cap"
+    );
+    // With friction the solver may add as many normal-only sweeps (the tangential forces held)
+    // as its budget allows Coulomb sweeps.
+    assert!(most_sweeps(&capped_work) <= 2 * 5);
+    assert!(elements(&capped_work) <= elements(&full_work));
+    let (tube, wire) = straight_pair();
+    let mut stack = free_stack(vec![(tube, 0.02), (wire, 0.03)]);
+    match stack.set_effort(Effort {
+        refinement_scale: 0.5,
+        ..Effort::FULL
+    }) {
+        Err(PhysicsError::OutOfRange { what, .. }) => assert_eq!(what, "effort.refinement_scale"),
+        other => panic!("{other:?}"),
+    }
+}

@@ -136,7 +136,7 @@ impl<W: Wall> Stack<W> {
         }
         let mut detected = self.detect_nested(&free);
         let mut warm = Some(self.remembered(&detected));
-        let settings = self.settings.contact;
+        let settings = self.effort.contact(&self.settings.contact);
         let rounds = settings.detection_rounds.max(1);
         let mut round = 0;
         let mut penetration: f64 = 0.0;
