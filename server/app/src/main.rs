@@ -35,8 +35,14 @@ fn tune_allocator() {
     {
         return;
     }
-    let Ok(exe) = std::env::current_exe() else {
-        return;
+    let exe = match std::env::current_exe() {
+        Ok(exe) => exe,
+        Err(error) => {
+            eprintln!(
+                "cathlab-server: could not find its own binary to restart with the allocator's settings ({error}); its defaults hold more memory"
+            );
+            return;
+        }
     };
     let mut command = std::process::Command::new(exe);
     command.args(std::env::args_os().skip(1));

@@ -757,7 +757,8 @@ impl SceneSpec {
                 )
             })?;
             let inserted = entry.inserted_mm;
-            let hub = device.length_m() * 1e3 - self.limits.outside_mm;
+            let length_mm = device.length_m() * 1e3;
+            let mut hub = length_mm - self.limits.outside_mm;
             let lowest = match &outer {
                 None => 2.0,
                 Some(o) => {
@@ -767,7 +768,16 @@ impl SceneSpec {
                             format!("does not fit inside stack[{}]: {e}", i - 1),
                         )
                     })?;
-                    self.stack[i - 1].inserted_mm - o.length_m() * 1e3 + self.limits.outside_mm
+                    // The stack's own range: from the outer instrument's hub to where this
+                    // one's hub meets it.
+                    let outer_mm = self.stack[i - 1].inserted_mm;
+                    let (_, meets) = cathlab_physics::stack::inserted_range(
+                        Some((outer_mm, o.length_m() * 1e3)),
+                        length_mm,
+                        0.0,
+                    );
+                    hub = hub.min(meets);
+                    outer_mm - o.length_m() * 1e3 + self.limits.outside_mm
                 }
             };
             if !(inserted.is_finite() && inserted >= lowest && inserted <= hub) {

@@ -94,6 +94,14 @@ fn a_stack_is_checked_against_the_catalogue_and_the_fit_of_each_instrument() {
             "outside",
         ),
         (
+            // Within its own length less what stays outside (1,350 mm), but its hub would
+            // pass the catheter's: the 1,500 mm wire reaches at most 540 mm beyond the entry
+            // in a 1,000 mm catheter inserted 40 mm.
+            stack_text(&[catheter, ("guidewire-035-angled-hydrophilic", 600.0)]),
+            "stack[1].inserted_mm",
+            "outside",
+        ),
+        (
             stack_text(&[("catheter-5f-vertebral", f64::INFINITY)]),
             "stack[0].inserted_mm",
             "outside",

@@ -1347,7 +1347,7 @@ fn leader(instruments: &[Instrument]) -> usize {
 /// Range of the inserted length (m) of an instrument of `length_m` inside `outer` (inserted
 /// length and length of the instrument directly around it, m): from the hub of the one directly around it to
 /// where its own hub meets that hub; for the outermost, one tip element to its length.
-fn inserted_range(outer: Option<(f64, f64)>, length_m: f64, tip_element_m: f64) -> (f64, f64) {
+pub fn inserted_range(outer: Option<(f64, f64)>, length_m: f64, tip_element_m: f64) -> (f64, f64) {
     match outer {
         None => (tip_element_m, length_m),
         Some((inserted_m, outer_length_m)) => {

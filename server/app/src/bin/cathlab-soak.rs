@@ -868,6 +868,11 @@ async fn main() -> Result<()> {
     let mut live = Vec::new();
     let mut anonymous = Vec::new();
     let mut failures = Vec::new();
+    let actions = if cli.actions.is_empty() {
+        Action::ALL.to_vec()
+    } else {
+        cli.actions.clone()
+    };
     for round in 0u64.. {
         let stop = Arc::new(AtomicBool::new(false));
         let mut clients = Vec::new();
@@ -877,11 +882,7 @@ async fn main() -> Result<()> {
                 server.address.clone(),
                 cli.seed.wrapping_mul(1_000_003) ^ (round << 16) ^ i,
                 tally.clone(),
-                if cli.actions.is_empty() {
-                    Action::ALL.to_vec()
-                } else {
-                    cli.actions.clone()
-                },
+                actions.clone(),
             )
             .await?;
             let stop = stop.clone();
