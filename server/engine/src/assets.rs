@@ -42,8 +42,12 @@ pub struct SceneAssets {
     pub to_lps: Matrix3<f64>,
     /// The CT (LPS).
     pub volume: Arc<Volume>,
-    /// The selectable devices and how each looks on X-ray.
+    /// The selectable devices and how each looks on X-ray; for a coaxial scene, the stack's
+    /// instruments at the start, outermost first.
     pub devices: Vec<(Device, DeviceAppearance)>,
+    /// The back table of a stack scene: devices an instrument may be exchanged for, besides
+    /// the catalogue's.
+    pub spares: Vec<(Device, DeviceAppearance)>,
     /// Entry point and direction (anatomy frame, m).
     pub entry: (Vector3<f64>, Vector3<f64>),
     /// Route from the access point to the target.
@@ -82,6 +86,62 @@ impl SceneAssets {
             })
             .map_or(0, |(i, _)| i);
         (self.goal_along_m - nearest as f64 * ROUTE_SPACING_M).max(0.0)
+    }
+}
+
+impl SceneAssets {
+    /// The scene's scripted two-hand operator as the physics takes it, if it has one.
+    pub fn two_hand_plan(&self) -> Result<Option<cathlab_physics::two_hands::TwoHandPlan>> {
+        use cathlab_physics::autopilot::AutopilotSettings;
+        use cathlab_physics::two_hands::{Finish, TwoHandPlan};
+        let Some(a) = &self.spec.autopilot else {
+            return Ok(None);
+        };
+        let settings = |lookahead_mm: f64, reach_mm: f64| AutopilotSettings {
+            push_speed_m_s: a.push_speed_mm_s * 1e-3,
+            lookahead_m: lookahead_mm * 1e-3,
+            reach_m: reach_mm * 1e-3,
+            ..AutopilotSettings::default()
+        };
+        let exchange = match &a.exchange {
+            None => None,
+            Some(x) => {
+                let graph = &self.anatomy.graph;
+                let mut along = 0.0;
+                let mut found = false;
+                for leg in &self.route.legs {
+                    if graph.branches[leg.branch].name == x.branch {
+                        found = true;
+                        break;
+                    }
+                    along += (leg.to_arc - leg.from_arc).abs();
+                }
+                if !found {
+                    return Err(scene_error(
+                        "autopilot.exchange.branch",
+                        format!("'{}' is not on the route to the target", x.branch),
+                    ));
+                }
+                let device = match x.spare {
+                    Some(k) => self.spares[k].0.clone(),
+                    None => crate::scene::catalogue()
+                        .device(&x.device)
+                        .map_err(|e| scene_error("autopilot.exchange.device", e))?,
+                };
+                Some((
+                    along + x.into_mm * 1e-3,
+                    device,
+                    settings(x.lookahead_mm, x.wire_reach_mm),
+                ))
+            }
+        };
+        Ok(Some(TwoHandPlan {
+            catheter_lag_m: a.catheter_lag_mm * 1e-3,
+            catheter_track_m: a.catheter_track_mm * 1e-3,
+            exchange,
+            autopilot: settings(a.lookahead_mm, a.wire_reach_mm),
+            finish: Finish::TrackCatheter,
+        }))
     }
 }
 
@@ -175,6 +235,44 @@ pub fn device_of(spec: &DeviceSpec) -> (Device, DeviceAppearance) {
             presets::diagnostic_catheter_5f(),
             DeviceAppearance::catheter_5f(),
         ),
+    }
+}
+
+/// How a catalogue device looks on X-ray: its distal section's outer and lumen radii, a shaft
+/// of its kind (a wire's solid nitinol or steel core; a catheter's braid or coil, or its
+/// barium-loaded jacket, as a fraction of metal in its wall) and its catalogue markers in
+/// platinum.
+pub fn appearance_of_entry(entry: &cathlab_physics::CatalogueEntry) -> DeviceAppearance {
+    use cathlab_physics::DeviceKind;
+    use cathlab_xray::LayerMaterial;
+    use cathlab_xray::layers::DeviceBand;
+    let (outer_radius_m, inner_radius_m) = entry.device.sections.last().map_or((0.0, 0.0), |s| {
+        (
+            s.cross_section.outer_radius_m,
+            s.cross_section.inner_radius_m,
+        )
+    });
+    let fill = match entry.kind {
+        DeviceKind::Guidewire | DeviceKind::Microwire => 1.0,
+        DeviceKind::Catheter => 0.15,
+        DeviceKind::Guide | DeviceKind::Sheath | DeviceKind::DistalAccess => 0.2,
+        DeviceKind::Microcatheter => 0.1,
+    };
+    DeviceAppearance {
+        outer_radius_m,
+        inner_radius_m,
+        material: LayerMaterial::Nitinol,
+        fill,
+        bands: entry
+            .markers
+            .iter()
+            .map(|m| DeviceBand {
+                from_tip_m: m.from_tip_m,
+                length_m: m.length_m,
+                material: LayerMaterial::Platinum,
+                fill: m.fill,
+            })
+            .collect(),
     }
 }
 
@@ -405,8 +503,24 @@ impl AssetCache {
                     tortuosity: *tortuosity,
                     ..NeuroPhantomParams::default()
                 })?;
-                let mesh = lumen_surface(&graph, &SurfaceSettings::default())?;
-                let lumen = Lumen::new(mesh, "neuro phantom")?;
+                // Two cells per radius and a 1 mm query grid: about 1 M triangles and 30 s
+                // to load; the surface's defaults (3 per radius, a grid of a quarter of the
+                // median edge over the whole body) take 2 M triangles and 9 GB.
+                let mesh = lumen_surface(
+                    &graph,
+                    &SurfaceSettings {
+                        cells_per_radius: 2.0,
+                        ..SurfaceSettings::default()
+                    },
+                )?;
+                let lumen = Lumen::with_grid_settings(
+                    mesh,
+                    "neuro phantom",
+                    cathlab_anatomy::lumen::GridSettings {
+                        cell_size: Some(1e-3),
+                        band: 3e-3,
+                    },
+                )?;
                 Anatomy { graph, lumen }
             }
             AnatomySpec::CtSegmentation { seed_voxel, .. } => {
@@ -486,14 +600,6 @@ impl AssetCache {
     }
 
     fn build(&self, spec: &SceneSpec, base: &Path, staged: &mut Staged) -> Result<SceneAssets> {
-        if !spec.stack.is_empty() {
-            // The scene format and its checks come first (issue 21); the world that runs a
-            // stack comes next. Until then such a scene is refused before anything loads.
-            return Err(scene_error(
-                "stack",
-                "coaxial stacks are checked but not yet run by the engine; use `devices`",
-            ));
-        }
         let (anatomy, to_lps) = self.anatomy(&spec.anatomy, base, staged)?;
         let graph = &anatomy.graph;
         let target_branch = graph
@@ -520,15 +626,29 @@ impl AssetCache {
         }
         let pilot = Autopilot::new(graph, route.clone(), along, AutopilotSettings::default())?;
         let entry = pilot.entry();
-        let devices: Vec<_> = spec.devices.iter().map(device_of).collect();
+        let devices: Vec<_> = if spec.stack.is_empty() {
+            spec.devices.iter().map(device_of).collect()
+        } else {
+            spec.stack
+                .iter()
+                .enumerate()
+                .map(|(i, entry)| entry.resolve(i))
+                .collect::<Result<_>>()?
+        };
         for (i, (device, _)) in devices.iter().enumerate() {
-            if spec.start.inserted_mm * 1e-3 > device.length_m() {
+            if spec.stack.is_empty() && spec.start.inserted_mm * 1e-3 > device.length_m() {
                 return Err(scene_error(
                     &format!("devices[{i}]"),
                     "shorter than start.inserted_mm",
                 ));
             }
         }
+        let spares = spec
+            .spares
+            .iter()
+            .enumerate()
+            .map(|(i, spare)| spare.resolve(i))
+            .collect::<Result<Vec<_>>>()?;
         let anatomy_key = format!("{:?}", spec.anatomy);
         let volume = self.volume(
             &spec.ct,
@@ -607,6 +727,7 @@ impl AssetCache {
             to_lps,
             volume,
             devices,
+            spares,
             entry,
             route,
             target_branch,

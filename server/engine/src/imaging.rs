@@ -78,15 +78,18 @@ pub fn expose_snapshot(assets: &SceneAssets, snapshot: &Snapshot) -> Result<cath
 }
 
 /// The contrast and device layers of `snapshot`.
-pub fn layers_of(assets: &SceneAssets, snapshot: &Snapshot) -> Result<Layers> {
+pub fn layers_of(_assets: &SceneAssets, snapshot: &Snapshot) -> Result<Layers> {
     let mut layers = Layers::new();
     if !snapshot.contrast.is_empty() {
         layers.add_contrast(&snapshot.contrast, 0.0)?;
     }
-    let points: Vec<Point3<f64>> = snapshot.nodes.iter().map(|p| Point3::from(*p)).collect();
-    if points.len() >= 2 {
-        let look = &assets.devices[snapshot.active_device as usize].1;
-        layers.add_device(&points, look)?;
+    // Outermost first; a hollow catheter adds only its wall, so what runs inside it shows
+    // through.
+    for instrument in &snapshot.instruments {
+        let points: Vec<Point3<f64>> = instrument.nodes.iter().map(|p| Point3::from(*p)).collect();
+        if points.len() >= 2 {
+            layers.add_device(&points, &instrument.look)?;
+        }
     }
     Ok(layers)
 }

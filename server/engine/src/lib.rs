@@ -12,6 +12,7 @@ pub mod priority;
 pub mod replay;
 pub mod scene;
 pub mod session;
+pub mod strand;
 pub mod telemetry;
 pub mod world;
 
@@ -23,5 +24,6 @@ pub use metrics::{Event, EventKind, Metrics};
 pub use replay::{ReplayOutcome, replay, replay_until};
 pub use scene::{SceneCatalog, SceneFormat, SceneSpec};
 pub use session::{Checkpoint, CommandRecord, Recorder, RenderedFrame, Session, SessionSettings};
+pub use strand::Strand;
 pub use telemetry::{EngineMetrics, TimingSummary};
-pub use world::{Command, Mode, Snapshot, World};
+pub use world::{Command, Drive, InstrumentState, Mode, Snapshot, World};

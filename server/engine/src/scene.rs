@@ -31,6 +31,10 @@ pub struct SceneSpec {
     /// microcatheter, a wire), each instrument driven by its own hand.
     #[serde(default)]
     pub stack: Vec<StackEntry>,
+    /// Devices on the back table of a stack scene, to exchange an instrument for besides the
+    /// catalogue's (for example a wire shaped by hand).
+    #[serde(default)]
+    pub spares: Vec<SpareSpec>,
     /// Where the device enters.
     #[serde(default)]
     pub start: StartSpec,
@@ -55,6 +59,73 @@ pub struct SceneSpec {
     /// What the trainee's hand meets: the device's length and the force it can push with.
     #[serde(default)]
     pub limits: LimitsSpec,
+    /// The scene's scripted two-hand operator (a stack scene's demonstration, and the test
+    /// that its target can be reached).
+    #[serde(default)]
+    pub autopilot: Option<AutopilotSpec>,
+}
+
+/// A stack scene's scripted operator: the wire (innermost instrument) is steered along the
+/// route, the catheter around it follows, anything around that holds; at the target the
+/// catheter is tracked over the wire. See [`cathlab_physics::two_hands`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AutopilotSpec {
+    /// Push speed (mm/s), 1–100.
+    #[serde(default = "default_autopilot_speed")]
+    pub push_speed_mm_s: f64,
+    /// How far ahead along the route the wire's bend is aimed (mm), 1–100.
+    #[serde(default = "default_lookahead_mm")]
+    pub lookahead_mm: f64,
+    /// The wire is there when its tip is this far into the target branch (mm), 1–500.
+    #[serde(default = "default_reach_mm")]
+    pub wire_reach_mm: f64,
+    /// How far behind the wire's tip the catheter follows (mm), 5–500.
+    #[serde(default = "default_lag_mm")]
+    pub catheter_lag_mm: f64,
+    /// At the target, how far behind the wire's tip the catheter is tracked (mm), 1–500.
+    #[serde(default = "default_track_mm")]
+    pub catheter_track_mm: f64,
+    /// A wire exchange on the way.
+    #[serde(default)]
+    pub exchange: Option<ExchangeSpec>,
+}
+
+/// A wire exchange of the scripted operator: once the wire's tip is `into_mm` along
+/// `branch`, the catheter is tracked over it and parked, the wire withdrawn to the hub and
+/// exchanged for `device`, which leads on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExchangeSpec {
+    /// A branch on the route.
+    pub branch: String,
+    /// How far into it (mm), 0–500.
+    pub into_mm: f64,
+    /// The new wire: a catalogue identifier, or empty with `spare`.
+    #[serde(default)]
+    pub device: String,
+    /// The new wire: one of the scene's `spares` (index).
+    #[serde(default)]
+    pub spare: Option<usize>,
+    /// How far ahead the new wire's bend is aimed (mm), 1–100.
+    #[serde(default = "default_lookahead_mm")]
+    pub lookahead_mm: f64,
+    /// The new wire is there when its tip is this far into the target branch (mm), 1–500.
+    #[serde(default = "default_reach_mm")]
+    pub wire_reach_mm: f64,
+}
+
+fn default_autopilot_speed() -> f64 {
+    20.0
+}
+fn default_lookahead_mm() -> f64 {
+    20.0
+}
+fn default_lag_mm() -> f64 {
+    50.0
+}
+fn default_track_mm() -> f64 {
+    15.0
 }
 
 /// The physical limits of a push. The force limit of a device is the smaller of the
@@ -217,17 +288,117 @@ impl DeviceSpec {
     }
 }
 
+/// A device on a stack scene's back table: a catalogue identifier or a preset.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpareSpec {
+    /// Catalogue identifier; empty when `custom` gives the device.
+    #[serde(default)]
+    pub device: String,
+    /// A preset.
+    #[serde(default)]
+    pub custom: Option<DeviceSpec>,
+}
+
+impl SpareSpec {
+    /// A short name for lists: the catalogue id or the preset's label.
+    pub fn label(&self) -> String {
+        match &self.custom {
+            Some(custom) => custom.label(),
+            None => self.device.clone(),
+        }
+    }
+
+    /// The device and its look; `index` is its place among the spares, for the error's path.
+    pub fn resolve(
+        &self,
+        index: usize,
+    ) -> Result<(cathlab_physics::Device, cathlab_xray::DeviceAppearance)> {
+        StackEntry {
+            device: self.device.clone(),
+            custom: self.custom.clone(),
+            inserted_mm: 0.0,
+        }
+        .resolve(index)
+        .map_err(|e| match e {
+            EngineError::Scene { path, reason } => {
+                scene_error(path.replacen("stack", "spares", 1), reason)
+            }
+            other => other,
+        })
+    }
+}
+
 /// One instrument of a scene's coaxial stack.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StackEntry {
     /// Identifier in the device catalogue (`server/physics/devices/catalogue.toml`), e.g.
-    /// `catheter-5f-vertebral`.
+    /// `catheter-5f-vertebral`; empty when [`StackEntry::custom`] gives the device.
+    #[serde(default)]
     pub device: String,
+    /// A device of the scene's own instead of a catalogue one (a preset, e.g. a wire shaped
+    /// by hand: `custom = { preset = "guidewire_035_shaped", bend_deg = 90.0,
+    /// bend_length_mm = 30.0 }`).
+    #[serde(default)]
+    pub custom: Option<DeviceSpec>,
     /// Where its tip starts (mm beyond the entry point; negative: still inside the instrument
     /// around it, proximal of the entry).
     pub inserted_mm: f64,
 }
+
+impl StackEntry {
+    /// The device and how it looks on X-ray: the catalogue's entry, or the custom preset.
+    /// `index` is the entry's place in the stack, for the error's field path.
+    pub fn resolve(
+        &self,
+        index: usize,
+    ) -> Result<(cathlab_physics::Device, cathlab_xray::DeviceAppearance)> {
+        match (&self.custom, self.device.is_empty()) {
+            (Some(custom), true) => Ok(crate::assets::device_of(custom)),
+            (Some(_), false) => Err(scene_error(
+                format!("stack[{index}]"),
+                "names a catalogue `device` and a `custom` one; give one",
+            )),
+            (None, true) => Err(scene_error(
+                format!("stack[{index}].device"),
+                "missing: name a catalogue device or give a `custom` one",
+            )),
+            (None, false) => {
+                let entry = catalogue().get(&self.device).ok_or_else(|| {
+                    scene_error(
+                        format!("stack[{index}].device"),
+                        format!(
+                            "'{}' is not in the device catalogue (known: {})",
+                            self.device.chars().take(64).collect::<String>(),
+                            catalogue()
+                                .entries()
+                                .iter()
+                                .map(|e| e.id.as_str())
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        ),
+                    )
+                })?;
+                Ok((
+                    entry.device.clone(),
+                    crate::assets::appearance_of_entry(entry),
+                ))
+            }
+        }
+    }
+
+    /// A short name for lists: the catalogue id or the preset's label.
+    pub fn label(&self) -> String {
+        match &self.custom {
+            Some(custom) => custom.label(),
+            None => self.device.clone(),
+        }
+    }
+}
+
+/// Most spares on a scene's back table.
+pub const MAX_SPARES: usize = 16;
 
 /// Most instruments in a stack (guide, intermediate catheter, microcatheter, wire).
 pub const MAX_STACK: usize = cathlab_physics::stack::MAX_INSTRUMENTS;
@@ -429,6 +600,10 @@ pub struct TargetSpec {
     /// Reached when the tip is this far along the branch (mm).
     #[serde(default = "default_reach_mm")]
     pub reach_mm: f64,
+    /// In a stack, the instrument whose tip must get there (index, outermost first: the
+    /// catheter, not just the wire ahead of it); by default whichever tip leads.
+    #[serde(default)]
+    pub instrument: Option<usize>,
 }
 
 fn default_reach_mm() -> f64 {
@@ -723,6 +898,98 @@ impl SceneSpec {
             100.0,
         )?;
         // Last: it needs `limits` checked.
+        if let Some(a) = &self.autopilot {
+            if self.stack.len() < 2 {
+                return Err(scene_error(
+                    "autopilot",
+                    "the two-hand autopilot needs a stack of at least a catheter and a wire",
+                ));
+            }
+            range("autopilot.push_speed_mm_s", a.push_speed_mm_s, 1.0, 100.0)?;
+            range("autopilot.lookahead_mm", a.lookahead_mm, 1.0, 100.0)?;
+            range("autopilot.wire_reach_mm", a.wire_reach_mm, 1.0, 500.0)?;
+            range("autopilot.catheter_lag_mm", a.catheter_lag_mm, 5.0, 500.0)?;
+            range(
+                "autopilot.catheter_track_mm",
+                a.catheter_track_mm,
+                1.0,
+                500.0,
+            )?;
+            if let Some(x) = &a.exchange {
+                range("autopilot.exchange.into_mm", x.into_mm, 0.0, 500.0)?;
+                range(
+                    "autopilot.exchange.lookahead_mm",
+                    x.lookahead_mm,
+                    1.0,
+                    100.0,
+                )?;
+                range(
+                    "autopilot.exchange.wire_reach_mm",
+                    x.wire_reach_mm,
+                    1.0,
+                    500.0,
+                )?;
+                match (x.spare, x.device.is_empty()) {
+                    (Some(k), true) if k < self.spares.len() => {}
+                    (Some(k), true) => {
+                        return Err(scene_error(
+                            "autopilot.exchange.spare",
+                            format!("{k} is not a spare (the scene has {})", self.spares.len()),
+                        ));
+                    }
+                    (None, false) => {
+                        catalogue().get(&x.device).ok_or_else(|| {
+                            scene_error(
+                                "autopilot.exchange.device",
+                                format!(
+                                    "'{}' is not in the device catalogue",
+                                    x.device.chars().take(64).collect::<String>()
+                                ),
+                            )
+                        })?;
+                    }
+                    _ => {
+                        return Err(scene_error(
+                            "autopilot.exchange",
+                            "name the new wire by `device` (catalogue) or `spare`, one of them",
+                        ));
+                    }
+                }
+            }
+        }
+        if !self.spares.is_empty() && self.stack.is_empty() {
+            return Err(scene_error(
+                "spares",
+                "spares are for a stack scene's exchanges",
+            ));
+        }
+        for (i, spare) in self.spares.iter().enumerate() {
+            if let Some(DeviceSpec::Guidewire035Shaped {
+                bend_deg,
+                bend_length_mm,
+            }) = &spare.custom
+            {
+                range(
+                    &format!("spares[{i}].custom.bend_deg"),
+                    *bend_deg,
+                    0.0,
+                    180.0,
+                )?;
+                range(
+                    &format!("spares[{i}].custom.bend_length_mm"),
+                    *bend_length_mm,
+                    2.0,
+                    100.0,
+                )?;
+            }
+            spare.resolve(i)?;
+        }
+        if self.spares.len() > MAX_SPARES {
+            return Err(scene_error(
+                "spares",
+                format!("{} spares; at most {MAX_SPARES}", self.spares.len()),
+            ));
+        }
         self.validate_stack()
     }
 
@@ -730,6 +997,17 @@ impl SceneSpec {
     /// fitting inside the one around it, each starting between the hub of the one around it
     /// and its own hub. Errors name `stack[i].device` or `stack[i].inserted_mm`.
     fn validate_stack(&self) -> Result<()> {
+        if let Some(i) = self.target.instrument
+            && i >= self.stack.len().max(1)
+        {
+            return Err(scene_error(
+                "target.instrument",
+                format!(
+                    "{i} is not an instrument of this scene's stack, which has {}",
+                    self.stack.len()
+                ),
+            ));
+        }
         if self.stack.len() > MAX_STACK {
             return Err(scene_error(
                 "stack",
@@ -740,25 +1018,37 @@ impl SceneSpec {
             ));
         }
         let mut outer: Option<cathlab_physics::Device> = None;
+        let range = |path: &str, value: f64, lo: f64, hi: f64| -> Result<()> {
+            if value.is_finite() && value >= lo && value <= hi {
+                Ok(())
+            } else {
+                Err(scene_error(path, format!("{value} is outside {lo}..={hi}")))
+            }
+        };
         for (i, entry) in self.stack.iter().enumerate() {
-            let device = catalogue().device(&entry.device).map_err(|_| {
-                scene_error(
-                    format!("stack[{i}].device"),
-                    format!(
-                        "'{}' is not in the device catalogue (known: {})",
-                        entry.device.chars().take(64).collect::<String>(),
-                        catalogue()
-                            .entries()
-                            .iter()
-                            .map(|e| e.id.as_str())
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ),
-                )
-            })?;
+            if let Some(DeviceSpec::Guidewire035Shaped {
+                bend_deg,
+                bend_length_mm,
+            }) = &entry.custom
+            {
+                range(
+                    &format!("stack[{i}].custom.bend_deg"),
+                    *bend_deg,
+                    0.0,
+                    180.0,
+                )?;
+                range(
+                    &format!("stack[{i}].custom.bend_length_mm"),
+                    *bend_length_mm,
+                    2.0,
+                    100.0,
+                )?;
+            }
+            let device = entry.resolve(i)?.0;
             let inserted = entry.inserted_mm;
             let length_mm = device.length_m() * 1e3;
-            let mut hub = length_mm - self.limits.outside_mm;
+            // The route up to the entry point is not simulated, but the devices lie along it.
+            let mut hub = length_mm - self.limits.outside_mm - self.start.along_route_mm;
             let lowest = match &outer {
                 None => 2.0,
                 Some(o) => {

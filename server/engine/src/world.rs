@@ -7,13 +7,14 @@ use std::sync::Arc;
 
 use cathlab_hemo::{Contrast, ContrastSettings, FlowSolver, Injection};
 use cathlab_physics::{Effort, Insertion, Navigation, NavigationSettings, Refinement, Twist};
-use cathlab_xray::{ContrastTube, PulseRate};
+use cathlab_xray::{ContrastTube, DeviceAppearance, PulseRate};
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::assets::{SceneAssets, SharedWall};
 use crate::error::{EngineError, Result};
 use crate::metrics::{Event, EventKind, Metrics};
+use crate::strand::{HandReaction, Strand};
 
 /// A trainee's or bridge's command, in SI units, as recorded.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -34,8 +35,32 @@ pub enum Command {
         /// Twist rate (rad/s).
         twist_rad_s: f64,
     },
-    /// Withdraw the device and insert the scene's device with this index.
+    /// Withdraw the device and insert the scene's device with this index (one-device scenes).
     SelectDevice(u32),
+    /// Drive one instrument of a coaxial stack (index 0 the outermost). The plain push and
+    /// twist commands drive the innermost (what a one-hand client steers).
+    Instrument {
+        /// Instrument index, outermost first.
+        index: u32,
+        /// What its hand does.
+        drive: Drive,
+    },
+    /// Exchange instrument `index` of a stack (not the outermost), withdrawn to the hub of
+    /// the one around it, for entry `catalogue` of the built-in device catalogue (its index
+    /// in [`crate::scene::catalogue`]'s entries).
+    Exchange {
+        /// Instrument index, outermost first.
+        index: u32,
+        /// Catalogue entry index.
+        catalogue: u32,
+    },
+    /// As [`Command::Exchange`], for spare `spare` of the scene's back table.
+    ExchangeSpare {
+        /// Instrument index, outermost first.
+        index: u32,
+        /// Index among the scene's spares.
+        spare: u32,
+    },
     /// Fluoroscopy pedal down or up.
     Fluoroscopy(bool),
     /// Pulse rate.
@@ -64,6 +89,55 @@ pub enum Command {
     },
     /// Back to the scene's start.
     Reset,
+}
+
+/// What one hand does to its instrument, in SI units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Drive {
+    /// Push/pull speed (m/s).
+    PushVelocity(f64),
+    /// Inserted length to move to (m).
+    PushTarget(f64),
+    /// Twist rate (rad/s).
+    TwistRate(f64),
+    /// Twist angle to move to (rad).
+    TwistTarget(f64),
+    /// Both speeds at once (haptic bridge): push (m/s), twist (rad/s).
+    Setpoints {
+        /// Push/pull speed (m/s).
+        push_m_s: f64,
+        /// Twist rate (rad/s).
+        twist_rad_s: f64,
+    },
+}
+
+/// One instrument now, for clients and the renderer (LPS, SI units).
+#[derive(Debug, Clone, PartialEq)]
+pub struct InstrumentState {
+    /// The device's name.
+    pub name: String,
+    /// Its catalogue identifier (empty for a scene's own device).
+    pub catalogue_id: String,
+    /// Centerline from the entry to its tip (m); empty while withdrawn inside the one around
+    /// it.
+    pub nodes: Vec<Vector3<f64>>,
+    /// Inserted length beyond the entry point (m; negative: inside the one around it).
+    pub inserted_m: f64,
+    /// Twist at the entry (rad).
+    pub twist_rad: f64,
+    /// Tip position (m); `None` while withdrawn proximal of the entry.
+    pub tip: Option<Vector3<f64>>,
+    /// Axial force its hand feels (N, positive when it resists a push).
+    pub axial_force_n: f64,
+    /// Torque its hand feels about the entry axis (N·m).
+    pub torque_nm: f64,
+    /// What held its push back in the last step.
+    pub push_limit: PushLimit,
+    /// Its push force limit (N).
+    pub push_force_limit_n: f64,
+    /// How it looks on X-ray.
+    pub look: DeviceAppearance,
 }
 
 /// What the monitor is asked to show.
@@ -141,6 +215,8 @@ pub struct Snapshot {
     pub push_force_limit_n: f64,
     /// The overload governor's level (0: the scene's fidelity).
     pub fidelity_level: u8,
+    /// Every instrument, outermost first (one for a one-device scene).
+    pub instruments: Vec<InstrumentState>,
 }
 
 /// What holds a push back: the force the hand or the device can push with, or the device's
@@ -173,7 +249,13 @@ impl DeviceLimits {
     /// The limits of `device` under `limits`: the force is the smaller of the hand's and the
     /// Euler load of the proximal shaft over the unsupported length, clamped at both ends
     /// (effective length half of it): P = π²·EI / (L/2)².
-    pub fn of(device: &cathlab_physics::Device, limits: &crate::scene::LimitsSpec) -> Self {
+    /// `along_route_m` is the route not simulated before the entry point (m), which the
+    /// device also fills.
+    pub fn of(
+        device: &cathlab_physics::Device,
+        limits: &crate::scene::LimitsSpec,
+        along_route_m: f64,
+    ) -> Self {
         let ei = device
             .sections
             .first()
@@ -183,7 +265,7 @@ impl DeviceLimits {
         Self {
             force_n: buckling.min(limits.push_force_n),
             buckling: buckling < limits.push_force_n,
-            max_inserted_m: device.length_m() - limits.outside_mm * 1e-3,
+            max_inserted_m: device.length_m() - limits.outside_mm * 1e-3 - along_route_m,
         }
     }
 }
@@ -243,7 +325,9 @@ const CONTRAST_DRAW_THRESHOLD: f64 = 1.0;
 /// One session's simulation.
 pub struct World {
     assets: Arc<SceneAssets>,
-    nav: Navigation<SharedWall>,
+    strand: Strand,
+    /// One per instrument, outermost first.
+    hands: Vec<Hand>,
     active_device: usize,
     imaging: Imaging,
     hemo: Option<Hemo>,
@@ -253,13 +337,57 @@ pub struct World {
     previous_tip: Vector3<f64>,
     events: Vec<Event>,
     proximal: [f64; 6],
+    fidelity: u8,
+}
+
+/// One instrument's hand: its device's look and limits, and what held its push back.
+#[derive(Debug, Clone)]
+struct Hand {
+    catalogue_id: String,
+    look: DeviceAppearance,
     limits: DeviceLimits,
     push_limit: PushLimit,
     /// Whether the next time a limit holds the push back is reported (re-armed after the push
     /// has been free for `LIMIT_REARM_S`).
     limit_armed: bool,
     push_free_since_s: f64,
-    fidelity: u8,
+    reaction: HandReaction,
+}
+
+impl Hand {
+    fn new(
+        catalogue_id: String,
+        device: &cathlab_physics::Device,
+        look: DeviceAppearance,
+        spec: &crate::scene::SceneSpec,
+    ) -> Self {
+        Self {
+            catalogue_id,
+            look,
+            limits: DeviceLimits::of(device, &spec.limits, spec.start.along_route_mm * 1e-3),
+            push_limit: PushLimit::None,
+            limit_armed: true,
+            push_free_since_s: 0.0,
+            reaction: HandReaction::default(),
+        }
+    }
+}
+
+/// The hands of the scene's start: the active device's, or one per stack instrument.
+fn start_hands(assets: &SceneAssets, active: usize) -> Vec<Hand> {
+    if assets.spec.stack.is_empty() {
+        let (device, look) = &assets.devices[active];
+        return vec![Hand::new(String::new(), device, look.clone(), &assets.spec)];
+    }
+    assets
+        .spec
+        .stack
+        .iter()
+        .zip(&assets.devices)
+        .map(|(entry, (device, look))| {
+            Hand::new(entry.device.clone(), device, look.clone(), &assets.spec)
+        })
+        .collect()
 }
 
 /// The lowest fidelity the overload governor may set.
@@ -317,7 +445,8 @@ impl std::fmt::Debug for World {
     }
 }
 
-fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
+/// The navigation settings of a scene's fidelity.
+pub(crate) fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
     let q = &assets.spec.fidelity;
     let mut settings = NavigationSettings {
         time_step_s: assets.spec.time_step_s(),
@@ -330,22 +459,10 @@ fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
     settings
 }
 
-fn start_navigation(assets: &Arc<SceneAssets>, device: usize) -> Result<Navigation<SharedWall>> {
-    let (entry, direction) = assets.entry;
-    Ok(Navigation::new(
-        assets.devices[device].0.clone(),
-        SharedWall(assets.anatomy.clone()),
-        entry,
-        direction,
-        assets.spec.start.inserted_mm * 1e-3,
-        navigation_settings(assets),
-    )?)
-}
-
 impl World {
     /// The scene's start: its first device inserted, pedal up, the scene's C-arm pose.
     pub fn new(assets: Arc<SceneAssets>) -> Result<Self> {
-        let nav = start_navigation(&assets, 0)?;
+        let strand = Strand::start(&assets, 0)?;
         let hemo = match &assets.network {
             None => None,
             Some(network) => {
@@ -383,10 +500,9 @@ impl World {
         } else {
             PulseRate::Hz15
         };
-        let tip = nav.tip_position();
+        let tip = tracked_tip(&assets, &strand);
         let target_remaining_m = assets.remaining_to_target_m(&Point3::from(tip));
-        let assets_devices_0 = assets.devices[0].0.clone();
-        let assets_limits = assets.spec.limits;
+        let hands = start_hands(&assets, 0);
         Ok(Self {
             imaging: Imaging {
                 pedal: false,
@@ -398,7 +514,8 @@ impl World {
                 dsa_pose: None,
             },
             assets,
-            nav,
+            strand,
+            hands,
             active_device: 0,
             hemo,
             metrics: Metrics {
@@ -410,10 +527,6 @@ impl World {
             previous_tip: tip,
             events: Vec::new(),
             proximal: [0.0; 6],
-            limits: DeviceLimits::of(&assets_devices_0, &assets_limits),
-            push_limit: PushLimit::None,
-            limit_armed: true,
-            push_free_since_s: 0.0,
             fidelity: 0,
         })
     }
@@ -438,9 +551,15 @@ impl World {
         self.step
     }
 
-    /// The navigated device (read-only: scripted drivers look at it to choose commands).
-    pub fn navigation(&self) -> &Navigation<SharedWall> {
-        &self.nav
+    /// The navigated device of a one-device scene (read-only: scripted drivers look at it to
+    /// choose commands); `None` for a stack.
+    pub fn navigation(&self) -> Option<&Navigation<SharedWall>> {
+        self.strand.navigation()
+    }
+
+    /// What the hands hold: one device or the stack.
+    pub fn strand(&self) -> &Strand {
+        &self.strand
     }
 
     /// Metrics so far.
@@ -466,16 +585,61 @@ impl World {
     /// A command that cannot apply (roadmap without a DSA run at this pose, injection without
     /// flow, a device index out of range) changes nothing and says why.
     pub fn apply(&mut self, seq: u64, command: &Command) -> Result<()> {
-        let current = self.nav_command();
+        let innermost = self.strand.len() - 1;
         match *command {
-            Command::PushVelocity(v) => self.set_nav(Insertion::Velocity(v), current.twist)?,
-            Command::PushTarget(x) => self.set_nav(Insertion::Target(x), current.twist)?,
-            Command::TwistRate(w) => self.set_nav(current.insertion, Twist::Rate(w))?,
-            Command::TwistTarget(a) => self.set_nav(current.insertion, Twist::Target(a))?,
+            Command::PushVelocity(v) => self.drive(innermost, Drive::PushVelocity(v))?,
+            Command::PushTarget(x) => self.drive(innermost, Drive::PushTarget(x))?,
+            Command::TwistRate(w) => self.drive(innermost, Drive::TwistRate(w))?,
+            Command::TwistTarget(a) => self.drive(innermost, Drive::TwistTarget(a))?,
             Command::Setpoints {
                 push_m_s,
                 twist_rad_s,
-            } => self.set_nav(Insertion::Velocity(push_m_s), Twist::Rate(twist_rad_s))?,
+            } => self.drive(
+                innermost,
+                Drive::Setpoints {
+                    push_m_s,
+                    twist_rad_s,
+                },
+            )?,
+            Command::Instrument { index, drive } => {
+                self.strand.check(index as usize, "instrument")?;
+                self.drive(index as usize, drive)?;
+            }
+            Command::Exchange { index, catalogue } => {
+                let entries = crate::scene::catalogue().entries();
+                let entry = entries.get(catalogue as usize).ok_or_else(|| {
+                    EngineError::InvalidArgument {
+                        field: "exchange.device".into(),
+                        reason: format!(
+                            "catalogue entry {catalogue} does not exist (the catalogue has {})",
+                            entries.len()
+                        ),
+                    }
+                })?;
+                let look = crate::assets::appearance_of_entry(entry);
+                self.exchange(index, &entry.device, look, entry.id.clone())?;
+            }
+            Command::ExchangeSpare { index, spare } => {
+                let assets = self.assets.clone();
+                let (device, look) = assets.spares.get(spare as usize).ok_or_else(|| {
+                    EngineError::InvalidArgument {
+                        field: "exchange.spare".into(),
+                        reason: format!(
+                            "spare {spare} does not exist (the scene has {})",
+                            assets.spares.len()
+                        ),
+                    }
+                })?;
+                let label = assets.spec.spares[spare as usize].label();
+                self.exchange(index, device, look.clone(), label)?;
+            }
+            Command::SelectDevice(_) if !self.assets.spec.stack.is_empty() => {
+                return Err(EngineError::FailedPrecondition(
+                    "a coaxial scene exchanges instruments (withdraw one to its hub, then \
+                     exchange it); it has no devices to select"
+                        .into(),
+                ));
+            }
             Command::SelectDevice(index) => {
                 let index = index as usize;
                 if index >= self.assets.devices.len() {
@@ -581,7 +745,7 @@ impl World {
                 let level = level.min(MAX_FIDELITY_LEVEL);
                 if level != self.fidelity {
                     let (effort, _, what) = fidelity_effort(level);
-                    self.nav.set_effort(effort)?;
+                    self.strand.set_effort(effort)?;
                     let message = if level > self.fidelity {
                         format!(
                             "the server is overloaded: fidelity lowered to level {level} of \
@@ -607,22 +771,76 @@ impl World {
         Ok(())
     }
 
-    /// The command this step runs instead of the operator's when a limit holds the push back
-    /// (None: the operator's). The force limit looks at the last step's proximal reaction: a
-    /// push that met it holds the device where it is (the hand pushes no harder), so the
-    /// device advances only as fast as the force allows. Reports each new hold once.
+    /// Applies `drive` to instrument `index` (checked).
+    fn drive(&mut self, index: usize, drive: Drive) -> Result<()> {
+        let current = self.strand.command(index);
+        let (insertion, twist) = match drive {
+            Drive::PushVelocity(v) => (Insertion::Velocity(v), current.twist),
+            Drive::PushTarget(x) => (Insertion::Target(x), current.twist),
+            Drive::TwistRate(w) => (current.insertion, Twist::Rate(w)),
+            Drive::TwistTarget(a) => (current.insertion, Twist::Target(a)),
+            Drive::Setpoints {
+                push_m_s,
+                twist_rad_s,
+            } => (Insertion::Velocity(push_m_s), Twist::Rate(twist_rad_s)),
+        };
+        self.strand
+            .set_command(index, cathlab_physics::Command { insertion, twist })
+    }
+
+    /// Exchanges stack instrument `index` for `device` (its look and the name it goes by).
+    fn exchange(
+        &mut self,
+        index: u32,
+        device: &cathlab_physics::Device,
+        look: DeviceAppearance,
+        id: String,
+    ) -> Result<()> {
+        let index = index as usize;
+        self.strand.check(index, "exchange.instrument")?;
+        let Some(stack) = self.strand.stack_mut() else {
+            return Err(EngineError::FailedPrecondition(
+                "a one-device scene selects devices; only a coaxial stack exchanges them".into(),
+            ));
+        };
+        stack
+            .exchange(index, device.clone())
+            .map_err(|e| EngineError::FailedPrecondition(e.to_string()))?;
+        let old = std::mem::replace(
+            &mut self.hands[index],
+            Hand::new(id.clone(), device, look, &self.assets.spec),
+        );
+        let was = if old.catalogue_id.is_empty() {
+            "the scene's device".to_owned()
+        } else {
+            old.catalogue_id
+        };
+        self.event(
+            EventKind::Device,
+            format!("instrument {index}: {was} exchanged for {id}"),
+        );
+        Ok(())
+    }
+
+    /// The command this step runs instead of the operator's for instrument `index` when a
+    /// limit holds its push back (None: the operator's). The force limit looks at the last
+    /// step's proximal reaction: a push that met it holds the instrument where it is (the hand
+    /// pushes no harder), so it advances only as fast as the force allows. Reports each new
+    /// hold once.
     fn limited_command(
         &mut self,
+        index: usize,
         operator: cathlab_physics::Command,
         dt: f64,
     ) -> Option<cathlab_physics::Command> {
-        let inserted = self.nav.inserted_m();
+        let inserted = self.strand.inserted_m(index);
         let advance = match operator.insertion {
             Insertion::Velocity(v) => v * dt,
             Insertion::Target(x) => x - inserted,
         };
-        let force = self.axial_force_n();
-        let limits = self.limits;
+        let hand = &self.hands[index];
+        let force = hand.reaction.axial_force_n;
+        let limits = hand.limits;
         let cap = fidelity_effort(self.fidelity).1;
         let (limit, insertion) = if advance <= 0.0 {
             (PushLimit::None, None)
@@ -641,16 +859,25 @@ impl World {
             (PushLimit::None, None)
         };
         let now = self.metrics.procedure_time_s;
+        let hand = &mut self.hands[index];
+        let mut report = None;
         if limit == PushLimit::None {
-            if self.push_limit != PushLimit::None {
-                self.push_free_since_s = now;
+            if hand.push_limit != PushLimit::None {
+                hand.push_free_since_s = now;
             }
-            if now - self.push_free_since_s >= LIMIT_REARM_S {
-                self.limit_armed = true;
+            if now - hand.push_free_since_s >= LIMIT_REARM_S {
+                hand.limit_armed = true;
             }
-        } else if self.limit_armed {
-            self.limit_armed = false;
-            let name = self.assets.devices[self.active_device].0.name.clone();
+        } else if hand.limit_armed {
+            hand.limit_armed = false;
+            report = Some(limit);
+        }
+        hand.push_limit = limit;
+        if let Some(limit) = report {
+            let name = self
+                .strand
+                .device(index)
+                .map_or_else(String::new, |d| d.name.clone());
             let message = match limit {
                 PushLimit::Force if limits.buckling => format!(
                     "push held at {force:.1} N: the {name} buckles outside the sheath at {:.1} N",
@@ -668,43 +895,18 @@ impl World {
             };
             self.event(EventKind::Limit, message);
         }
-        self.push_limit = limit;
         insertion.map(|insertion| cathlab_physics::Command {
             insertion,
             twist: operator.twist,
         })
     }
 
-    /// The last step's proximal reaction along the device axis: positive when the device
-    /// resists a push (N).
-    fn axial_force_n(&self) -> f64 {
-        let positions = self.nav.model().positions();
-        let Some(axis) = (match positions {
-            [a, b, ..] => (b - a).try_normalize(1e-12),
-            _ => None,
-        }) else {
-            return 0.0;
-        };
-        Vector3::new(self.proximal[0], self.proximal[1], self.proximal[2]).dot(&axis)
-    }
-
-    fn nav_command(&self) -> cathlab_physics::Command {
-        self.nav.current_command()
-    }
-
-    fn set_nav(&mut self, insertion: Insertion, twist: Twist) -> Result<()> {
-        self.nav
-            .set_command(cathlab_physics::Command { insertion, twist })?;
-        Ok(())
-    }
-
     fn restart_device(&mut self, index: usize) -> Result<()> {
-        self.nav = start_navigation(&self.assets, index)?;
+        self.strand = Strand::start(&self.assets, index)?;
         self.active_device = index;
-        self.limits = DeviceLimits::of(&self.assets.devices[index].0, &self.assets.spec.limits);
-        self.push_limit = PushLimit::None;
-        self.nav.set_effort(fidelity_effort(self.fidelity).0)?;
-        self.previous_tip = self.nav.tip_position();
+        self.hands = start_hands(&self.assets, index);
+        self.strand.set_effort(fidelity_effort(self.fidelity).0)?;
+        self.previous_tip = tracked_tip(&self.assets, &self.strand);
         if let Some(hemo) = &mut self.hemo
             && hemo.injection.is_some()
         {
@@ -746,7 +948,7 @@ impl World {
     }
 
     fn update_injection(&mut self) -> Result<()> {
-        let tip = Point3::from(self.nav.tip_position());
+        let tip = Point3::from(injection_tip(&self.strand));
         let graph = &self.assets.anatomy.graph;
         let Some(hemo) = &mut self.hemo else {
             return Ok(());
@@ -783,7 +985,13 @@ impl World {
         use cathlab_physics::autopilot::AutopilotPhase;
         let mut seq = first_seq;
         for _ in 0..max_steps {
-            let command = pilot.command(self.navigation());
+            let Some(navigation) = self.strand.navigation() else {
+                return Err(EngineError::FailedPrecondition(
+                    "the one-device autopilot drives a one-device scene; a stack has two hands"
+                        .into(),
+                ));
+            };
+            let command = pilot.command(navigation);
             if pilot.phase() == AutopilotPhase::Reached {
                 return Ok(Some(self.step_index()));
             }
@@ -803,24 +1011,117 @@ impl World {
         Ok(None)
     }
 
+    /// Drives a stack scene with its scripted two-hand operator (the scene's `autopilot`) for
+    /// at most `max_steps` steps; the hands' commands are applied as recorded commands
+    /// numbered from `first_seq` (a wire exchange as an exchange for the scene's device or
+    /// its catalogue entry). Returns the step at which the target was reached, or `None` if
+    /// it was not.
+    pub fn follow_two_hands(&mut self, max_steps: usize, first_seq: u64) -> Result<Option<u64>> {
+        use cathlab_physics::two_hands::{TwoHandAction, TwoHands};
+        let assets = self.assets.clone();
+        let plan = assets.two_hand_plan()?.ok_or_else(|| {
+            EngineError::FailedPrecondition("this scene has no two-hand autopilot".into())
+        })?;
+        let mut hands = TwoHands::new(
+            &assets.anatomy.graph,
+            assets.route.clone(),
+            assets.spec.start.along_route_mm * 1e-3,
+            plan,
+        )?;
+        let mut seq = first_seq;
+        for _ in 0..max_steps {
+            if self.metrics.target_reached_at_s.is_some() {
+                return Ok(Some(self.step));
+            }
+            let Some(stack) = self.strand.stack() else {
+                return Err(EngineError::FailedPrecondition(
+                    "the two-hand autopilot drives a stack".into(),
+                ));
+            };
+            match hands.next(stack)? {
+                TwoHandAction::Done => break,
+                TwoHandAction::Drive(commands) => {
+                    for (index, command) in commands {
+                        let push = match command.insertion {
+                            Insertion::Velocity(v) => Drive::PushVelocity(v),
+                            Insertion::Target(x) => Drive::PushTarget(x),
+                        };
+                        let twist = match command.twist {
+                            Twist::Rate(w) => Drive::TwistRate(w),
+                            Twist::Target(a) => Drive::TwistTarget(a),
+                        };
+                        for drive in [push, twist] {
+                            let index = index as u32;
+                            self.apply(seq, &Command::Instrument { index, drive })?;
+                            seq += 1;
+                        }
+                    }
+                }
+                TwoHandAction::Exchange(index, device) => {
+                    let index = index as u32;
+                    let spare = assets.spares.iter().position(|(d, _)| *d == device);
+                    let catalogue = crate::scene::catalogue()
+                        .entries()
+                        .iter()
+                        .position(|e| e.device == device);
+                    let command = match (spare, catalogue) {
+                        (Some(spare), _) => Command::ExchangeSpare {
+                            index,
+                            spare: spare as u32,
+                        },
+                        (None, Some(catalogue)) => Command::Exchange {
+                            index,
+                            catalogue: catalogue as u32,
+                        },
+                        (None, None) => {
+                            return Err(EngineError::FailedPrecondition(format!(
+                                "the autopilot's new wire \"{}\" is neither a spare nor in \
+                                 the catalogue",
+                                device.name
+                            )));
+                        }
+                    };
+                    self.apply(seq, &command)?;
+                    seq += 1;
+                    continue;
+                }
+                TwoHandAction::Replace(_) => {
+                    return Err(EngineError::FailedPrecondition(
+                        "the scene's autopilot adds no instruments".into(),
+                    ));
+                }
+            }
+            self.step()?;
+        }
+        Ok(self.metrics.target_reached_at_s.map(|_| self.step))
+    }
+
     /// Advances one physics step (and contrast every few steps). Divergence puts the device
     /// back at its start, reports it and counts it; the world stays usable.
     pub fn step(&mut self) -> Result<()> {
         let dt = self.assets.spec.time_step_s();
-        let operator = self.nav.current_command();
-        let limited = self.limited_command(operator, dt);
-        if let Some(command) = limited {
-            self.nav.set_command(command)?;
+        let operators: Vec<cathlab_physics::Command> = (0..self.strand.len())
+            .map(|i| self.strand.command(i))
+            .collect();
+        let mut limited = Vec::with_capacity(operators.len());
+        for (i, operator) in operators.iter().enumerate() {
+            let command = self.limited_command(i, *operator, dt);
+            if let Some(command) = command {
+                self.strand.set_command(i, command)?;
+            }
+            limited.push(command.is_some());
         }
-        let outcome = self.nav.step();
-        if limited.is_some() {
-            self.nav.set_command(operator)?;
+        let outcome = self.strand.step();
+        for (i, operator) in operators.iter().enumerate() {
+            if limited[i] {
+                self.strand.set_command(i, *operator)?;
+            }
         }
         let diverged = match outcome {
-            Ok(_) => {
-                let tip = self.nav.tip_position();
+            Ok(()) => {
+                let tip = self.strand.leading_tip();
                 let escaped = self
-                    .nav
+                    .strand
                     .wall()
                     .0
                     .lumen
@@ -852,7 +1153,7 @@ impl World {
             self.metrics.fluoroscopy_time_s += dt;
         }
         // Wall forces and the tip's path.
-        if let Some(contacts) = self.nav.last_contacts() {
+        if let Some(contacts) = self.strand.last_contacts() {
             let mut largest: f64 = 0.0;
             let mut total = 0.0;
             for f in &contacts.response.forces {
@@ -862,7 +1163,7 @@ impl World {
             }
             self.metrics.add_wall_forces(largest, total);
         }
-        let tip = self.nav.tip_position();
+        let tip = tracked_tip(&self.assets, &self.strand);
         self.metrics.tip_path_length_m += (tip - self.previous_tip).norm();
         self.previous_tip = tip;
         self.metrics.target_remaining_m = self.assets.remaining_to_target_m(&Point3::from(tip));
@@ -874,11 +1175,24 @@ impl World {
             {
                 self.metrics.target_reached_at_s = Some(self.metrics.procedure_time_s);
                 let name = self.assets.spec.target.branch.clone();
-                self.event(EventKind::TargetReached, format!("the tip reached {name}"));
+                let who = match self.assets.spec.target.instrument {
+                    Some(i) if !self.assets.spec.stack.is_empty() => self
+                        .strand
+                        .device(i)
+                        .map_or_else(|| "tip".to_owned(), |d| format!("{}'s tip", d.name)),
+                    _ => "tip".to_owned(),
+                };
+                self.event(
+                    EventKind::TargetReached,
+                    format!("the {who} reached {name}"),
+                );
             }
         }
-        let r = self.nav.proximal_reaction();
-        self.proximal = [r[0], r[1], r[2], r[3], r[4], r[5]];
+        let (wrench, reactions) = self.strand.reactions();
+        self.proximal = wrench;
+        for (hand, reaction) in self.hands.iter_mut().zip(reactions) {
+            hand.reaction = reaction;
+        }
         self.step_contrast(dt)?;
         Ok(())
     }
@@ -929,7 +1243,7 @@ impl World {
     /// The world now, for clients and the renderer (LPS).
     pub fn snapshot(&self) -> Snapshot {
         let to_lps = self.assets.to_lps;
-        let model = self.nav.model();
+        let model = self.strand.model();
         let positions = model.positions();
         let nodes: Vec<Vector3<f64>> = positions.iter().map(|p| to_lps * p).collect();
         let tip_direction = model
@@ -937,7 +1251,7 @@ impl World {
             .last()
             .map(|q| to_lps * (q * Vector3::x()))
             .unwrap_or_else(Vector3::x);
-        let contacts = match self.nav.last_contacts() {
+        let contacts = match self.strand.last_contacts() {
             Some(step) => step
                 .contacts
                 .iter()
@@ -957,14 +1271,36 @@ impl World {
         let p = &self.proximal;
         let force = to_lps * Vector3::new(p[0], p[1], p[2]);
         let moment = to_lps * Vector3::new(p[3], p[4], p[5]);
+        let instruments: Vec<InstrumentState> = self
+            .hands
+            .iter()
+            .enumerate()
+            .map(|(i, hand)| InstrumentState {
+                name: self
+                    .strand
+                    .device(i)
+                    .map_or_else(String::new, |d| d.name.clone()),
+                catalogue_id: hand.catalogue_id.clone(),
+                nodes: self.strand.polyline(i).iter().map(|p| to_lps * p).collect(),
+                inserted_m: self.strand.inserted_m(i),
+                twist_rad: self.strand.twist_rad(i),
+                tip: self.strand.tip_position(i).map(|p| to_lps * p),
+                axial_force_n: hand.reaction.axial_force_n,
+                torque_nm: hand.reaction.torque_nm,
+                push_limit: hand.push_limit,
+                push_force_limit_n: hand.limits.force_n,
+                look: hand.look.clone(),
+            })
+            .collect();
+        let innermost = self.hands.len() - 1;
         Snapshot {
             step: self.step,
             time_s: self.metrics.procedure_time_s,
             last_seq: self.last_seq,
             nodes,
             tip_direction,
-            inserted_m: self.nav.inserted_m(),
-            twist_rad: self.nav.twist_rad(),
+            inserted_m: self.strand.inserted_m(innermost),
+            twist_rad: self.strand.twist_rad(innermost),
             contacts,
             proximal: [force.x, force.y, force.z, moment.x, moment.y, moment.z],
             active_device: self.active_device as u32,
@@ -975,9 +1311,10 @@ impl World {
                 .map(|h| h.tubes.clone())
                 .unwrap_or_default(),
             metrics: self.metrics,
-            push_limit: self.push_limit,
-            push_force_limit_n: self.limits.force_n,
+            push_limit: self.hands[innermost].push_limit,
+            push_force_limit_n: self.hands[innermost].limits.force_n,
             fidelity_level: self.fidelity,
+            instruments,
         }
     }
 
@@ -988,16 +1325,12 @@ impl World {
         h.u64(self.step);
         h.u64(self.last_seq);
         h.u64(self.active_device as u64);
-        let model = self.nav.model();
-        for p in model.positions() {
-            h.f64s(p.as_slice());
-        }
-        for q in model.rotations() {
-            h.f64s(q.coords.as_slice());
-        }
-        h.f64s(self.nav.node_material_m());
-        h.f64s(&[self.nav.inserted_m(), self.nav.twist_rad()]);
+        self.strand.digest_into(|values| h.f64s(values));
         h.f64s(&self.proximal);
+        for hand in &self.hands {
+            h.f64s(&[hand.reaction.axial_force_n, hand.reaction.torque_nm]);
+            h.u64(hand.catalogue_id.len() as u64);
+        }
         if let Some(hemo) = &self.hemo {
             h.f64s(&[
                 hemo.linked_at_s.unwrap_or(-1.0),
@@ -1025,6 +1358,35 @@ impl World {
         h.u64(m.divergence_resets as u64 | (m.operator_resets as u64) << 32);
         h.finish()
     }
+}
+
+/// The tip the target and the path metrics follow: the scene's `target.instrument` of a stack
+/// (while it is beyond the entry), else the leading tip (anatomy frame, m).
+fn tracked_tip(assets: &SceneAssets, strand: &Strand) -> Vector3<f64> {
+    assets
+        .spec
+        .target
+        .instrument
+        .filter(|_| !assets.spec.stack.is_empty())
+        .and_then(|i| strand.tip_position(i))
+        .unwrap_or_else(|| strand.leading_tip())
+}
+
+/// Where contrast leaves the devices: the tip of the innermost instrument with a lumen that is
+/// beyond the entry (contrast goes in at its hub, around any wire inside), else the leading
+/// tip (anatomy frame, m).
+fn injection_tip(strand: &Strand) -> Vector3<f64> {
+    (0..strand.len())
+        .rev()
+        .filter(|&i| {
+            strand.device(i).is_some_and(|d| {
+                d.sections
+                    .last()
+                    .is_some_and(|s| s.cross_section.inner_radius_m > 0.0)
+            })
+        })
+        .find_map(|i| strand.tip_position(i))
+        .unwrap_or_else(|| strand.leading_tip())
 }
 
 /// A tip farther than this outside the lumen surface (m) counts as divergence: the device has

@@ -48,6 +48,19 @@ pub struct CatalogueEntry {
     pub source: String,
     /// The device, validated.
     pub device: Device,
+    /// Radiopaque marker bands and tip coils, as the X-ray shows them.
+    pub markers: Vec<Marker>,
+}
+
+/// A radiopaque marker band or tip coil (platinum–iridium), placed from the distal tip.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Marker {
+    /// Distance of its distal edge from the tip (m).
+    pub from_tip_m: f64,
+    /// Length (m).
+    pub length_m: f64,
+    /// Metal fill fraction of the cross-section (a band 1, a coil about 0.6).
+    pub fill: f64,
 }
 
 /// A set of devices read from TOML.
@@ -72,6 +85,21 @@ struct RawDevice {
     source: String,
     #[serde(default)]
     section: Vec<RawSection>,
+    #[serde(default)]
+    marker: Vec<RawMarker>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMarker {
+    from_tip_mm: f64,
+    length_mm: f64,
+    #[serde(default = "full")]
+    fill: f64,
+}
+
+fn full() -> f64 {
+    1.0
 }
 
 #[derive(Deserialize)]
@@ -279,10 +307,38 @@ fn convert(raw: RawDevice) -> Result<CatalogueEntry> {
         });
     }
     let device = Device::new(raw.name, sections)?;
+    let length_mm = device.length_m() * 1e3;
+    let mut markers = Vec::with_capacity(raw.marker.len());
+    for (k, m) in raw.marker.iter().enumerate() {
+        let owner = format!("marker {k}");
+        let check = |field: &str, value: f64, ok: bool, rule: &str| {
+            if !value.is_finite() {
+                Err(fault(&owner, field, format!("must be finite, got {value}")))
+            } else if !ok {
+                Err(fault(&owner, field, format!("must be {rule}, got {value}")))
+            } else {
+                Ok(value)
+            }
+        };
+        let from_tip = check("from_tip_mm", m.from_tip_mm, m.from_tip_mm >= 0.0, "≥ 0")?;
+        let length = check(
+            "length_mm",
+            m.length_mm,
+            m.length_mm > 0.0 && from_tip + m.length_mm <= length_mm,
+            "> 0 and end within the device",
+        )?;
+        let fill = check("fill", m.fill, m.fill > 0.0 && m.fill <= 1.0, "in (0, 1]")?;
+        markers.push(Marker {
+            from_tip_m: from_tip * 1e-3,
+            length_m: length * 1e-3,
+            fill,
+        });
+    }
     Ok(CatalogueEntry {
         id,
         kind: raw.kind,
         source: raw.source,
         device,
+        markers,
     })
 }

@@ -22,12 +22,13 @@ pub mod scenarios;
 pub mod section;
 pub mod stack;
 pub mod substructure;
+pub mod two_hands;
 pub mod wall;
 
 pub use beam::{
     BeamModel, ContactStep, ElementSpec, SolverSettings, StepMode, StepReport, ViscousDrag,
 };
-pub use catalogue::{Catalogue, CatalogueEntry, DeviceKind};
+pub use catalogue::{Catalogue, CatalogueEntry, DeviceKind, Marker};
 pub use contact::{Contact, ContactResponse, ContactSettings};
 pub use device::{Device, RestArc, RestShape, Section, presets};
 pub use error::{DivergenceCheck, PhysicsError, Result};

@@ -413,6 +413,25 @@ impl CoaxialPlan {
     }
 }
 
+impl CoaxialPlan {
+    /// The plan as the two-hand autopilot takes it.
+    pub fn two_hand_plan(&self) -> crate::two_hands::TwoHandPlan {
+        use crate::two_hands::Finish;
+        crate::two_hands::TwoHandPlan {
+            catheter_lag_m: self.catheter_lag_m,
+            catheter_track_m: self.catheter_track_m,
+            exchange: self.exchange.clone(),
+            autopilot: self.autopilot,
+            finish: match &self.micro {
+                Some((micro, wire, beyond)) => {
+                    Finish::Microcatheter(micro.clone(), wire.clone(), *beyond)
+                }
+                None => Finish::AtWire,
+            },
+        }
+    }
+}
+
 /// The outcome of [`run_coaxial_arch_to_cow`].
 #[derive(Debug, Clone, Default)]
 pub struct CoaxialRun {
@@ -456,16 +475,17 @@ pub fn coaxial_arch_to_cow_stack<'a>(
     anatomy: &'a cathlab_anatomy::real::Anatomy,
     plan: &CoaxialPlan,
 ) -> Result<(CoaxialRun, crate::stack::Stack<&'a cathlab_anatomy::Lumen>)> {
-    use crate::autopilot::{Autopilot, AutopilotPhase};
-    use crate::navigation::{Command, Insertion, NavigationSettings, Twist};
+    use crate::navigation::NavigationSettings;
     use crate::stack::{InstrumentSpec, Stack};
+    use crate::two_hands::{TwoHandAction, TwoHands};
     let access = nalgebra::Point3::from(cathlab_anatomy::real::ARCH_TO_COW_ACCESS_M);
     let path = anatomy
         .graph
         .path_to(&access, &plan.target)
         .map_err(|e| crate::error::PhysicsError::Anatomy(e.to_string()))?;
-    let mut pilot = Autopilot::new(&anatomy.graph, path.clone(), 0.0, plan.autopilot)?;
-    let (entry, direction) = pilot.entry();
+    let mut hands = TwoHands::new(&anatomy.graph, path.clone(), 0.0, plan.two_hand_plan())?;
+    let (entry, direction) =
+        crate::autopilot::Autopilot::new(&anatomy.graph, path, 0.0, plan.autopilot)?.entry();
     let settings = NavigationSettings::default();
     let mut stack = Stack::new(
         vec![
@@ -477,182 +497,41 @@ pub fn coaxial_arch_to_cow_stack<'a>(
         direction,
         settings,
     )?;
-    let route = anatomy.graph.sample_path(&path, 1e-3);
-    let along_route = |p: &Vector3<f64>| {
-        route
-            .iter()
-            .enumerate()
-            .min_by(|a, b| {
-                (a.1.0.coords - p)
-                    .norm()
-                    .total_cmp(&(b.1.0.coords - p).norm())
-            })
-            .map_or(0.0, |(i, _)| i as f64 * 1e-3)
-    };
-    #[derive(Clone, Copy, PartialEq)]
-    enum Phase {
-        Lead,
-        Track,
-        Withdraw,
-        Micro,
-    }
-    let mut phase = Phase::Lead;
-    let mut exchanged = plan.exchange.is_none();
     let mut run = CoaxialRun {
         step_times_s: Vec::with_capacity(plan.max_steps),
         ..Default::default()
     };
-    let hold = |twist| Command {
-        insertion: Insertion::Velocity(0.0),
-        twist: Twist::Target(twist),
-    };
-    let mut catheter_park = None;
-    // A new wire is being loaded up to the catheter's tip.
-    let mut loading = false;
     for step in 0..plan.max_steps {
-        let wire_l = stack.inserted_m(1).unwrap_or(0.0);
-        match phase {
-            Phase::Lead => {
-                let catheter_l = stack.inserted_m(0).unwrap_or(0.0);
-                // A new wire runs inside the catheter up to its tip at the hand's full speed.
-                if wire_l >= catheter_l {
-                    loading = false;
-                }
-                let command = if loading {
-                    Command {
-                        insertion: Insertion::Target(catheter_l),
-                        twist: Twist::Target(stack.twist_rad(1).unwrap_or(0.0)),
-                    }
-                } else {
-                    pilot.command(&stack.instrument(1).expect("a wire"))
-                };
-                if !exchanged
-                    && let Some((at, _, _)) = &plan.exchange
-                    && along_route(&stack.tip_position(1).unwrap_or(entry)) >= *at
-                {
-                    phase = Phase::Track;
-                    continue;
-                }
-                if pilot.phase() == AutopilotPhase::Reached {
+        match hands.next(&stack)? {
+            TwoHandAction::Done => {
+                if hands.wire_reached() {
                     run.reached_at_step.get_or_insert(step);
-                    match &plan.micro {
-                        Some(_) => {
-                            phase = Phase::Track;
-                            continue;
-                        }
-                        None => break,
-                    }
                 }
-                stack.set_command(1, command)?;
-                // The catheter follows the wire's tip; after an exchange it holds where it was
-                // parked while the new wire travels up to its tip and leads on.
-                let goal = match catheter_park {
-                    Some(park) => (wire_l - plan.catheter_lag_m).max(park),
-                    None => (wire_l - plan.catheter_lag_m).max(0.01),
-                };
-                let follow = Command {
-                    insertion: Insertion::Target(goal),
-                    twist: Twist::Target(stack.twist_rad(0).unwrap_or(0.0)),
-                };
-                stack.set_command(0, follow)?;
-            }
-            Phase::Track => {
-                // The wire holds; the catheter tracks over it to `catheter_track_m` behind
-                // its tip, into the target branch.
-                let goal = wire_l - plan.catheter_track_m;
-                let catheter_l = stack.inserted_m(0).unwrap_or(0.0);
-                if catheter_l >= goal - 1e-9 {
-                    phase = Phase::Withdraw;
-                    catheter_park = Some(catheter_l);
-                    continue;
-                }
-                let twists = [0, 1].map(|k| stack.twist_rad(k).unwrap_or(0.0));
-                stack.set_command(1, hold(twists[1]))?;
-                stack.set_command(
-                    0,
-                    Command {
-                        insertion: Insertion::Target(goal),
-                        twist: Twist::Target(twists[0]),
-                    },
-                )?;
-            }
-            Phase::Withdraw => {
-                let (hub, _) = stack.inserted_range_m(1).expect("a wire");
-                let twist0 = stack.twist_rad(0).unwrap_or(0.0);
-                stack.set_command(0, hold(twist0))?;
-                if let Some(park) = catheter_park {
-                    stack.set_command(
-                        0,
-                        Command {
-                            insertion: Insertion::Target(park),
-                            twist: Twist::Target(twist0),
-                        },
-                    )?;
-                }
-                if wire_l <= hub {
-                    if !exchanged {
-                        let (_, wire, settings) = plan.exchange.clone().expect("planned");
-                        stack.exchange(1, wire)?;
-                        let mut next = Autopilot::new(&anatomy.graph, path.clone(), 0.0, settings)?;
-                        std::mem::swap(&mut pilot, &mut next);
-                        run.retries += next.retries();
-                        exchanged = true;
-                        run.exchanged_at_step = Some(step);
-                        loading = true;
-                        phase = Phase::Lead;
-                    } else if let Some((microcatheter, microwire, _)) = &plan.micro {
-                        stack.pop_instrument()?;
-                        stack.push_instrument(microcatheter.clone())?;
-                        stack.push_instrument(microwire.clone())?;
-                        phase = Phase::Micro;
-                    }
-                    continue;
-                }
-                let twist1 = stack.twist_rad(1).unwrap_or(0.0);
-                stack.set_command(
-                    1,
-                    Command {
-                        insertion: Insertion::Target(hub),
-                        twist: Twist::Target(twist1),
-                    },
-                )?;
-            }
-            Phase::Micro => {
-                let (_, _, beyond) = plan.micro.as_ref().expect("planned");
-                let catheter_l = stack.inserted_m(0).unwrap_or(0.0);
-                let micro_l = stack.inserted_m(1).unwrap_or(0.0);
-                let goal = catheter_l + beyond;
-                if micro_l >= goal {
+                if plan.micro.is_some() {
                     run.micro_done_at_step = Some(step);
-                    break;
                 }
-                // The microwire leads the microcatheter by 10 mm outside the catheter.
-                let wire_goal = (micro_l + 0.01).min(goal + 0.01);
-                let twists: Vec<f64> = (0..3).map(|k| stack.twist_rad(k).unwrap_or(0.0)).collect();
-                let twist = |k: usize| twists[k];
-                stack.set_command(0, hold(twist(0)))?;
-                stack.set_command(
-                    2,
-                    Command {
-                        insertion: Insertion::Target(wire_goal.max(micro_l)),
-                        twist: Twist::Target(twist(2)),
-                    },
-                )?;
-                let micro_goal = if stack.inserted_m(2).unwrap_or(0.0) >= micro_l + 0.005
-                    || micro_l < catheter_l - 0.01
-                {
-                    goal
-                } else {
-                    micro_l
-                };
-                stack.set_command(
-                    1,
-                    Command {
-                        insertion: Insertion::Target(micro_goal),
-                        twist: Twist::Target(twist(1)),
-                    },
-                )?;
+                break;
             }
+            TwoHandAction::Exchange(index, device) => {
+                stack.exchange(index, device)?;
+                run.exchanged_at_step = Some(step);
+                continue;
+            }
+            TwoHandAction::Replace(devices) => {
+                stack.pop_instrument()?;
+                for device in devices {
+                    stack.push_instrument(device)?;
+                }
+                continue;
+            }
+            TwoHandAction::Drive(commands) => {
+                for (index, command) in commands {
+                    stack.set_command(index, command)?;
+                }
+            }
+        }
+        if hands.wire_reached() {
+            run.reached_at_step.get_or_insert(step);
         }
         let started = std::time::Instant::now();
         let report = stack.step()?;
@@ -665,7 +544,7 @@ pub fn coaxial_arch_to_cow_stack<'a>(
             run.max_hand_force_n = run.max_hand_force_n.max(reaction.axial_force_n.abs());
         }
     }
-    run.retries += pilot.retries();
+    run.retries = hands.retries();
     let lead = (0..stack.len())
         .max_by(|&a, &b| {
             stack
