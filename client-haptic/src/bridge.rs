@@ -490,11 +490,13 @@ fn control_loop(
             if d.pedal != buttons.0 {
                 let _ = commands.send(pb::Command {
                     kind: Some(pb::command::Kind::Fluoroscopy(d.pedal)),
+                    instrument: None,
                 });
             }
             if d.reset && !buttons.1 {
                 let _ = commands.send(pb::Command {
                     kind: Some(pb::command::Kind::Reset(true)),
+                    instrument: None,
                 });
             }
             buttons = (d.pedal, d.reset);

@@ -4,6 +4,7 @@
 //! messages, and the one place engine errors become gRPC status codes.
 
 use cathlab_engine::telemetry::TimingSummary;
+use cathlab_engine::world::Drive;
 use cathlab_engine::world::PushLimit;
 use cathlab_engine::{Command, EngineError, Event, Metrics, Snapshot};
 use tonic::Status;
@@ -73,10 +74,36 @@ pub fn checked(field: &str, value: f64, lo: f64, hi: f64) -> Result<f64, Status>
 
 /// A wire command as an engine command (SI units), every number checked.
 pub fn command_from_wire(command: Option<&pb::Command>) -> Result<Command, Status> {
-    use pb::command::Kind;
     let kind = command
         .and_then(|c| c.kind.as_ref())
         .ok_or_else(|| Status::invalid_argument("command: missing"))?;
+    let plain = plain_command(kind)?;
+    let Some(index) = command.and_then(|c| c.instrument) else {
+        return Ok(plain);
+    };
+    let drive = match plain {
+        Command::PushVelocity(v) => Drive::PushVelocity(v),
+        Command::PushTarget(x) => Drive::PushTarget(x),
+        Command::TwistRate(w) => Drive::TwistRate(w),
+        Command::TwistTarget(a) => Drive::TwistTarget(a),
+        _ => {
+            return Err(Status::invalid_argument(
+                "command.instrument: only an insertion or a twist names an instrument",
+            ));
+        }
+    };
+    if index as usize >= cathlab_engine::scene::MAX_STACK {
+        return Err(Status::invalid_argument(format!(
+            "command.instrument: {index} is not an instrument (a stack has at most {})",
+            cathlab_engine::scene::MAX_STACK
+        )));
+    }
+    Ok(Command::Instrument { index, drive })
+}
+
+/// A command without its instrument.
+fn plain_command(kind: &pb::command::Kind) -> Result<Command, Status> {
+    use pb::command::Kind;
     Ok(match kind {
         Kind::Insertion(i) => match i.mode {
             Some(pb::insertion::Mode::VelocityMmS(v)) => Command::PushVelocity(
@@ -144,6 +171,33 @@ pub fn command_from_wire(command: Option<&pb::Command>) -> Result<Command, Statu
             }
         }
         Kind::Reset(_) => Command::Reset,
+        Kind::Exchange(x) => {
+            let index = x.instrument;
+            match &x.device {
+                Some(pb::exchange::Device::CatalogueId(id)) => {
+                    let entries = cathlab_engine::scene::catalogue().entries();
+                    let catalogue = entries.iter().position(|e| e.id == *id).ok_or_else(|| {
+                        Status::invalid_argument(format!(
+                            "command.exchange.catalogue_id: '{}' is not in the device catalogue",
+                            id.chars().take(64).collect::<String>()
+                        ))
+                    })?;
+                    Command::Exchange {
+                        index,
+                        catalogue: catalogue as u32,
+                    }
+                }
+                Some(pb::exchange::Device::Spare(spare)) => Command::ExchangeSpare {
+                    index,
+                    spare: *spare,
+                },
+                None => {
+                    return Err(Status::invalid_argument(
+                        "command.exchange.device: missing (a catalogue_id or a spare)",
+                    ));
+                }
+            }
+        }
     })
 }
 
@@ -212,13 +266,44 @@ pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::D
         server_unix_us,
         axial_force_n,
         axial_torque_nmm: axial_torque_nm * 1e3,
-        push_limit: match s.push_limit {
-            PushLimit::None => pb::PushLimit::None,
-            PushLimit::Force => pb::PushLimit::Force,
-            PushLimit::Length => pb::PushLimit::Length,
-        } as i32,
+        push_limit: push_limit_to_wire(s.push_limit) as i32,
         push_force_limit_n: s.push_force_limit_n,
         fidelity_level: u32::from(s.fidelity_level),
+        instruments: s
+            .instruments
+            .iter()
+            .enumerate()
+            .map(|(k, i)| pb::InstrumentState {
+                name: i.name.clone(),
+                catalogue_id: i.catalogue_id.clone(),
+                nodes_mm: if tip_only {
+                    Vec::new()
+                } else {
+                    i.nodes
+                        .iter()
+                        .flat_map(|n| [n.x as f32 * 1e3, n.y as f32 * 1e3, n.z as f32 * 1e3])
+                        .collect()
+                },
+                inserted_mm: i.inserted_m * 1e3,
+                twist_deg: i.twist_rad.to_degrees(),
+                tip_position_mm: i.tip.as_ref().map(vec3_mm),
+                beyond_outer_mm: k
+                    .checked_sub(1)
+                    .map_or(0.0, |o| (i.inserted_m - s.instruments[o].inserted_m) * 1e3),
+                axial_force_n: i.axial_force_n,
+                axial_torque_nmm: i.torque_nm * 1e3,
+                push_limit: push_limit_to_wire(i.push_limit) as i32,
+                push_force_limit_n: i.push_force_limit_n,
+            })
+            .collect(),
+    }
+}
+
+fn push_limit_to_wire(limit: PushLimit) -> pb::PushLimit {
+    match limit {
+        PushLimit::None => pb::PushLimit::None,
+        PushLimit::Force => pb::PushLimit::Force,
+        PushLimit::Length => pb::PushLimit::Length,
     }
 }
 
@@ -287,6 +372,7 @@ mod tests {
                 mode: Some(pb::insertion::Mode::VelocityMmS(v)),
                 hold: false,
             })),
+            instrument: None,
         }
     }
 
@@ -317,6 +403,65 @@ mod tests {
     }
 
     #[test]
+    fn an_instrument_and_an_exchange_are_checked_and_named() {
+        let mut on_wire = push(10.0);
+        on_wire.instrument = Some(1);
+        assert_eq!(
+            command_from_wire(Some(&on_wire)).unwrap(),
+            Command::Instrument {
+                index: 1,
+                drive: Drive::PushVelocity(0.01)
+            }
+        );
+        on_wire.instrument = Some(9);
+        let err = command_from_wire(Some(&on_wire)).unwrap_err();
+        assert_eq!(err.code(), tonic::Code::InvalidArgument);
+        assert!(
+            err.message().starts_with("command.instrument"),
+            "{}",
+            err.message()
+        );
+        let reset = pb::Command {
+            kind: Some(pb::command::Kind::Reset(true)),
+            instrument: Some(0),
+        };
+        let err = command_from_wire(Some(&reset)).unwrap_err();
+        assert!(
+            err.message().starts_with("command.instrument"),
+            "{}",
+            err.message()
+        );
+        let exchange = |device| pb::Command {
+            kind: Some(pb::command::Kind::Exchange(pb::Exchange {
+                instrument: 1,
+                device,
+            })),
+            instrument: None,
+        };
+        let unknown = exchange(Some(pb::exchange::Device::CatalogueId("wire-099".into())));
+        let err = command_from_wire(Some(&unknown)).unwrap_err();
+        assert!(
+            err.message()
+                .starts_with("command.exchange.catalogue_id: 'wire-099'"),
+            "{}",
+            err.message()
+        );
+        let err = command_from_wire(Some(&exchange(None))).unwrap_err();
+        assert!(err.message().starts_with("command.exchange.device"));
+        let known = exchange(Some(pb::exchange::Device::CatalogueId(
+            "microwire-014-j".into(),
+        )));
+        match command_from_wire(Some(&known)).unwrap() {
+            Command::Exchange { index, catalogue } => {
+                assert_eq!(index, 1);
+                let entry = &cathlab_engine::scene::catalogue().entries()[catalogue as usize];
+                assert_eq!(entry.id, "microwire-014-j");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
     fn non_finite_and_out_of_range_values_name_their_field() {
         for bad in [f64::NAN, f64::INFINITY, -f64::INFINITY, 1e4] {
             let err = command_from_wire(Some(&push(bad))).unwrap_err();
@@ -338,6 +483,7 @@ mod tests {
                 primary_deg: 0.0,
                 secondary_deg: f64::NAN,
             })),
+            instrument: None,
         };
         assert!(
             command_from_wire(Some(&carm))
@@ -347,6 +493,7 @@ mod tests {
         );
         let rate = pb::Command {
             kind: Some(pb::command::Kind::PulseRate(0)),
+            instrument: None,
         };
         assert!(
             command_from_wire(Some(&rate))

@@ -62,11 +62,14 @@ pub struct SimulatorService {
     inline_scenes: InlineScenes,
     throttle: Throttle,
     control_timeout: Duration,
-    holds: Arc<Mutex<HashMap<(String, Axis), u64>>>,
+    holds: Arc<Mutex<HashMap<(String, HeldAxis), u64>>>,
     stream_budget: Arc<StreamBudget>,
     stream_stall: Duration,
     control_inputs_per_second: u32,
 }
+
+/// A held speed: the instrument it drives (`None`: the innermost) and its axis.
+type HeldAxis = (Option<u32>, Axis);
 
 /// A speed a unary command sets (and a held one lapses).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -349,8 +352,14 @@ impl SimulatorService {
     /// Hold mode for unary speed commands: a held speed lapses to zero unless a newer
     /// command on its axis comes within the control timeout (any newer command on the axis
     /// cancels the lapse).
-    fn hold(&self, session: &Arc<Session>, axis: Axis, hold: bool, seq: u64) {
-        let key = (session.id().to_owned(), axis);
+    fn hold(
+        &self,
+        session: &Arc<Session>,
+        (instrument, axis): (Option<u32>, Axis),
+        hold: bool,
+        seq: u64,
+    ) {
+        let key = (session.id().to_owned(), (instrument, axis));
         let generation = {
             let mut holds = self.holds.lock();
             let g = holds.entry(key.clone()).or_insert(0);
@@ -367,9 +376,17 @@ impl SimulatorService {
                 return;
             }
             tracing::info!(session = %session.id(), ?axis, "held speed not renewed: zeroed");
-            let zero = match axis {
-                Axis::Push => Command::PushVelocity(0.0),
-                Axis::Twist => Command::TwistRate(0.0),
+            let zero = match (instrument, axis) {
+                (None, Axis::Push) => Command::PushVelocity(0.0),
+                (None, Axis::Twist) => Command::TwistRate(0.0),
+                (Some(index), Axis::Push) => Command::Instrument {
+                    index,
+                    drive: cathlab_engine::Drive::PushVelocity(0.0),
+                },
+                (Some(index), Axis::Twist) => Command::Instrument {
+                    index,
+                    drive: cathlab_engine::Drive::TwistRate(0.0),
+                },
             };
             let _ = session.send(seq, zero, None);
         });
@@ -429,9 +446,33 @@ impl Simulator for SimulatorService {
                 devices: s.devices.iter().map(|d| d.label()).collect(),
                 has_flow: s.flow.is_some(),
                 target: s.target.branch.clone(),
+                stack: s
+                    .stack
+                    .iter()
+                    .map(|e| pb::StackInstrument {
+                        device: e.label(),
+                        inserted_mm: e.inserted_mm,
+                    })
+                    .collect(),
+                spares: s.spares.iter().map(|e| e.label()).collect(),
             })
             .collect();
-        Ok(Response::new(pb::ListScenesResponse { scenes }))
+        let catalogue = cathlab_engine::scene::catalogue()
+            .entries()
+            .iter()
+            .map(|e| {
+                let tip = e.device.sections.last().map(|s| s.cross_section);
+                pb::CatalogueDevice {
+                    id: e.id.clone(),
+                    name: e.device.name.clone(),
+                    kind: format!("{:?}", e.kind),
+                    length_mm: e.device.length_m() * 1e3,
+                    outer_diameter_mm: tip.map_or(0.0, |c| 2e3 * c.outer_radius_m),
+                    inner_diameter_mm: tip.map_or(0.0, |c| 2e3 * c.inner_radius_m),
+                }
+            })
+            .collect();
+        Ok(Response::new(pb::ListScenesResponse { scenes, catalogue }))
     }
 
     async fn create_session(
@@ -605,12 +646,22 @@ impl Simulator for SimulatorService {
         let r = request.into_inner();
         let command = command_from_wire(r.command.as_ref())?;
         let session = self.session(&id)?;
+        let instruments = session.assets().spec.stack.len().max(1) as u32;
+        let instrument = r.command.as_ref().and_then(|c| c.instrument);
+        if let Some(index) = instrument
+            && index >= instruments
+        {
+            return Err(Status::invalid_argument(format!(
+                "command.instrument: {index} is not an instrument of this scene, which has \
+                 {instruments} (0 is the outermost)"
+            )));
+        }
         let record = session
             .command(r.seq, command)
             .await
             .map_err(engine_status)?;
         if let Some((axis, hold)) = speed_axis(r.command.as_ref()) {
-            self.hold(&session, axis, hold, r.seq);
+            self.hold(&session, (instrument, axis), hold, r.seq);
         }
         Ok(Response::new(pb::CommandAck {
             seq: record.seq,

@@ -882,3 +882,120 @@ async fn a_diverging_session_is_reset_and_reported_while_others_go_on() {
         .into_inner();
     assert!(info.metrics.unwrap().divergence_resets >= 1);
 }
+
+/// Waits until the session's state is past `step` and returns it.
+async fn state_after(
+    client: &mut cathlab_api::pb::simulator_client::SimulatorClient<tonic::transport::Channel>,
+    session: &pb::CreateSessionResponse,
+    step: u64,
+) -> pb::DeviceState {
+    let mut stream = client
+        .stream_state(authed(
+            pb::StreamStateRequest {
+                session_id: session.session_id.clone(),
+                tip_only: false,
+            },
+            &session.observer_token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let s = stream.message().await.unwrap().unwrap();
+        if s.step >= step {
+            return s;
+        }
+        assert!(Instant::now() < deadline, "the session does not step");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_hands_drive_their_own_instruments_of_a_coaxial_scene() {
+    let server = shared();
+    let mut client = server.client().await;
+    let scenes = client
+        .list_scenes(pb::ListScenesRequest {})
+        .await
+        .unwrap()
+        .into_inner();
+    let coaxial = scenes
+        .scenes
+        .iter()
+        .find(|s| s.name == "arch_to_cow_lcca_coaxial")
+        .expect("the coaxial scene is listed");
+    let stack: Vec<&str> = coaxial.stack.iter().map(|i| i.device.as_str()).collect();
+    assert_eq!(stack[0], "catheter-5f-vertebral");
+    assert!(stack[1].starts_with("guidewire_035_shaped"), "{stack:?}");
+    assert!(
+        scenes
+            .catalogue
+            .iter()
+            .any(|d| d.id == "microwire-014-angled")
+    );
+    let session = client
+        .create_session(pb::CreateSessionRequest {
+            scene: Some(pb::create_session_request::Scene::SceneName(
+                "arch_to_cow_lcca_coaxial".into(),
+            )),
+            label: "two hands".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let on = |instrument: u32, mm_s: f64| {
+        let mut c = push(mm_s).unwrap();
+        c.instrument = Some(instrument);
+        Some(c)
+    };
+    // The right hand pushes the wire 20 mm/s; the catheter stays.
+    let ack = send(&mut client, &session, 1, on(1, 20.0)).await.unwrap();
+    let after = state_after(&mut client, &session, ack.step + 250).await;
+    assert_eq!(after.instruments.len(), 2);
+    let (catheter, wire) = (&after.instruments[0], &after.instruments[1]);
+    assert!(
+        (catheter.inserted_mm - 10.0).abs() < 1e-6,
+        "{}",
+        catheter.inserted_mm
+    );
+    let expected = 30.0 + (after.step - ack.step) as f64 / 500.0 * 20.0;
+    assert!(
+        (wire.inserted_mm - expected).abs() < 0.1,
+        "{} {expected}",
+        wire.inserted_mm
+    );
+    assert!((wire.beyond_outer_mm - (wire.inserted_mm - 10.0)).abs() < 1e-9);
+    assert!(!wire.nodes_mm.is_empty() && wire.nodes_mm.len() > catheter.nodes_mm.len());
+    // The left hand pushes the catheter; the wire stays.
+    let ack = send(&mut client, &session, 2, on(1, 0.0)).await.unwrap();
+    send(&mut client, &session, 3, on(0, 20.0)).await.unwrap();
+    let later = state_after(&mut client, &session, ack.step + 250).await;
+    let moved = later.instruments[0].inserted_mm - catheter.inserted_mm;
+    assert!(moved > 4.0, "the catheter moved {moved} mm");
+    assert!(
+        (later.instruments[1].inserted_mm - after.instruments[1].inserted_mm).abs() < 1.0,
+        "the wire held"
+    );
+    // An instrument the scene does not have is refused, naming it.
+    let err = send(&mut client, &session, 4, on(2, 5.0))
+        .await
+        .unwrap_err();
+    assert_eq!(err.code(), tonic::Code::InvalidArgument);
+    assert!(
+        err.message().starts_with("command.instrument: 2"),
+        "{}",
+        err.message()
+    );
+    // An exchange of a wire still in the vessels is refused until it is withdrawn.
+    let exchange = command(pb::command::Kind::Exchange(pb::Exchange {
+        instrument: 1,
+        device: Some(pb::exchange::Device::CatalogueId(
+            "guidewire-035-angled-hydrophilic".into(),
+        )),
+    }));
+    let err = send(&mut client, &session, 5, exchange).await.unwrap_err();
+    assert_eq!(err.code(), tonic::Code::FailedPrecondition, "{err:?}");
+    assert!(err.message().contains("withdraw"), "{}", err.message());
+    close(&mut client, &session).await;
+}

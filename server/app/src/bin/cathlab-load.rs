@@ -53,7 +53,10 @@ fn start_server(cli: &Cli, database: &std::path::Path) -> Result<Server> {
 }
 
 fn command(kind: pb::command::Kind) -> Option<pb::Command> {
-    Some(pb::Command { kind: Some(kind) })
+    Some(pb::Command {
+        kind: Some(kind),
+        instrument: None,
+    })
 }
 
 fn push(mm_s: f64) -> Option<pb::Command> {

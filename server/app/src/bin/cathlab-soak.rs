@@ -167,7 +167,10 @@ struct Chaos {
 }
 
 fn command(kind: pb::command::Kind) -> Option<pb::Command> {
-    Some(pb::Command { kind: Some(kind) })
+    Some(pb::Command {
+        kind: Some(kind),
+        instrument: None,
+    })
 }
 
 fn speed(mm_s: f64, hold: bool) -> pb::command::Kind {
@@ -378,7 +381,10 @@ impl Chaos {
         self.seq = self.seq.max(seq);
         self.send(
             "invalid command",
-            kind.map(|k| pb::Command { kind: Some(k) }),
+            kind.map(|k| pb::Command {
+                kind: Some(k),
+                instrument: None,
+            }),
             seq,
         )
         .await;

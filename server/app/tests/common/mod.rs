@@ -123,7 +123,10 @@ pub async fn create(client: &mut SimulatorClient<Channel>) -> pb::CreateSessionR
 }
 
 pub fn command(kind: pb::command::Kind) -> Option<pb::Command> {
-    Some(pb::Command { kind: Some(kind) })
+    Some(pb::Command {
+        kind: Some(kind),
+        instrument: None,
+    })
 }
 
 pub fn push(mm_s: f64) -> Option<pb::Command> {

@@ -20,7 +20,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cathlab/v1/simulator.proto.
  */
 export const file_cathlab_v1_simulator: GenFile = /*@__PURE__*/
-  fileDesc("ChpjYXRobGFiL3YxL3NpbXVsYXRvci5wcm90bxIKY2F0aGxhYi52MSITChFMaXN0U2NlbmVzUmVxdWVzdCJkCgxTY2VuZVN1bW1hcnkSDAoEbmFtZRgBIAEoCRITCgtkZXNjcmlwdGlvbhgCIAEoCRIPCgdkZXZpY2VzGAMgAygJEhAKCGhhc19mbG93GAQgASgIEg4KBnRhcmdldBgFIAEoCSI+ChJMaXN0U2NlbmVzUmVzcG9uc2USKAoGc2NlbmVzGAEgAygLMhguY2F0aGxhYi52MS5TY2VuZVN1bW1hcnkihAEKFENyZWF0ZVNlc3Npb25SZXF1ZXN0EhQKCnNjZW5lX25hbWUYASABKAlIABIUCgpzY2VuZV90b21sGAIgASgJSAASFAoKc2NlbmVfanNvbhgDIAEoCUgAEg0KBWxhYmVsGAQgASgJEhIKCmFzc2Vzc21lbnQYBSABKAhCBwoFc2NlbmUiSwoIR3VpZGFuY2USFQoNdGFyZ2V0X21hcmtlchgBIAEoCBIXCg90YXJnZXRfZGlzdGFuY2UYAiABKAgSDwoHcHJvbXB0cxgDIAEoCCKEAQoVQ3JlYXRlU2Vzc2lvblJlc3BvbnNlEhIKCnNlc3Npb25faWQYASABKAkSGAoQY29udHJvbGxlcl90b2tlbhgCIAEoCRIWCg5vYnNlcnZlcl90b2tlbhgDIAEoCRIlCgRpbmZvGAQgASgLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyIvChNMaXN0U2Vzc2lvbnNSZXF1ZXN0EhgKEGluY2x1ZGVfcmVjb3JkZWQYASABKAgiQQoUTGlzdFNlc3Npb25zUmVzcG9uc2USKQoIc2Vzc2lvbnMYASADKAsyFy5jYXRobGFiLnYxLlNlc3Npb25JbmZvIicKEUdldFNlc3Npb25SZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkiKQoTQ2xvc2VTZXNzaW9uUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIj0KFENsb3NlU2Vzc2lvblJlc3BvbnNlEiUKBGluZm8YASABKAsyFy5jYXRobGFiLnYxLlNlc3Npb25JbmZvItACCgtTZXNzaW9uSW5mbxISCgpzZXNzaW9uX2lkGAEgASgJEhIKCnNjZW5lX25hbWUYAiABKAkSDQoFbGFiZWwYAyABKAkSKQoGc3RhdHVzGAQgASgOMhkuY2F0aGxhYi52MS5TZXNzaW9uU3RhdHVzEhYKDmNyZWF0ZWRfdW5peF9zGAUgASgBEhQKDHN0ZXBfcmF0ZV9oehgGIAEoARIkCgdtZXRyaWNzGAcgASgLMhMuY2F0aGxhYi52MS5NZXRyaWNzEiIKBnRpbWluZxgIIAEoCzISLmNhdGhsYWIudjEuVGltaW5nEhAKCGNvbW1hbmRzGAkgASgEEhUKDWFjdGl2ZV9kZXZpY2UYCiABKA0SFgoOb2JzZXJ2ZXJfdG9rZW4YCyABKAkSJgoIZ3VpZGFuY2UYDCABKAsyFC5jYXRobGFiLnYxLkd1aWRhbmNlIvECCgdNZXRyaWNzEhgKEHByb2NlZHVyZV90aW1lX3MYASABKAESGgoSZmx1b3Jvc2NvcHlfdGltZV9zGAIgASgBEhAKCGRzYV9ydW5zGAMgASgNEhoKEmNvbnRyYXN0X3ZvbHVtZV9tbBgEIAEoARIYChBtYXhfd2FsbF9mb3JjZV9uGAUgASgBEhkKEW1lYW5fd2FsbF9mb3JjZV9uGAYgASgBEhoKEnRpcF9wYXRoX2xlbmd0aF9tbRgHIAEoARIWCg50YXJnZXRfcmVhY2hlZBgIIAEoCBIbChN0YXJnZXRfcmVhY2hlZF9hdF9zGAkgASgBEg0KBXN0ZXBzGAogASgEEhkKEWRpdmVyZ2VuY2VfcmVzZXRzGAsgASgNEhcKD29wZXJhdG9yX3Jlc2V0cxgMIAEoDRIcChRhdHRlbXB0X3N0YXJ0ZWRfYXRfcxgNIAEoARIbChN0YXJnZXRfcmVtYWluaW5nX21tGA4gASgBIvABCgZUaW1pbmcSDQoFc3RlcHMYASABKAQSEgoKbGF0ZV9zdGVwcxgCIAEoBBIUCgxtaXNzZWRfc3RlcHMYAyABKAQSGAoQc3RlcF90aW1lX3A1MF9tcxgEIAEoARIYChBzdGVwX3RpbWVfcDk5X21zGAUgASgBEhgKEHN0ZXBfdGltZV9tYXhfbXMYBiABKAESDgoGZnJhbWVzGAcgASgEEhkKEWZyYW1lX3RpbWVfcDUwX21zGAggASgBEhkKEWZyYW1lX3RpbWVfcDk5X21zGAkgASgBEhkKEWZyYW1lX3RpbWVfbWF4X21zGAogASgBIk8KCUluc2VydGlvbhIXCg12ZWxvY2l0eV9tbV9zGAEgASgBSAASEwoJdGFyZ2V0X21tGAIgASgBSAASDAoEaG9sZBgDIAEoCEIGCgRtb2RlIkkKBVR3aXN0EhQKCnJhdGVfZGVnX3MYASABKAFIABIUCgp0YXJnZXRfZGVnGAIgASgBSAASDAoEaG9sZBgDIAEoCEIGCgRtb2RlIjYKCENBcm1Qb3NlEhMKC3ByaW1hcnlfZGVnGAEgASgBEhUKDXNlY29uZGFyeV9kZWcYAiABKAEiMQoJSW5qZWN0aW9uEhEKCXZvbHVtZV9tbBgBIAEoARIRCglyYXRlX21sX3MYAiABKAEiwAIKB0NvbW1hbmQSKgoJaW5zZXJ0aW9uGAEgASgLMhUuY2F0aGxhYi52MS5JbnNlcnRpb25IABIiCgV0d2lzdBgCIAEoCzIRLmNhdGhsYWIudjEuVHdpc3RIABIXCg1zZWxlY3RfZGV2aWNlGAMgASgNSAASFQoLZmx1b3Jvc2NvcHkYBCABKAhIABIrCgpwdWxzZV9yYXRlGAUgASgOMhUuY2F0aGxhYi52MS5QdWxzZVJhdGVIABINCgNkc2EYBiABKAhIABIRCgdyb2FkbWFwGAcgASgISAASJAoEY2FybRgIIAEoCzIULmNhdGhsYWIudjEuQ0FybVBvc2VIABInCgZpbmplY3QYCSABKAsyFS5jYXRobGFiLnYxLkluamVjdGlvbkgAEg8KBXJlc2V0GAogASgISABCBgoEa2luZCJbChJTZW5kQ29tbWFuZFJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCRILCgNzZXEYAiABKAQSJAoHY29tbWFuZBgDIAEoCzITLmNhdGhsYWIudjEuQ29tbWFuZCInCgpDb21tYW5kQWNrEgsKA3NlcRgBIAEoBBIMCgRzdGVwGAIgASgEIlcKDENvbnRyb2xJbnB1dBISCgpzZXNzaW9uX2lkGAEgASgJEgsKA3NlcRgCIAEoBBIRCglwdXNoX21tX3MYAyABKAESEwoLdHdpc3RfZGVnX3MYBCABKAEiNwoNQ29udHJvbE91dHB1dBImCgVzdGF0ZRgBIAEoCzIXLmNhdGhsYWIudjEuRGV2aWNlU3RhdGUiOgoSU3RyZWFtU3RhdGVSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSEAoIdGlwX29ubHkYAiABKAgiJwoEVmVjMxIJCgF4GAEgASgBEgkKAXkYAiABKAESCQoBehgDIAEoASJSCgtXYWxsQ29udGFjdBIiCghwb3NpdGlvbhgBIAEoCzIQLmNhdGhsYWIudjEuVmVjMxIfCgVmb3JjZRgCIAEoCzIQLmNhdGhsYWIudjEuVmVjMyKQBAoLRGV2aWNlU3RhdGUSDAoEc3RlcBgBIAEoBBIOCgZ0aW1lX3MYAiABKAESEAoIbGFzdF9zZXEYAyABKAQSEAoIbm9kZXNfbW0YBCADKAISKQoPdGlwX3Bvc2l0aW9uX21tGAUgASgLMhAuY2F0aGxhYi52MS5WZWMzEicKDXRpcF9kaXJlY3Rpb24YBiABKAsyEC5jYXRobGFiLnYxLlZlYzMSEwoLaW5zZXJ0ZWRfbW0YByABKAESEQoJdHdpc3RfZGVnGAggASgBEikKCGNvbnRhY3RzGAkgAygLMhcuY2F0aGxhYi52MS5XYWxsQ29udGFjdBIqChBwcm94aW1hbF9mb3JjZV9uGAogASgLMhAuY2F0aGxhYi52MS5WZWMzEi0KE3Byb3hpbWFsX3RvcnF1ZV9ubW0YCyABKAsyEC5jYXRobGFiLnYxLlZlYzMSFQoNYWN0aXZlX2RldmljZRgMIAEoDRIWCg5zZXJ2ZXJfdW5peF91cxgNIAEoBBIVCg1heGlhbF9mb3JjZV9uGA4gASgBEhgKEGF4aWFsX3RvcnF1ZV9ubW0YDyABKAESKQoKcHVzaF9saW1pdBgQIAEoDjIVLmNhdGhsYWIudjEuUHVzaExpbWl0EhoKEnB1c2hfZm9yY2VfbGltaXRfbhgRIAEoARIWCg5maWRlbGl0eV9sZXZlbBgSIAEoDSKLAQoTU3RyZWFtRnJhbWVzUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEisKCGVuY29kaW5nGAIgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEg0KBXdpZHRoGAMgASgNEg4KBmhlaWdodBgEIAEoDRIUCgxqcGVnX3F1YWxpdHkYBSABKA0iuAIKCVhyYXlGcmFtZRINCgVpbmRleBgBIAEoBBIOCgZ0aW1lX3MYAiABKAESDQoFd2lkdGgYAyABKA0SDgoGaGVpZ2h0GAQgASgNEisKCGVuY29kaW5nGAUgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEgwKBGRhdGEYBiABKAwSJQoEbW9kZRgHIAEoDjIXLmNhdGhsYWIudjEuSW1hZ2luZ01vZGUSDAoEaGVsZBgIIAEoCBIQCghsYXN0X3NlcRgJIAEoBBIPCgdza2lwcGVkGAogASgEEh8KF3JlZmVyZW5jZV9haXJfa2VybWFfbWd5GAsgASgBEiEKGWtlcm1hX2FyZWFfcHJvZHVjdF9neV9jbTIYDCABKAESFgoOdGFyZ2V0X291dGxpbmUYDSADKAIiKgoUU3RyZWFtTWV0cmljc1JlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSJECgVFdmVudBIMCgRzdGVwGAEgASgEEg4KBnRpbWVfcxgCIAEoARIMCgRraW5kGAMgASgJEg8KB21lc3NhZ2UYBCABKAkiYwoNU2Vzc2lvblVwZGF0ZRImCgdtZXRyaWNzGAEgASgLMhMuY2F0aGxhYi52MS5NZXRyaWNzSAASIgoFZXZlbnQYAiABKAsyES5jYXRobGFiLnYxLkV2ZW50SABCBgoEa2luZCInChFHZXRBbmF0b215UmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIjsKBkJyYW5jaBIMCgRuYW1lGAEgASgJEhEKCXBvaW50c19tbRgCIAMoAhIQCghyYWRpaV9tbRgDIAMoAiKMAQoHQW5hdG9teRIkCghicmFuY2hlcxgBIAMoCzISLmNhdGhsYWIudjEuQnJhbmNoEhMKC3ZlcnRpY2VzX21tGAIgAygCEhEKCXRyaWFuZ2xlcxgDIAMoDRIjCglhY2Nlc3NfbW0YBCABKAsyEC5jYXRobGFiLnYxLlZlYzMSDgoGdGFyZ2V0GAUgASgJIioKFFJlcGxheVNlc3Npb25SZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkirQEKDFJlcGxheVJlc3VsdBINCgVzdGVwcxgBIAEoBBIQCghjb21tYW5kcxgCIAEoDRITCgtjaGVja3BvaW50cxgDIAEoDRIPCgdtYXRjaGVkGAQgASgNEhcKD3JlY29yZGVkX2RpZ2VzdBgFIAEoCRIXCg9yZXBsYXllZF9kaWdlc3QYBiABKAkSJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcyqGAQoNU2Vzc2lvblN0YXR1cxIeChpTRVNTSU9OX1NUQVRVU19VTlNQRUNJRklFRBAAEhoKFlNFU1NJT05fU1RBVFVTX1JVTk5JTkcQARIZChVTRVNTSU9OX1NUQVRVU19DTE9TRUQQAhIeChpTRVNTSU9OX1NUQVRVU19JTlRFUlJVUFRFRBADKmEKCVB1bHNlUmF0ZRIaChZQVUxTRV9SQVRFX1VOU1BFQ0lGSUVEEAASEgoOUFVMU0VfUkFURV83XzUQARIRCg1QVUxTRV9SQVRFXzE1EAISEQoNUFVMU0VfUkFURV8zMBADKk0KCVB1c2hMaW1pdBITCg9QVVNIX0xJTUlUX05PTkUQABIUChBQVVNIX0xJTUlUX0ZPUkNFEAESFQoRUFVTSF9MSU1JVF9MRU5HVEgQAiqTAQoNRnJhbWVFbmNvZGluZxIeChpGUkFNRV9FTkNPRElOR19VTlNQRUNJRklFRBAAEhcKE0ZSQU1FX0VOQ09ESU5HX1JBVzgQARIYChRGUkFNRV9FTkNPRElOR19SQVcxNhACEhYKEkZSQU1FX0VOQ09ESU5HX1BORxADEhcKE0ZSQU1FX0VOQ09ESU5HX0pQRUcQBCqBAQoLSW1hZ2luZ01vZGUSHAoYSU1BR0lOR19NT0RFX1VOU1BFQ0lGSUVEEAASHAoYSU1BR0lOR19NT0RFX0ZMVU9ST1NDT1BZEAESHAoYSU1BR0lOR19NT0RFX1NVQlRSQUNUSU9OEAISGAoUSU1BR0lOR19NT0RFX1JPQURNQVAQAzKYBwoJU2ltdWxhdG9yEksKCkxpc3RTY2VuZXMSHS5jYXRobGFiLnYxLkxpc3RTY2VuZXNSZXF1ZXN0Gh4uY2F0aGxhYi52MS5MaXN0U2NlbmVzUmVzcG9uc2USVAoNQ3JlYXRlU2Vzc2lvbhIgLmNhdGhsYWIudjEuQ3JlYXRlU2Vzc2lvblJlcXVlc3QaIS5jYXRobGFiLnYxLkNyZWF0ZVNlc3Npb25SZXNwb25zZRJRCgxMaXN0U2Vzc2lvbnMSHy5jYXRobGFiLnYxLkxpc3RTZXNzaW9uc1JlcXVlc3QaIC5jYXRobGFiLnYxLkxpc3RTZXNzaW9uc1Jlc3BvbnNlEkQKCkdldFNlc3Npb24SHS5jYXRobGFiLnYxLkdldFNlc3Npb25SZXF1ZXN0GhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbxJRCgxDbG9zZVNlc3Npb24SHy5jYXRobGFiLnYxLkNsb3NlU2Vzc2lvblJlcXVlc3QaIC5jYXRobGFiLnYxLkNsb3NlU2Vzc2lvblJlc3BvbnNlEkUKC1NlbmRDb21tYW5kEh4uY2F0aGxhYi52MS5TZW5kQ29tbWFuZFJlcXVlc3QaFi5jYXRobGFiLnYxLkNvbW1hbmRBY2sSQgoHQ29udHJvbBIYLmNhdGhsYWIudjEuQ29udHJvbElucHV0GhkuY2F0aGxhYi52MS5Db250cm9sT3V0cHV0KAEwARJICgtTdHJlYW1TdGF0ZRIeLmNhdGhsYWIudjEuU3RyZWFtU3RhdGVSZXF1ZXN0GhcuY2F0aGxhYi52MS5EZXZpY2VTdGF0ZTABEkgKDFN0cmVhbUZyYW1lcxIfLmNhdGhsYWIudjEuU3RyZWFtRnJhbWVzUmVxdWVzdBoVLmNhdGhsYWIudjEuWHJheUZyYW1lMAESTgoNU3RyZWFtTWV0cmljcxIgLmNhdGhsYWIudjEuU3RyZWFtTWV0cmljc1JlcXVlc3QaGS5jYXRobGFiLnYxLlNlc3Npb25VcGRhdGUwARJACgpHZXRBbmF0b215Eh0uY2F0aGxhYi52MS5HZXRBbmF0b215UmVxdWVzdBoTLmNhdGhsYWIudjEuQW5hdG9teRJLCg1SZXBsYXlTZXNzaW9uEiAuY2F0aGxhYi52MS5SZXBsYXlTZXNzaW9uUmVxdWVzdBoYLmNhdGhsYWIudjEuUmVwbGF5UmVzdWx0YgZwcm90bzM");
+  fileDesc("ChpjYXRobGFiL3YxL3NpbXVsYXRvci5wcm90bxIKY2F0aGxhYi52MSITChFMaXN0U2NlbmVzUmVxdWVzdCKgAQoMU2NlbmVTdW1tYXJ5EgwKBG5hbWUYASABKAkSEwoLZGVzY3JpcHRpb24YAiABKAkSDwoHZGV2aWNlcxgDIAMoCRIQCghoYXNfZmxvdxgEIAEoCBIOCgZ0YXJnZXQYBSABKAkSKgoFc3RhY2sYBiADKAsyGy5jYXRobGFiLnYxLlN0YWNrSW5zdHJ1bWVudBIOCgZzcGFyZXMYByADKAkiNgoPU3RhY2tJbnN0cnVtZW50Eg4KBmRldmljZRgBIAEoCRITCgtpbnNlcnRlZF9tbRgCIAEoASKCAQoPQ2F0YWxvZ3VlRGV2aWNlEgoKAmlkGAEgASgJEgwKBG5hbWUYAiABKAkSDAoEa2luZBgDIAEoCRIRCglsZW5ndGhfbW0YBCABKAESGQoRb3V0ZXJfZGlhbWV0ZXJfbW0YBSABKAESGQoRaW5uZXJfZGlhbWV0ZXJfbW0YBiABKAEibgoSTGlzdFNjZW5lc1Jlc3BvbnNlEigKBnNjZW5lcxgBIAMoCzIYLmNhdGhsYWIudjEuU2NlbmVTdW1tYXJ5Ei4KCWNhdGFsb2d1ZRgCIAMoCzIbLmNhdGhsYWIudjEuQ2F0YWxvZ3VlRGV2aWNlIoQBChRDcmVhdGVTZXNzaW9uUmVxdWVzdBIUCgpzY2VuZV9uYW1lGAEgASgJSAASFAoKc2NlbmVfdG9tbBgCIAEoCUgAEhQKCnNjZW5lX2pzb24YAyABKAlIABINCgVsYWJlbBgEIAEoCRISCgphc3Nlc3NtZW50GAUgASgIQgcKBXNjZW5lIksKCEd1aWRhbmNlEhUKDXRhcmdldF9tYXJrZXIYASABKAgSFwoPdGFyZ2V0X2Rpc3RhbmNlGAIgASgIEg8KB3Byb21wdHMYAyABKAgihAEKFUNyZWF0ZVNlc3Npb25SZXNwb25zZRISCgpzZXNzaW9uX2lkGAEgASgJEhgKEGNvbnRyb2xsZXJfdG9rZW4YAiABKAkSFgoOb2JzZXJ2ZXJfdG9rZW4YAyABKAkSJQoEaW5mbxgEIAEoCzIXLmNhdGhsYWIudjEuU2Vzc2lvbkluZm8iLwoTTGlzdFNlc3Npb25zUmVxdWVzdBIYChBpbmNsdWRlX3JlY29yZGVkGAEgASgIIkEKFExpc3RTZXNzaW9uc1Jlc3BvbnNlEikKCHNlc3Npb25zGAEgAygLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyInChFHZXRTZXNzaW9uUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIikKE0Nsb3NlU2Vzc2lvblJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSI9ChRDbG9zZVNlc3Npb25SZXNwb25zZRIlCgRpbmZvGAEgASgLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyLQAgoLU2Vzc2lvbkluZm8SEgoKc2Vzc2lvbl9pZBgBIAEoCRISCgpzY2VuZV9uYW1lGAIgASgJEg0KBWxhYmVsGAMgASgJEikKBnN0YXR1cxgEIAEoDjIZLmNhdGhsYWIudjEuU2Vzc2lvblN0YXR1cxIWCg5jcmVhdGVkX3VuaXhfcxgFIAEoARIUCgxzdGVwX3JhdGVfaHoYBiABKAESJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcxIiCgZ0aW1pbmcYCCABKAsyEi5jYXRobGFiLnYxLlRpbWluZxIQCghjb21tYW5kcxgJIAEoBBIVCg1hY3RpdmVfZGV2aWNlGAogASgNEhYKDm9ic2VydmVyX3Rva2VuGAsgASgJEiYKCGd1aWRhbmNlGAwgASgLMhQuY2F0aGxhYi52MS5HdWlkYW5jZSLxAgoHTWV0cmljcxIYChBwcm9jZWR1cmVfdGltZV9zGAEgASgBEhoKEmZsdW9yb3Njb3B5X3RpbWVfcxgCIAEoARIQCghkc2FfcnVucxgDIAEoDRIaChJjb250cmFzdF92b2x1bWVfbWwYBCABKAESGAoQbWF4X3dhbGxfZm9yY2VfbhgFIAEoARIZChFtZWFuX3dhbGxfZm9yY2VfbhgGIAEoARIaChJ0aXBfcGF0aF9sZW5ndGhfbW0YByABKAESFgoOdGFyZ2V0X3JlYWNoZWQYCCABKAgSGwoTdGFyZ2V0X3JlYWNoZWRfYXRfcxgJIAEoARINCgVzdGVwcxgKIAEoBBIZChFkaXZlcmdlbmNlX3Jlc2V0cxgLIAEoDRIXCg9vcGVyYXRvcl9yZXNldHMYDCABKA0SHAoUYXR0ZW1wdF9zdGFydGVkX2F0X3MYDSABKAESGwoTdGFyZ2V0X3JlbWFpbmluZ19tbRgOIAEoASLwAQoGVGltaW5nEg0KBXN0ZXBzGAEgASgEEhIKCmxhdGVfc3RlcHMYAiABKAQSFAoMbWlzc2VkX3N0ZXBzGAMgASgEEhgKEHN0ZXBfdGltZV9wNTBfbXMYBCABKAESGAoQc3RlcF90aW1lX3A5OV9tcxgFIAEoARIYChBzdGVwX3RpbWVfbWF4X21zGAYgASgBEg4KBmZyYW1lcxgHIAEoBBIZChFmcmFtZV90aW1lX3A1MF9tcxgIIAEoARIZChFmcmFtZV90aW1lX3A5OV9tcxgJIAEoARIZChFmcmFtZV90aW1lX21heF9tcxgKIAEoASJPCglJbnNlcnRpb24SFwoNdmVsb2NpdHlfbW1fcxgBIAEoAUgAEhMKCXRhcmdldF9tbRgCIAEoAUgAEgwKBGhvbGQYAyABKAhCBgoEbW9kZSJJCgVUd2lzdBIUCgpyYXRlX2RlZ19zGAEgASgBSAASFAoKdGFyZ2V0X2RlZxgCIAEoAUgAEgwKBGhvbGQYAyABKAhCBgoEbW9kZSI2CghDQXJtUG9zZRITCgtwcmltYXJ5X2RlZxgBIAEoARIVCg1zZWNvbmRhcnlfZGVnGAIgASgBIjEKCUluamVjdGlvbhIRCgl2b2x1bWVfbWwYASABKAESEQoJcmF0ZV9tbF9zGAIgASgBIpIDCgdDb21tYW5kEioKCWluc2VydGlvbhgBIAEoCzIVLmNhdGhsYWIudjEuSW5zZXJ0aW9uSAASIgoFdHdpc3QYAiABKAsyES5jYXRobGFiLnYxLlR3aXN0SAASFwoNc2VsZWN0X2RldmljZRgDIAEoDUgAEhUKC2ZsdW9yb3Njb3B5GAQgASgISAASKwoKcHVsc2VfcmF0ZRgFIAEoDjIVLmNhdGhsYWIudjEuUHVsc2VSYXRlSAASDQoDZHNhGAYgASgISAASEQoHcm9hZG1hcBgHIAEoCEgAEiQKBGNhcm0YCCABKAsyFC5jYXRobGFiLnYxLkNBcm1Qb3NlSAASJwoGaW5qZWN0GAkgASgLMhUuY2F0aGxhYi52MS5JbmplY3Rpb25IABIPCgVyZXNldBgKIAEoCEgAEigKCGV4Y2hhbmdlGAsgASgLMhQuY2F0aGxhYi52MS5FeGNoYW5nZUgAEhcKCmluc3RydW1lbnQYDCABKA1IAYgBAUIGCgRraW5kQg0KC19pbnN0cnVtZW50IlEKCEV4Y2hhbmdlEhIKCmluc3RydW1lbnQYASABKA0SFgoMY2F0YWxvZ3VlX2lkGAIgASgJSAASDwoFc3BhcmUYAyABKA1IAEIICgZkZXZpY2UiWwoSU2VuZENvbW1hbmRSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSCwoDc2VxGAIgASgEEiQKB2NvbW1hbmQYAyABKAsyEy5jYXRobGFiLnYxLkNvbW1hbmQiJwoKQ29tbWFuZEFjaxILCgNzZXEYASABKAQSDAoEc3RlcBgCIAEoBCJXCgxDb250cm9sSW5wdXQSEgoKc2Vzc2lvbl9pZBgBIAEoCRILCgNzZXEYAiABKAQSEQoJcHVzaF9tbV9zGAMgASgBEhMKC3R3aXN0X2RlZ19zGAQgASgBIjcKDUNvbnRyb2xPdXRwdXQSJgoFc3RhdGUYASABKAsyFy5jYXRobGFiLnYxLkRldmljZVN0YXRlIjoKElN0cmVhbVN0YXRlUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEhAKCHRpcF9vbmx5GAIgASgIIicKBFZlYzMSCQoBeBgBIAEoARIJCgF5GAIgASgBEgkKAXoYAyABKAEiUgoLV2FsbENvbnRhY3QSIgoIcG9zaXRpb24YASABKAsyEC5jYXRobGFiLnYxLlZlYzMSHwoFZm9yY2UYAiABKAsyEC5jYXRobGFiLnYxLlZlYzMiwgQKC0RldmljZVN0YXRlEgwKBHN0ZXAYASABKAQSDgoGdGltZV9zGAIgASgBEhAKCGxhc3Rfc2VxGAMgASgEEhAKCG5vZGVzX21tGAQgAygCEikKD3RpcF9wb3NpdGlvbl9tbRgFIAEoCzIQLmNhdGhsYWIudjEuVmVjMxInCg10aXBfZGlyZWN0aW9uGAYgASgLMhAuY2F0aGxhYi52MS5WZWMzEhMKC2luc2VydGVkX21tGAcgASgBEhEKCXR3aXN0X2RlZxgIIAEoARIpCghjb250YWN0cxgJIAMoCzIXLmNhdGhsYWIudjEuV2FsbENvbnRhY3QSKgoQcHJveGltYWxfZm9yY2VfbhgKIAEoCzIQLmNhdGhsYWIudjEuVmVjMxItChNwcm94aW1hbF90b3JxdWVfbm1tGAsgASgLMhAuY2F0aGxhYi52MS5WZWMzEhUKDWFjdGl2ZV9kZXZpY2UYDCABKA0SFgoOc2VydmVyX3VuaXhfdXMYDSABKAQSFQoNYXhpYWxfZm9yY2VfbhgOIAEoARIYChBheGlhbF90b3JxdWVfbm1tGA8gASgBEikKCnB1c2hfbGltaXQYECABKA4yFS5jYXRobGFiLnYxLlB1c2hMaW1pdBIaChJwdXNoX2ZvcmNlX2xpbWl0X24YESABKAESFgoOZmlkZWxpdHlfbGV2ZWwYEiABKA0SMAoLaW5zdHJ1bWVudHMYEyADKAsyGy5jYXRobGFiLnYxLkluc3RydW1lbnRTdGF0ZSKrAgoPSW5zdHJ1bWVudFN0YXRlEgwKBG5hbWUYASABKAkSFAoMY2F0YWxvZ3VlX2lkGAIgASgJEhAKCG5vZGVzX21tGAMgAygCEhMKC2luc2VydGVkX21tGAQgASgBEhEKCXR3aXN0X2RlZxgFIAEoARIpCg90aXBfcG9zaXRpb25fbW0YBiABKAsyEC5jYXRobGFiLnYxLlZlYzMSFwoPYmV5b25kX291dGVyX21tGAcgASgBEhUKDWF4aWFsX2ZvcmNlX24YCCABKAESGAoQYXhpYWxfdG9ycXVlX25tbRgJIAEoARIpCgpwdXNoX2xpbWl0GAogASgOMhUuY2F0aGxhYi52MS5QdXNoTGltaXQSGgoScHVzaF9mb3JjZV9saW1pdF9uGAsgASgBIosBChNTdHJlYW1GcmFtZXNSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSKwoIZW5jb2RpbmcYAiABKA4yGS5jYXRobGFiLnYxLkZyYW1lRW5jb2RpbmcSDQoFd2lkdGgYAyABKA0SDgoGaGVpZ2h0GAQgASgNEhQKDGpwZWdfcXVhbGl0eRgFIAEoDSK4AgoJWHJheUZyYW1lEg0KBWluZGV4GAEgASgEEg4KBnRpbWVfcxgCIAEoARINCgV3aWR0aBgDIAEoDRIOCgZoZWlnaHQYBCABKA0SKwoIZW5jb2RpbmcYBSABKA4yGS5jYXRobGFiLnYxLkZyYW1lRW5jb2RpbmcSDAoEZGF0YRgGIAEoDBIlCgRtb2RlGAcgASgOMhcuY2F0aGxhYi52MS5JbWFnaW5nTW9kZRIMCgRoZWxkGAggASgIEhAKCGxhc3Rfc2VxGAkgASgEEg8KB3NraXBwZWQYCiABKAQSHwoXcmVmZXJlbmNlX2Fpcl9rZXJtYV9tZ3kYCyABKAESIQoZa2VybWFfYXJlYV9wcm9kdWN0X2d5X2NtMhgMIAEoARIWCg50YXJnZXRfb3V0bGluZRgNIAMoAiIqChRTdHJlYW1NZXRyaWNzUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIkQKBUV2ZW50EgwKBHN0ZXAYASABKAQSDgoGdGltZV9zGAIgASgBEgwKBGtpbmQYAyABKAkSDwoHbWVzc2FnZRgEIAEoCSJjCg1TZXNzaW9uVXBkYXRlEiYKB21ldHJpY3MYASABKAsyEy5jYXRobGFiLnYxLk1ldHJpY3NIABIiCgVldmVudBgCIAEoCzIRLmNhdGhsYWIudjEuRXZlbnRIAEIGCgRraW5kIicKEUdldEFuYXRvbXlSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkiOwoGQnJhbmNoEgwKBG5hbWUYASABKAkSEQoJcG9pbnRzX21tGAIgAygCEhAKCHJhZGlpX21tGAMgAygCIowBCgdBbmF0b215EiQKCGJyYW5jaGVzGAEgAygLMhIuY2F0aGxhYi52MS5CcmFuY2gSEwoLdmVydGljZXNfbW0YAiADKAISEQoJdHJpYW5nbGVzGAMgAygNEiMKCWFjY2Vzc19tbRgEIAEoCzIQLmNhdGhsYWIudjEuVmVjMxIOCgZ0YXJnZXQYBSABKAkiKgoUUmVwbGF5U2Vzc2lvblJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSKtAQoMUmVwbGF5UmVzdWx0Eg0KBXN0ZXBzGAEgASgEEhAKCGNvbW1hbmRzGAIgASgNEhMKC2NoZWNrcG9pbnRzGAMgASgNEg8KB21hdGNoZWQYBCABKA0SFwoPcmVjb3JkZWRfZGlnZXN0GAUgASgJEhcKD3JlcGxheWVkX2RpZ2VzdBgGIAEoCRIkCgdtZXRyaWNzGAcgASgLMhMuY2F0aGxhYi52MS5NZXRyaWNzKoYBCg1TZXNzaW9uU3RhdHVzEh4KGlNFU1NJT05fU1RBVFVTX1VOU1BFQ0lGSUVEEAASGgoWU0VTU0lPTl9TVEFUVVNfUlVOTklORxABEhkKFVNFU1NJT05fU1RBVFVTX0NMT1NFRBACEh4KGlNFU1NJT05fU1RBVFVTX0lOVEVSUlVQVEVEEAMqYQoJUHVsc2VSYXRlEhoKFlBVTFNFX1JBVEVfVU5TUEVDSUZJRUQQABISCg5QVUxTRV9SQVRFXzdfNRABEhEKDVBVTFNFX1JBVEVfMTUQAhIRCg1QVUxTRV9SQVRFXzMwEAMqTQoJUHVzaExpbWl0EhMKD1BVU0hfTElNSVRfTk9ORRAAEhQKEFBVU0hfTElNSVRfRk9SQ0UQARIVChFQVVNIX0xJTUlUX0xFTkdUSBACKpMBCg1GcmFtZUVuY29kaW5nEh4KGkZSQU1FX0VOQ09ESU5HX1VOU1BFQ0lGSUVEEAASFwoTRlJBTUVfRU5DT0RJTkdfUkFXOBABEhgKFEZSQU1FX0VOQ09ESU5HX1JBVzE2EAISFgoSRlJBTUVfRU5DT0RJTkdfUE5HEAMSFwoTRlJBTUVfRU5DT0RJTkdfSlBFRxAEKoEBCgtJbWFnaW5nTW9kZRIcChhJTUFHSU5HX01PREVfVU5TUEVDSUZJRUQQABIcChhJTUFHSU5HX01PREVfRkxVT1JPU0NPUFkQARIcChhJTUFHSU5HX01PREVfU1VCVFJBQ1RJT04QAhIYChRJTUFHSU5HX01PREVfUk9BRE1BUBADMpgHCglTaW11bGF0b3ISSwoKTGlzdFNjZW5lcxIdLmNhdGhsYWIudjEuTGlzdFNjZW5lc1JlcXVlc3QaHi5jYXRobGFiLnYxLkxpc3RTY2VuZXNSZXNwb25zZRJUCg1DcmVhdGVTZXNzaW9uEiAuY2F0aGxhYi52MS5DcmVhdGVTZXNzaW9uUmVxdWVzdBohLmNhdGhsYWIudjEuQ3JlYXRlU2Vzc2lvblJlc3BvbnNlElEKDExpc3RTZXNzaW9ucxIfLmNhdGhsYWIudjEuTGlzdFNlc3Npb25zUmVxdWVzdBogLmNhdGhsYWIudjEuTGlzdFNlc3Npb25zUmVzcG9uc2USRAoKR2V0U2Vzc2lvbhIdLmNhdGhsYWIudjEuR2V0U2Vzc2lvblJlcXVlc3QaFy5jYXRobGFiLnYxLlNlc3Npb25JbmZvElEKDENsb3NlU2Vzc2lvbhIfLmNhdGhsYWIudjEuQ2xvc2VTZXNzaW9uUmVxdWVzdBogLmNhdGhsYWIudjEuQ2xvc2VTZXNzaW9uUmVzcG9uc2USRQoLU2VuZENvbW1hbmQSHi5jYXRobGFiLnYxLlNlbmRDb21tYW5kUmVxdWVzdBoWLmNhdGhsYWIudjEuQ29tbWFuZEFjaxJCCgdDb250cm9sEhguY2F0aGxhYi52MS5Db250cm9sSW5wdXQaGS5jYXRobGFiLnYxLkNvbnRyb2xPdXRwdXQoATABEkgKC1N0cmVhbVN0YXRlEh4uY2F0aGxhYi52MS5TdHJlYW1TdGF0ZVJlcXVlc3QaFy5jYXRobGFiLnYxLkRldmljZVN0YXRlMAESSAoMU3RyZWFtRnJhbWVzEh8uY2F0aGxhYi52MS5TdHJlYW1GcmFtZXNSZXF1ZXN0GhUuY2F0aGxhYi52MS5YcmF5RnJhbWUwARJOCg1TdHJlYW1NZXRyaWNzEiAuY2F0aGxhYi52MS5TdHJlYW1NZXRyaWNzUmVxdWVzdBoZLmNhdGhsYWIudjEuU2Vzc2lvblVwZGF0ZTABEkAKCkdldEFuYXRvbXkSHS5jYXRobGFiLnYxLkdldEFuYXRvbXlSZXF1ZXN0GhMuY2F0aGxhYi52MS5BbmF0b215EksKDVJlcGxheVNlc3Npb24SIC5jYXRobGFiLnYxLlJlcGxheVNlc3Npb25SZXF1ZXN0GhguY2F0aGxhYi52MS5SZXBsYXlSZXN1bHRiBnByb3RvMw");
 
 /**
  * @generated from message cathlab.v1.ListScenesRequest
@@ -65,6 +65,22 @@ export type SceneSummary = Message<"cathlab.v1.SceneSummary"> & {
    * @generated from field: string target = 5;
    */
   target: string;
+
+  /**
+   * A coaxial scene's stack at the start, outermost first (empty for a one-device scene,
+   * which has `devices`). Commands name an instrument by its index here.
+   *
+   * @generated from field: repeated cathlab.v1.StackInstrument stack = 6;
+   */
+  stack: StackInstrument[];
+
+  /**
+   * A coaxial scene's back table: devices an instrument may be exchanged for besides the
+   * catalogue's (Exchange.spare indexes these).
+   *
+   * @generated from field: repeated string spares = 7;
+   */
+  spares: string[];
 };
 
 /**
@@ -75,6 +91,80 @@ export const SceneSummarySchema: GenMessage<SceneSummary> = /*@__PURE__*/
   messageDesc(file_cathlab_v1_simulator, 1);
 
 /**
+ * @generated from message cathlab.v1.StackInstrument
+ */
+export type StackInstrument = Message<"cathlab.v1.StackInstrument"> & {
+  /**
+   * Catalogue identifier, or the label of the scene's own device.
+   *
+   * @generated from field: string device = 1;
+   */
+  device: string;
+
+  /**
+   * Where its tip starts (mm beyond the entry point; negative: inside the one around it).
+   *
+   * @generated from field: double inserted_mm = 2;
+   */
+  insertedMm: number;
+};
+
+/**
+ * Describes the message cathlab.v1.StackInstrument.
+ * Use `create(StackInstrumentSchema)` to create a new message.
+ */
+export const StackInstrumentSchema: GenMessage<StackInstrument> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 2);
+
+/**
+ * A device of the built-in catalogue (what an exchange may bring in).
+ *
+ * @generated from message cathlab.v1.CatalogueDevice
+ */
+export type CatalogueDevice = Message<"cathlab.v1.CatalogueDevice"> & {
+  /**
+   * @generated from field: string id = 1;
+   */
+  id: string;
+
+  /**
+   * @generated from field: string name = 2;
+   */
+  name: string;
+
+  /**
+   * guide, sheath, distal-access, catheter, microcatheter, guidewire or microwire.
+   *
+   * @generated from field: string kind = 3;
+   */
+  kind: string;
+
+  /**
+   * @generated from field: double length_mm = 4;
+   */
+  lengthMm: number;
+
+  /**
+   * Of the distal section (mm); inner 0 for a wire.
+   *
+   * @generated from field: double outer_diameter_mm = 5;
+   */
+  outerDiameterMm: number;
+
+  /**
+   * @generated from field: double inner_diameter_mm = 6;
+   */
+  innerDiameterMm: number;
+};
+
+/**
+ * Describes the message cathlab.v1.CatalogueDevice.
+ * Use `create(CatalogueDeviceSchema)` to create a new message.
+ */
+export const CatalogueDeviceSchema: GenMessage<CatalogueDevice> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 3);
+
+/**
  * @generated from message cathlab.v1.ListScenesResponse
  */
 export type ListScenesResponse = Message<"cathlab.v1.ListScenesResponse"> & {
@@ -82,6 +172,11 @@ export type ListScenesResponse = Message<"cathlab.v1.ListScenesResponse"> & {
    * @generated from field: repeated cathlab.v1.SceneSummary scenes = 1;
    */
   scenes: SceneSummary[];
+
+  /**
+   * @generated from field: repeated cathlab.v1.CatalogueDevice catalogue = 2;
+   */
+  catalogue: CatalogueDevice[];
 };
 
 /**
@@ -89,7 +184,7 @@ export type ListScenesResponse = Message<"cathlab.v1.ListScenesResponse"> & {
  * Use `create(ListScenesResponseSchema)` to create a new message.
  */
 export const ListScenesResponseSchema: GenMessage<ListScenesResponse> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 2);
+  messageDesc(file_cathlab_v1_simulator, 4);
 
 /**
  * @generated from message cathlab.v1.CreateSessionRequest
@@ -145,7 +240,7 @@ export type CreateSessionRequest = Message<"cathlab.v1.CreateSessionRequest"> & 
  * Use `create(CreateSessionRequestSchema)` to create a new message.
  */
 export const CreateSessionRequestSchema: GenMessage<CreateSessionRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 3);
+  messageDesc(file_cathlab_v1_simulator, 5);
 
 /**
  * What the trainee's page shows to guide (all on unless the scene or an assessment turns it
@@ -181,7 +276,7 @@ export type Guidance = Message<"cathlab.v1.Guidance"> & {
  * Use `create(GuidanceSchema)` to create a new message.
  */
 export const GuidanceSchema: GenMessage<Guidance> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 4);
+  messageDesc(file_cathlab_v1_simulator, 6);
 
 /**
  * @generated from message cathlab.v1.CreateSessionResponse
@@ -217,7 +312,7 @@ export type CreateSessionResponse = Message<"cathlab.v1.CreateSessionResponse"> 
  * Use `create(CreateSessionResponseSchema)` to create a new message.
  */
 export const CreateSessionResponseSchema: GenMessage<CreateSessionResponse> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 5);
+  messageDesc(file_cathlab_v1_simulator, 7);
 
 /**
  * @generated from message cathlab.v1.ListSessionsRequest
@@ -236,7 +331,7 @@ export type ListSessionsRequest = Message<"cathlab.v1.ListSessionsRequest"> & {
  * Use `create(ListSessionsRequestSchema)` to create a new message.
  */
 export const ListSessionsRequestSchema: GenMessage<ListSessionsRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 6);
+  messageDesc(file_cathlab_v1_simulator, 8);
 
 /**
  * @generated from message cathlab.v1.ListSessionsResponse
@@ -253,7 +348,7 @@ export type ListSessionsResponse = Message<"cathlab.v1.ListSessionsResponse"> & 
  * Use `create(ListSessionsResponseSchema)` to create a new message.
  */
 export const ListSessionsResponseSchema: GenMessage<ListSessionsResponse> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 7);
+  messageDesc(file_cathlab_v1_simulator, 9);
 
 /**
  * @generated from message cathlab.v1.GetSessionRequest
@@ -270,7 +365,7 @@ export type GetSessionRequest = Message<"cathlab.v1.GetSessionRequest"> & {
  * Use `create(GetSessionRequestSchema)` to create a new message.
  */
 export const GetSessionRequestSchema: GenMessage<GetSessionRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 8);
+  messageDesc(file_cathlab_v1_simulator, 10);
 
 /**
  * @generated from message cathlab.v1.CloseSessionRequest
@@ -287,7 +382,7 @@ export type CloseSessionRequest = Message<"cathlab.v1.CloseSessionRequest"> & {
  * Use `create(CloseSessionRequestSchema)` to create a new message.
  */
 export const CloseSessionRequestSchema: GenMessage<CloseSessionRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 9);
+  messageDesc(file_cathlab_v1_simulator, 11);
 
 /**
  * @generated from message cathlab.v1.CloseSessionResponse
@@ -304,7 +399,7 @@ export type CloseSessionResponse = Message<"cathlab.v1.CloseSessionResponse"> & 
  * Use `create(CloseSessionResponseSchema)` to create a new message.
  */
 export const CloseSessionResponseSchema: GenMessage<CloseSessionResponse> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 10);
+  messageDesc(file_cathlab_v1_simulator, 12);
 
 /**
  * @generated from message cathlab.v1.SessionInfo
@@ -387,7 +482,7 @@ export type SessionInfo = Message<"cathlab.v1.SessionInfo"> & {
  * Use `create(SessionInfoSchema)` to create a new message.
  */
 export const SessionInfoSchema: GenMessage<SessionInfo> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 11);
+  messageDesc(file_cathlab_v1_simulator, 13);
 
 /**
  * What instructors grade by.
@@ -495,7 +590,7 @@ export type Metrics = Message<"cathlab.v1.Metrics"> & {
  * Use `create(MetricsSchema)` to create a new message.
  */
 export const MetricsSchema: GenMessage<Metrics> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 12);
+  messageDesc(file_cathlab_v1_simulator, 14);
 
 /**
  * Wall-clock timing of the session's threads.
@@ -563,7 +658,7 @@ export type Timing = Message<"cathlab.v1.Timing"> & {
  * Use `create(TimingSchema)` to create a new message.
  */
 export const TimingSchema: GenMessage<Timing> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 13);
+  messageDesc(file_cathlab_v1_simulator, 15);
 
 /**
  * Push/pull.
@@ -607,7 +702,7 @@ export type Insertion = Message<"cathlab.v1.Insertion"> & {
  * Use `create(InsertionSchema)` to create a new message.
  */
 export const InsertionSchema: GenMessage<Insertion> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 14);
+  messageDesc(file_cathlab_v1_simulator, 16);
 
 /**
  * Twist about the device axis at the entry point.
@@ -645,7 +740,7 @@ export type Twist = Message<"cathlab.v1.Twist"> & {
  * Use `create(TwistSchema)` to create a new message.
  */
 export const TwistSchema: GenMessage<Twist> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 15);
+  messageDesc(file_cathlab_v1_simulator, 17);
 
 /**
  * @generated from message cathlab.v1.CArmPose
@@ -671,7 +766,7 @@ export type CArmPose = Message<"cathlab.v1.CArmPose"> & {
  * Use `create(CArmPoseSchema)` to create a new message.
  */
 export const CArmPoseSchema: GenMessage<CArmPose> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 16);
+  messageDesc(file_cathlab_v1_simulator, 18);
 
 /**
  * @generated from message cathlab.v1.Injection
@@ -697,7 +792,7 @@ export type Injection = Message<"cathlab.v1.Injection"> & {
  * Use `create(InjectionSchema)` to create a new message.
  */
 export const InjectionSchema: GenMessage<Injection> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 17);
+  messageDesc(file_cathlab_v1_simulator, 19);
 
 /**
  * @generated from message cathlab.v1.Command
@@ -776,7 +871,24 @@ export type Command = Message<"cathlab.v1.Command"> & {
      */
     value: boolean;
     case: "reset";
+  } | {
+    /**
+     * Exchange an instrument of a coaxial stack (withdrawn to the hub of the one around it).
+     *
+     * @generated from field: cathlab.v1.Exchange exchange = 11;
+     */
+    value: Exchange;
+    case: "exchange";
   } | { case: undefined; value?: undefined };
+
+  /**
+   * The instrument an insertion or twist drives: its index in the scene's stack, 0 the
+   * outermost. Unset: the innermost (the only one of a one-device scene). An index the scene
+   * does not have is INVALID_ARGUMENT naming command.instrument.
+   *
+   * @generated from field: optional uint32 instrument = 12;
+   */
+  instrument?: number | undefined;
 };
 
 /**
@@ -784,7 +896,47 @@ export type Command = Message<"cathlab.v1.Command"> & {
  * Use `create(CommandSchema)` to create a new message.
  */
 export const CommandSchema: GenMessage<Command> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 18);
+  messageDesc(file_cathlab_v1_simulator, 20);
+
+/**
+ * @generated from message cathlab.v1.Exchange
+ */
+export type Exchange = Message<"cathlab.v1.Exchange"> & {
+  /**
+   * The instrument to exchange (not the outermost).
+   *
+   * @generated from field: uint32 instrument = 1;
+   */
+  instrument: number;
+
+  /**
+   * @generated from oneof cathlab.v1.Exchange.device
+   */
+  device: {
+    /**
+     * A catalogue identifier (ListScenesResponse.catalogue).
+     *
+     * @generated from field: string catalogue_id = 2;
+     */
+    value: string;
+    case: "catalogueId";
+  } | {
+    /**
+     * One of the scene's spares (SceneSummary.spares).
+     *
+     * @generated from field: uint32 spare = 3;
+     */
+    value: number;
+    case: "spare";
+  } | { case: undefined; value?: undefined };
+};
+
+/**
+ * Describes the message cathlab.v1.Exchange.
+ * Use `create(ExchangeSchema)` to create a new message.
+ */
+export const ExchangeSchema: GenMessage<Exchange> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 21);
 
 /**
  * @generated from message cathlab.v1.SendCommandRequest
@@ -813,7 +965,7 @@ export type SendCommandRequest = Message<"cathlab.v1.SendCommandRequest"> & {
  * Use `create(SendCommandRequestSchema)` to create a new message.
  */
 export const SendCommandRequestSchema: GenMessage<SendCommandRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 19);
+  messageDesc(file_cathlab_v1_simulator, 22);
 
 /**
  * @generated from message cathlab.v1.CommandAck
@@ -837,7 +989,7 @@ export type CommandAck = Message<"cathlab.v1.CommandAck"> & {
  * Use `create(CommandAckSchema)` to create a new message.
  */
 export const CommandAckSchema: GenMessage<CommandAck> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 20);
+  messageDesc(file_cathlab_v1_simulator, 23);
 
 /**
  * @generated from message cathlab.v1.ControlInput
@@ -875,7 +1027,7 @@ export type ControlInput = Message<"cathlab.v1.ControlInput"> & {
  * Use `create(ControlInputSchema)` to create a new message.
  */
 export const ControlInputSchema: GenMessage<ControlInput> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 21);
+  messageDesc(file_cathlab_v1_simulator, 24);
 
 /**
  * @generated from message cathlab.v1.ControlOutput
@@ -892,7 +1044,7 @@ export type ControlOutput = Message<"cathlab.v1.ControlOutput"> & {
  * Use `create(ControlOutputSchema)` to create a new message.
  */
 export const ControlOutputSchema: GenMessage<ControlOutput> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 22);
+  messageDesc(file_cathlab_v1_simulator, 25);
 
 /**
  * @generated from message cathlab.v1.StreamStateRequest
@@ -917,7 +1069,7 @@ export type StreamStateRequest = Message<"cathlab.v1.StreamStateRequest"> & {
  * Use `create(StreamStateRequestSchema)` to create a new message.
  */
 export const StreamStateRequestSchema: GenMessage<StreamStateRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 23);
+  messageDesc(file_cathlab_v1_simulator, 26);
 
 /**
  * @generated from message cathlab.v1.Vec3
@@ -944,7 +1096,7 @@ export type Vec3 = Message<"cathlab.v1.Vec3"> & {
  * Use `create(Vec3Schema)` to create a new message.
  */
 export const Vec3Schema: GenMessage<Vec3> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 24);
+  messageDesc(file_cathlab_v1_simulator, 27);
 
 /**
  * @generated from message cathlab.v1.WallContact
@@ -970,7 +1122,7 @@ export type WallContact = Message<"cathlab.v1.WallContact"> & {
  * Use `create(WallContactSchema)` to create a new message.
  */
 export const WallContactSchema: GenMessage<WallContact> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 25);
+  messageDesc(file_cathlab_v1_simulator, 28);
 
 /**
  * @generated from message cathlab.v1.DeviceState
@@ -1089,6 +1241,14 @@ export type DeviceState = Message<"cathlab.v1.DeviceState"> & {
    * @generated from field: uint32 fidelity_level = 18;
    */
   fidelityLevel: number;
+
+  /**
+   * Every instrument, outermost first (one for a one-device scene). The fields above
+   * describe the whole strand and, for the hand, the innermost instrument.
+   *
+   * @generated from field: repeated cathlab.v1.InstrumentState instruments = 19;
+   */
+  instruments: InstrumentState[];
 };
 
 /**
@@ -1096,7 +1256,89 @@ export type DeviceState = Message<"cathlab.v1.DeviceState"> & {
  * Use `create(DeviceStateSchema)` to create a new message.
  */
 export const DeviceStateSchema: GenMessage<DeviceState> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 26);
+  messageDesc(file_cathlab_v1_simulator, 29);
+
+/**
+ * @generated from message cathlab.v1.InstrumentState
+ */
+export type InstrumentState = Message<"cathlab.v1.InstrumentState"> & {
+  /**
+   * @generated from field: string name = 1;
+   */
+  name: string;
+
+  /**
+   * Catalogue identifier (empty for the scene's own device).
+   *
+   * @generated from field: string catalogue_id = 2;
+   */
+  catalogueId: string;
+
+  /**
+   * Its centerline from the entry to its tip, x y z per node (mm, LPS); empty while it is
+   * withdrawn inside the one around it, and in tip-only streams.
+   *
+   * @generated from field: repeated float nodes_mm = 3;
+   */
+  nodesMm: number[];
+
+  /**
+   * Inserted length beyond the entry point (mm; negative: inside the one around it).
+   *
+   * @generated from field: double inserted_mm = 4;
+   */
+  insertedMm: number;
+
+  /**
+   * @generated from field: double twist_deg = 5;
+   */
+  twistDeg: number;
+
+  /**
+   * Absent while it is withdrawn proximal of the entry.
+   *
+   * @generated from field: cathlab.v1.Vec3 tip_position_mm = 6;
+   */
+  tipPositionMm?: Vec3 | undefined;
+
+  /**
+   * How far its tip is beyond the tip of the instrument around it (mm; negative: inside
+   * it, "the wire 24 mm out of the catheter"); 0 for the outermost.
+   *
+   * @generated from field: double beyond_outer_mm = 7;
+   */
+  beyondOuterMm: number;
+
+  /**
+   * What its hand feels: along the entry axis, positive when it resists a push (N), and
+   * about it (N·mm).
+   *
+   * @generated from field: double axial_force_n = 8;
+   */
+  axialForceN: number;
+
+  /**
+   * @generated from field: double axial_torque_nmm = 9;
+   */
+  axialTorqueNmm: number;
+
+  /**
+   * @generated from field: cathlab.v1.PushLimit push_limit = 10;
+   */
+  pushLimit: PushLimit;
+
+  /**
+   * @generated from field: double push_force_limit_n = 11;
+   */
+  pushForceLimitN: number;
+};
+
+/**
+ * Describes the message cathlab.v1.InstrumentState.
+ * Use `create(InstrumentStateSchema)` to create a new message.
+ */
+export const InstrumentStateSchema: GenMessage<InstrumentState> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 30);
 
 /**
  * @generated from message cathlab.v1.StreamFramesRequest
@@ -1137,7 +1379,7 @@ export type StreamFramesRequest = Message<"cathlab.v1.StreamFramesRequest"> & {
  * Use `create(StreamFramesRequestSchema)` to create a new message.
  */
 export const StreamFramesRequestSchema: GenMessage<StreamFramesRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 27);
+  messageDesc(file_cathlab_v1_simulator, 31);
 
 /**
  * @generated from message cathlab.v1.XrayFrame
@@ -1229,7 +1471,7 @@ export type XrayFrame = Message<"cathlab.v1.XrayFrame"> & {
  * Use `create(XrayFrameSchema)` to create a new message.
  */
 export const XrayFrameSchema: GenMessage<XrayFrame> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 28);
+  messageDesc(file_cathlab_v1_simulator, 32);
 
 /**
  * @generated from message cathlab.v1.StreamMetricsRequest
@@ -1246,7 +1488,7 @@ export type StreamMetricsRequest = Message<"cathlab.v1.StreamMetricsRequest"> & 
  * Use `create(StreamMetricsRequestSchema)` to create a new message.
  */
 export const StreamMetricsRequestSchema: GenMessage<StreamMetricsRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 29);
+  messageDesc(file_cathlab_v1_simulator, 33);
 
 /**
  * @generated from message cathlab.v1.Event
@@ -1280,7 +1522,7 @@ export type Event = Message<"cathlab.v1.Event"> & {
  * Use `create(EventSchema)` to create a new message.
  */
 export const EventSchema: GenMessage<Event> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 30);
+  messageDesc(file_cathlab_v1_simulator, 34);
 
 /**
  * @generated from message cathlab.v1.SessionUpdate
@@ -1309,7 +1551,7 @@ export type SessionUpdate = Message<"cathlab.v1.SessionUpdate"> & {
  * Use `create(SessionUpdateSchema)` to create a new message.
  */
 export const SessionUpdateSchema: GenMessage<SessionUpdate> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 31);
+  messageDesc(file_cathlab_v1_simulator, 35);
 
 /**
  * @generated from message cathlab.v1.GetAnatomyRequest
@@ -1326,7 +1568,7 @@ export type GetAnatomyRequest = Message<"cathlab.v1.GetAnatomyRequest"> & {
  * Use `create(GetAnatomyRequestSchema)` to create a new message.
  */
 export const GetAnatomyRequestSchema: GenMessage<GetAnatomyRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 32);
+  messageDesc(file_cathlab_v1_simulator, 36);
 
 /**
  * @generated from message cathlab.v1.Branch
@@ -1357,7 +1599,7 @@ export type Branch = Message<"cathlab.v1.Branch"> & {
  * Use `create(BranchSchema)` to create a new message.
  */
 export const BranchSchema: GenMessage<Branch> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 33);
+  messageDesc(file_cathlab_v1_simulator, 37);
 
 /**
  * @generated from message cathlab.v1.Anatomy
@@ -1398,7 +1640,7 @@ export type Anatomy = Message<"cathlab.v1.Anatomy"> & {
  * Use `create(AnatomySchema)` to create a new message.
  */
 export const AnatomySchema: GenMessage<Anatomy> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 34);
+  messageDesc(file_cathlab_v1_simulator, 38);
 
 /**
  * @generated from message cathlab.v1.ReplaySessionRequest
@@ -1415,7 +1657,7 @@ export type ReplaySessionRequest = Message<"cathlab.v1.ReplaySessionRequest"> & 
  * Use `create(ReplaySessionRequestSchema)` to create a new message.
  */
 export const ReplaySessionRequestSchema: GenMessage<ReplaySessionRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 35);
+  messageDesc(file_cathlab_v1_simulator, 39);
 
 /**
  * @generated from message cathlab.v1.ReplayResult
@@ -1468,7 +1710,7 @@ export type ReplayResult = Message<"cathlab.v1.ReplayResult"> & {
  * Use `create(ReplayResultSchema)` to create a new message.
  */
 export const ReplayResultSchema: GenMessage<ReplayResult> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 36);
+  messageDesc(file_cathlab_v1_simulator, 40);
 
 /**
  * @generated from enum cathlab.v1.SessionStatus
