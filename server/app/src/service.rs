@@ -2,7 +2,7 @@
 //! validate the message (through `cathlab-api`), call the engine and convert the answer.
 //! Streams forward the newest value of the engine's latest-value channels.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
 use std::net::IpAddr;
 use std::path::Path;
 use std::pin::Pin;
@@ -786,48 +786,74 @@ impl Simulator for SimulatorService {
                 }
             });
         }
-        // Outputs: every new state, once the commands it reports are durable.
+        // Durability: the acknowledgements (committed to the store) in order; the highest
+        // committed sequence number goes out with every state. A failed command ends the
+        // stream with its error.
+        let durable = Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let (failed_tx, mut failed) = oneshot::channel::<Status>();
+        let acks = {
+            let durable = durable.clone();
+            tokio::spawn(async move {
+                while let Some((seq, ack)) = pending_rx.recv().await {
+                    match ack.await {
+                        Ok(Ok(_)) => durable.store(seq, std::sync::atomic::Ordering::Release),
+                        Ok(Err(e)) => {
+                            let _ = failed_tx.send(engine_status(e));
+                            return;
+                        }
+                        // The session closed: its end reaches the state stream.
+                        Err(_) => return,
+                    }
+                }
+            })
+        };
+        // Outputs: every new state as soon as the step that made it is done (the hand feels
+        // the wall within a step), with the durable sequence number beside it.
         {
             let mut state = session.state();
             tokio::spawn(async move {
-                let mut pending: VecDeque<(u64, oneshot::Receiver<_>)> = VecDeque::new();
-                let mut ending = false;
+                let durable_seq = || durable.load(std::sync::atomic::Ordering::Acquire);
+                let message =
+                    |snapshot: &cathlab_engine::Snapshot, durable_seq: u64| pb::ControlOutput {
+                        state: Some(state_to_wire(snapshot, true, unix_us())),
+                        durable_seq,
+                    };
+                // Set once the acknowledgements are all in without a failure.
+                let mut acks_done = false;
                 loop {
-                    if ending {
-                        // The inputs ended: answer what was sent, then end.
-                        if pending.is_empty() && pending_rx.is_empty() {
-                            break;
-                        }
-                        if state.changed().await.is_err() {
-                            break;
-                        }
-                    } else {
-                        tokio::select! {
-                            changed = state.changed() => if changed.is_err() { break },
-                            _ = &mut inputs_ended => {
-                                ending = true;
-                                continue;
+                    tokio::select! {
+                        changed = state.changed() => if changed.is_err() { break },
+                        status = &mut failed, if !acks_done => {
+                            match status {
+                                Ok(status) => {
+                                    let _ = out_tx.send(Err(status)).await;
+                                    return;
+                                }
+                                Err(_) => {
+                                    acks_done = true;
+                                    continue;
+                                }
                             }
                         }
-                    }
-                    let snapshot = state.borrow_and_update().clone();
-                    while let Ok(p) = pending_rx.try_recv() {
-                        pending.push_back(p);
-                    }
-                    while pending
-                        .front()
-                        .is_some_and(|(seq, _)| *seq <= snapshot.last_seq)
-                    {
-                        let (_, ack) = pending.pop_front().expect("front exists");
-                        if let Ok(Err(e)) = ack.await {
-                            let _ = out_tx.send(Err(engine_status(e))).await;
+                        _ = &mut inputs_ended => {
+                            // The inputs ended: once what was sent is durable (or failed),
+                            // a last state says so, and the stream ends.
+                            let _ = acks.await;
+                            if !acks_done && let Ok(status) = failed.try_recv() {
+                                let _ = out_tx.send(Err(status)).await;
+                                return;
+                            }
+                            let snapshot = state.borrow_and_update().clone();
+                            let _ = out_tx.send(Ok(message(&snapshot, durable_seq()))).await;
                             return;
                         }
                     }
-                    let message = pb::ControlOutput {
-                        state: Some(state_to_wire(&snapshot, true, unix_us())),
-                    };
-                    if out_tx.send(Ok(message)).await.is_err() {
+                    let snapshot = state.borrow_and_update().clone();
+                    if out_tx
+                        .send(Ok(message(&snapshot, durable_seq())))
+                        .await
+                        .is_err()
+                    {
                         break;
                     }
                 }

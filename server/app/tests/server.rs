@@ -628,6 +628,7 @@ async fn the_control_stream_applies_setpoints_and_returns_forces() {
     });
     let mut outputs = client.control(request).await.unwrap().into_inner();
     let mut last_seq = 0;
+    let mut durable = 0;
     let mut count = 0;
     let mut inserted = 0.0;
     while last_seq < 400 {
@@ -638,17 +639,34 @@ async fn the_control_stream_applies_setpoints_and_returns_forces() {
             .unwrap();
         let state = out.state.unwrap();
         assert!(state.last_seq >= last_seq, "sequence numbers go back");
+        // States go out as soon as they are stepped; durability is reported beside them and
+        // never goes back.
+        assert!(out.durable_seq >= durable, "the durable sequence goes back");
+        durable = out.durable_seq;
         last_seq = state.last_seq;
         inserted = state.inserted_mm;
         assert!(state.proximal_force_n.is_some());
         count += 1;
     }
-    let _tx = sender.await.unwrap();
+    let tx = sender.await.unwrap();
     assert!(count > 50, "only {count} outputs for 400 inputs");
     assert!(
         inserted > 15.0,
         "inserted {inserted} mm after pushing at 30 mm/s"
     );
+    // The inputs end: the last output reports every input durable, then the stream ends.
+    drop(tx);
+    let mut last = None;
+    while let Some(out) = tokio::time::timeout(Duration::from_secs(20), outputs.message())
+        .await
+        .expect("the stream ends")
+        .unwrap()
+    {
+        assert!(out.durable_seq >= durable);
+        durable = out.durable_seq;
+        last = Some(out);
+    }
+    assert_eq!(last.map(|o| o.durable_seq), Some(400));
     // An observer cannot open the control stream.
     let (_tx2, rx2) = tokio::sync::mpsc::channel(1);
     _tx2.send(pb::ControlInput {
