@@ -324,6 +324,19 @@ pub fn metrics_to_wire(m: &Metrics) -> pb::Metrics {
         operator_resets: m.operator_resets,
         attempt_started_at_s: m.attempt_started_at_s,
         target_remaining_mm: m.target_remaining_m * 1e3,
+        instruments: m
+            .instruments
+            .iter()
+            .take(m.instrument_count as usize)
+            .map(|i| pb::InstrumentMetrics {
+                tip_path_length_mm: i.tip_path_length_m * 1e3,
+                moving_time_s: i.moving_time_s,
+                peak_axial_force_n: i.peak_axial_force_n,
+            })
+            .collect(),
+        leading_instrument: u32::from(m.leading_instrument),
+        lead_changes: m.lead_changes,
+        passed_inner_tip: m.passed_inner_tip,
     }
 }
 

@@ -37,6 +37,33 @@ pub struct Metrics {
     pub wall_force_sum_n: f64,
     /// Steps with wall contact.
     pub wall_contact_steps: u64,
+    /// Per instrument of a stack, outermost first (the first `instrument_count`; one for a
+    /// one-device scene).
+    pub instruments: [InstrumentMetrics; MAX_INSTRUMENTS],
+    /// How many instruments `instruments` describes.
+    pub instrument_count: u8,
+    /// The instrument whose tip leads now (index, outermost first).
+    pub leading_instrument: u8,
+    /// How often the lead passed from one instrument to another.
+    pub lead_changes: u32,
+    /// How often an instrument was pushed past the tip of the one inside it while that one
+    /// led (the catheter overtaking the wire's tip: the wire no longer guides it, a classic
+    /// error).
+    pub passed_inner_tip: u32,
+}
+
+/// Most instruments metrics are kept for (a stack's most).
+pub const MAX_INSTRUMENTS: usize = 4;
+
+/// One instrument's figures.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct InstrumentMetrics {
+    /// Distance its tip travelled (m).
+    pub tip_path_length_m: f64,
+    /// Simulated time its hand moved it (s).
+    pub moving_time_s: f64,
+    /// Largest axial force its hand felt either way (N).
+    pub peak_axial_force_n: f64,
 }
 
 impl Metrics {

@@ -338,6 +338,8 @@ pub struct World {
     events: Vec<Event>,
     proximal: [f64; 6],
     fidelity: u8,
+    /// Each instrument's tip (None: withdrawn) and inserted length after the last step.
+    previous_instruments: Vec<(Option<Vector3<f64>>, f64)>,
 }
 
 /// One instrument's hand: its device's look and limits, and what held its push back.
@@ -528,6 +530,7 @@ impl World {
             events: Vec::new(),
             proximal: [0.0; 6],
             fidelity: 0,
+            previous_instruments: Vec::new(),
         })
     }
 
@@ -905,6 +908,7 @@ impl World {
         self.strand = Strand::start(&self.assets, index)?;
         self.active_device = index;
         self.hands = start_hands(&self.assets, index);
+        self.previous_instruments.clear();
         self.strand.set_effort(fidelity_effort(self.fidelity).0)?;
         self.previous_tip = tracked_tip(&self.assets, &self.strand);
         if let Some(hemo) = &mut self.hemo
@@ -1193,8 +1197,73 @@ impl World {
         for (hand, reaction) in self.hands.iter_mut().zip(reactions) {
             hand.reaction = reaction;
         }
+        self.instrument_metrics(dt);
         self.step_contrast(dt)?;
         Ok(())
+    }
+
+    /// Per-instrument and stack metrics after a step.
+    fn instrument_metrics(&mut self, dt: f64) {
+        let n = self.strand.len().min(crate::metrics::MAX_INSTRUMENTS);
+        let now: Vec<(Option<Vector3<f64>>, f64)> = (0..n)
+            .map(|i| (self.strand.tip_position(i), self.strand.inserted_m(i)))
+            .collect();
+        // A restart or an exchange of the stack's shape starts the comparison afresh.
+        let comparable = self.previous_instruments.len() == n;
+        let m = &mut self.metrics;
+        m.instrument_count = n as u8;
+        for (i, (tip, inserted)) in now.iter().enumerate() {
+            let figures = &mut m.instruments[i];
+            figures.peak_axial_force_n = figures
+                .peak_axial_force_n
+                .max(self.hands[i].reaction.axial_force_n.abs());
+            if !comparable {
+                continue;
+            }
+            let (before_tip, before) = self.previous_instruments[i];
+            if let (Some(a), Some(b)) = (before_tip, tip) {
+                figures.tip_path_length_m += (b - a).norm();
+            }
+            if (inserted - before).abs() > 1e-9 {
+                figures.moving_time_s += dt;
+            }
+        }
+        let leading = self.strand.leading().min(n.saturating_sub(1)) as u8;
+        if comparable && leading != m.leading_instrument {
+            m.lead_changes += 1;
+        }
+        m.leading_instrument = leading;
+        let mut passed = Vec::new();
+        if comparable {
+            for k in 1..n {
+                let (_, inner_before) = self.previous_instruments[k];
+                let (_, outer_before) = self.previous_instruments[k - 1];
+                let (inner, outer) = (now[k].1, now[k - 1].1);
+                // The inner one led beyond the entry; the outer one advanced past its tip.
+                if inner_before > outer_before
+                    && inner_before > 0.0
+                    && outer >= inner
+                    && outer > outer_before
+                {
+                    m.passed_inner_tip += 1;
+                    passed.push(k);
+                }
+            }
+        }
+        self.previous_instruments = now;
+        for k in passed {
+            let name = |i: usize| {
+                self.strand
+                    .device(i)
+                    .map_or_else(|| format!("instrument {i}"), |d| d.name.clone())
+            };
+            let message = format!(
+                "the {} passed the tip of the {}: it no longer follows it",
+                name(k - 1),
+                name(k)
+            );
+            self.event(EventKind::Limit, message);
+        }
     }
 
     fn step_contrast(&mut self, dt: f64) -> Result<()> {

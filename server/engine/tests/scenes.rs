@@ -44,7 +44,23 @@ fn every_scene_loads_and_every_two_hand_autopilot_reaches_its_target() {
             "{}: the target was not reached",
             spec.name
         );
+        println!(
+            "  per instrument (tip path mm, moving s, peak hand N): {:?}; lead changes {}, inner tips passed {}",
+            m.instruments[..m.instrument_count as usize]
+                .iter()
+                .map(|i| (
+                    (i.tip_path_length_m * 1e3).round(),
+                    (i.moving_time_s * 100.0).round() / 100.0,
+                    (i.peak_axial_force_n * 100.0).round() / 100.0
+                ))
+                .collect::<Vec<_>>(),
+            m.lead_changes,
+            m.passed_inner_tip
+        );
         assert_eq!(m.divergence_resets, 0, "{}", spec.name);
+        // The scripted operator keeps the catheter behind the wire's tip.
+        assert_eq!(m.passed_inner_tip, 0, "{}", spec.name);
+        assert_eq!(m.leading_instrument as usize, spec.stack.len() - 1);
         coaxial.push(spec.name.clone());
     }
     for name in [

@@ -782,3 +782,48 @@ fn a_bad_guidance_or_limits_table_is_named() {
         assert!(error.contains(field), "{extra:?}: {error}");
     }
 }
+
+#[test]
+fn pushing_the_catheter_past_the_wire_tip_is_counted_and_reported() {
+    let text = std::fs::read_to_string(scenes().join("arch_to_cow_lcca_coaxial.toml")).unwrap();
+    let mut world = World::new(assets(&text)).unwrap();
+    let drive = |index, v| Command::Instrument {
+        index,
+        drive: Drive::PushVelocity(v),
+    };
+    // The wire leads (30 mm against the catheter's 10); the left hand pushes the catheter
+    // 40 mm at 40 mm/s while the wire is held.
+    world.apply(1, &drive(0, 0.04)).unwrap();
+    for _ in 0..500 {
+        world.step().unwrap();
+    }
+    let m = *world.metrics();
+    assert_eq!(m.instrument_count, 2);
+    assert_eq!(m.passed_inner_tip, 1, "{m:?}");
+    assert_eq!(m.leading_instrument, 0);
+    assert_eq!(m.lead_changes, 1);
+    let events = world.take_events();
+    assert!(
+        events
+            .iter()
+            .any(|e| e.message.contains("passed the tip of the")),
+        "{events:?}"
+    );
+    // Only the catheter moved: its tip travelled about 40 mm, the wire's little.
+    let [catheter, wire, ..] = m.instruments;
+    assert!((catheter.moving_time_s - 1.0).abs() < 0.01, "{catheter:?}");
+    assert_eq!(wire.moving_time_s, 0.0);
+    assert!(catheter.tip_path_length_m > 0.03, "{catheter:?}");
+    assert!(catheter.peak_axial_force_n > 0.0);
+    // The wire pushed out again takes the lead back; withdrawing the catheter behind it is no
+    // pass.
+    world.apply(2, &drive(0, -0.04)).unwrap();
+    world.apply(3, &drive(1, 0.04)).unwrap();
+    for _ in 0..500 {
+        world.step().unwrap();
+    }
+    let m = *world.metrics();
+    assert_eq!(m.passed_inner_tip, 1);
+    assert_eq!(m.leading_instrument, 1);
+    assert_eq!(m.lead_changes, 2);
+}

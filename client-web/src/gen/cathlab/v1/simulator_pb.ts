@@ -20,7 +20,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cathlab/v1/simulator.proto.
  */
 export const file_cathlab_v1_simulator: GenFile = /*@__PURE__*/
-  fileDesc("ChpjYXRobGFiL3YxL3NpbXVsYXRvci5wcm90bxIKY2F0aGxhYi52MSITChFMaXN0U2NlbmVzUmVxdWVzdCKgAQoMU2NlbmVTdW1tYXJ5EgwKBG5hbWUYASABKAkSEwoLZGVzY3JpcHRpb24YAiABKAkSDwoHZGV2aWNlcxgDIAMoCRIQCghoYXNfZmxvdxgEIAEoCBIOCgZ0YXJnZXQYBSABKAkSKgoFc3RhY2sYBiADKAsyGy5jYXRobGFiLnYxLlN0YWNrSW5zdHJ1bWVudBIOCgZzcGFyZXMYByADKAkiNgoPU3RhY2tJbnN0cnVtZW50Eg4KBmRldmljZRgBIAEoCRITCgtpbnNlcnRlZF9tbRgCIAEoASKCAQoPQ2F0YWxvZ3VlRGV2aWNlEgoKAmlkGAEgASgJEgwKBG5hbWUYAiABKAkSDAoEa2luZBgDIAEoCRIRCglsZW5ndGhfbW0YBCABKAESGQoRb3V0ZXJfZGlhbWV0ZXJfbW0YBSABKAESGQoRaW5uZXJfZGlhbWV0ZXJfbW0YBiABKAEibgoSTGlzdFNjZW5lc1Jlc3BvbnNlEigKBnNjZW5lcxgBIAMoCzIYLmNhdGhsYWIudjEuU2NlbmVTdW1tYXJ5Ei4KCWNhdGFsb2d1ZRgCIAMoCzIbLmNhdGhsYWIudjEuQ2F0YWxvZ3VlRGV2aWNlIoQBChRDcmVhdGVTZXNzaW9uUmVxdWVzdBIUCgpzY2VuZV9uYW1lGAEgASgJSAASFAoKc2NlbmVfdG9tbBgCIAEoCUgAEhQKCnNjZW5lX2pzb24YAyABKAlIABINCgVsYWJlbBgEIAEoCRISCgphc3Nlc3NtZW50GAUgASgIQgcKBXNjZW5lIksKCEd1aWRhbmNlEhUKDXRhcmdldF9tYXJrZXIYASABKAgSFwoPdGFyZ2V0X2Rpc3RhbmNlGAIgASgIEg8KB3Byb21wdHMYAyABKAgihAEKFUNyZWF0ZVNlc3Npb25SZXNwb25zZRISCgpzZXNzaW9uX2lkGAEgASgJEhgKEGNvbnRyb2xsZXJfdG9rZW4YAiABKAkSFgoOb2JzZXJ2ZXJfdG9rZW4YAyABKAkSJQoEaW5mbxgEIAEoCzIXLmNhdGhsYWIudjEuU2Vzc2lvbkluZm8iLwoTTGlzdFNlc3Npb25zUmVxdWVzdBIYChBpbmNsdWRlX3JlY29yZGVkGAEgASgIIkEKFExpc3RTZXNzaW9uc1Jlc3BvbnNlEikKCHNlc3Npb25zGAEgAygLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyInChFHZXRTZXNzaW9uUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIikKE0Nsb3NlU2Vzc2lvblJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSI9ChRDbG9zZVNlc3Npb25SZXNwb25zZRIlCgRpbmZvGAEgASgLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyLQAgoLU2Vzc2lvbkluZm8SEgoKc2Vzc2lvbl9pZBgBIAEoCRISCgpzY2VuZV9uYW1lGAIgASgJEg0KBWxhYmVsGAMgASgJEikKBnN0YXR1cxgEIAEoDjIZLmNhdGhsYWIudjEuU2Vzc2lvblN0YXR1cxIWCg5jcmVhdGVkX3VuaXhfcxgFIAEoARIUCgxzdGVwX3JhdGVfaHoYBiABKAESJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcxIiCgZ0aW1pbmcYCCABKAsyEi5jYXRobGFiLnYxLlRpbWluZxIQCghjb21tYW5kcxgJIAEoBBIVCg1hY3RpdmVfZGV2aWNlGAogASgNEhYKDm9ic2VydmVyX3Rva2VuGAsgASgJEiYKCGd1aWRhbmNlGAwgASgLMhQuY2F0aGxhYi52MS5HdWlkYW5jZSLxAgoHTWV0cmljcxIYChBwcm9jZWR1cmVfdGltZV9zGAEgASgBEhoKEmZsdW9yb3Njb3B5X3RpbWVfcxgCIAEoARIQCghkc2FfcnVucxgDIAEoDRIaChJjb250cmFzdF92b2x1bWVfbWwYBCABKAESGAoQbWF4X3dhbGxfZm9yY2VfbhgFIAEoARIZChFtZWFuX3dhbGxfZm9yY2VfbhgGIAEoARIaChJ0aXBfcGF0aF9sZW5ndGhfbW0YByABKAESFgoOdGFyZ2V0X3JlYWNoZWQYCCABKAgSGwoTdGFyZ2V0X3JlYWNoZWRfYXRfcxgJIAEoARINCgVzdGVwcxgKIAEoBBIZChFkaXZlcmdlbmNlX3Jlc2V0cxgLIAEoDRIXCg9vcGVyYXRvcl9yZXNldHMYDCABKA0SHAoUYXR0ZW1wdF9zdGFydGVkX2F0X3MYDSABKAESGwoTdGFyZ2V0X3JlbWFpbmluZ19tbRgOIAEoASLwAQoGVGltaW5nEg0KBXN0ZXBzGAEgASgEEhIKCmxhdGVfc3RlcHMYAiABKAQSFAoMbWlzc2VkX3N0ZXBzGAMgASgEEhgKEHN0ZXBfdGltZV9wNTBfbXMYBCABKAESGAoQc3RlcF90aW1lX3A5OV9tcxgFIAEoARIYChBzdGVwX3RpbWVfbWF4X21zGAYgASgBEg4KBmZyYW1lcxgHIAEoBBIZChFmcmFtZV90aW1lX3A1MF9tcxgIIAEoARIZChFmcmFtZV90aW1lX3A5OV9tcxgJIAEoARIZChFmcmFtZV90aW1lX21heF9tcxgKIAEoASJPCglJbnNlcnRpb24SFwoNdmVsb2NpdHlfbW1fcxgBIAEoAUgAEhMKCXRhcmdldF9tbRgCIAEoAUgAEgwKBGhvbGQYAyABKAhCBgoEbW9kZSJJCgVUd2lzdBIUCgpyYXRlX2RlZ19zGAEgASgBSAASFAoKdGFyZ2V0X2RlZxgCIAEoAUgAEgwKBGhvbGQYAyABKAhCBgoEbW9kZSI2CghDQXJtUG9zZRITCgtwcmltYXJ5X2RlZxgBIAEoARIVCg1zZWNvbmRhcnlfZGVnGAIgASgBIjEKCUluamVjdGlvbhIRCgl2b2x1bWVfbWwYASABKAESEQoJcmF0ZV9tbF9zGAIgASgBIpIDCgdDb21tYW5kEioKCWluc2VydGlvbhgBIAEoCzIVLmNhdGhsYWIudjEuSW5zZXJ0aW9uSAASIgoFdHdpc3QYAiABKAsyES5jYXRobGFiLnYxLlR3aXN0SAASFwoNc2VsZWN0X2RldmljZRgDIAEoDUgAEhUKC2ZsdW9yb3Njb3B5GAQgASgISAASKwoKcHVsc2VfcmF0ZRgFIAEoDjIVLmNhdGhsYWIudjEuUHVsc2VSYXRlSAASDQoDZHNhGAYgASgISAASEQoHcm9hZG1hcBgHIAEoCEgAEiQKBGNhcm0YCCABKAsyFC5jYXRobGFiLnYxLkNBcm1Qb3NlSAASJwoGaW5qZWN0GAkgASgLMhUuY2F0aGxhYi52MS5JbmplY3Rpb25IABIPCgVyZXNldBgKIAEoCEgAEigKCGV4Y2hhbmdlGAsgASgLMhQuY2F0aGxhYi52MS5FeGNoYW5nZUgAEhcKCmluc3RydW1lbnQYDCABKA1IAYgBAUIGCgRraW5kQg0KC19pbnN0cnVtZW50IlEKCEV4Y2hhbmdlEhIKCmluc3RydW1lbnQYASABKA0SFgoMY2F0YWxvZ3VlX2lkGAIgASgJSAASDwoFc3BhcmUYAyABKA1IAEIICgZkZXZpY2UiWwoSU2VuZENvbW1hbmRSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSCwoDc2VxGAIgASgEEiQKB2NvbW1hbmQYAyABKAsyEy5jYXRobGFiLnYxLkNvbW1hbmQiJwoKQ29tbWFuZEFjaxILCgNzZXEYASABKAQSDAoEc3RlcBgCIAEoBCJXCgxDb250cm9sSW5wdXQSEgoKc2Vzc2lvbl9pZBgBIAEoCRILCgNzZXEYAiABKAQSEQoJcHVzaF9tbV9zGAMgASgBEhMKC3R3aXN0X2RlZ19zGAQgASgBIkwKDUNvbnRyb2xPdXRwdXQSJgoFc3RhdGUYASABKAsyFy5jYXRobGFiLnYxLkRldmljZVN0YXRlEhMKC2R1cmFibGVfc2VxGAIgASgEIjoKElN0cmVhbVN0YXRlUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEhAKCHRpcF9vbmx5GAIgASgIIicKBFZlYzMSCQoBeBgBIAEoARIJCgF5GAIgASgBEgkKAXoYAyABKAEiUgoLV2FsbENvbnRhY3QSIgoIcG9zaXRpb24YASABKAsyEC5jYXRobGFiLnYxLlZlYzMSHwoFZm9yY2UYAiABKAsyEC5jYXRobGFiLnYxLlZlYzMiwgQKC0RldmljZVN0YXRlEgwKBHN0ZXAYASABKAQSDgoGdGltZV9zGAIgASgBEhAKCGxhc3Rfc2VxGAMgASgEEhAKCG5vZGVzX21tGAQgAygCEikKD3RpcF9wb3NpdGlvbl9tbRgFIAEoCzIQLmNhdGhsYWIudjEuVmVjMxInCg10aXBfZGlyZWN0aW9uGAYgASgLMhAuY2F0aGxhYi52MS5WZWMzEhMKC2luc2VydGVkX21tGAcgASgBEhEKCXR3aXN0X2RlZxgIIAEoARIpCghjb250YWN0cxgJIAMoCzIXLmNhdGhsYWIudjEuV2FsbENvbnRhY3QSKgoQcHJveGltYWxfZm9yY2VfbhgKIAEoCzIQLmNhdGhsYWIudjEuVmVjMxItChNwcm94aW1hbF90b3JxdWVfbm1tGAsgASgLMhAuY2F0aGxhYi52MS5WZWMzEhUKDWFjdGl2ZV9kZXZpY2UYDCABKA0SFgoOc2VydmVyX3VuaXhfdXMYDSABKAQSFQoNYXhpYWxfZm9yY2VfbhgOIAEoARIYChBheGlhbF90b3JxdWVfbm1tGA8gASgBEikKCnB1c2hfbGltaXQYECABKA4yFS5jYXRobGFiLnYxLlB1c2hMaW1pdBIaChJwdXNoX2ZvcmNlX2xpbWl0X24YESABKAESFgoOZmlkZWxpdHlfbGV2ZWwYEiABKA0SMAoLaW5zdHJ1bWVudHMYEyADKAsyGy5jYXRobGFiLnYxLkluc3RydW1lbnRTdGF0ZSKrAgoPSW5zdHJ1bWVudFN0YXRlEgwKBG5hbWUYASABKAkSFAoMY2F0YWxvZ3VlX2lkGAIgASgJEhAKCG5vZGVzX21tGAMgAygCEhMKC2luc2VydGVkX21tGAQgASgBEhEKCXR3aXN0X2RlZxgFIAEoARIpCg90aXBfcG9zaXRpb25fbW0YBiABKAsyEC5jYXRobGFiLnYxLlZlYzMSFwoPYmV5b25kX291dGVyX21tGAcgASgBEhUKDWF4aWFsX2ZvcmNlX24YCCABKAESGAoQYXhpYWxfdG9ycXVlX25tbRgJIAEoARIpCgpwdXNoX2xpbWl0GAogASgOMhUuY2F0aGxhYi52MS5QdXNoTGltaXQSGgoScHVzaF9mb3JjZV9saW1pdF9uGAsgASgBIosBChNTdHJlYW1GcmFtZXNSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSKwoIZW5jb2RpbmcYAiABKA4yGS5jYXRobGFiLnYxLkZyYW1lRW5jb2RpbmcSDQoFd2lkdGgYAyABKA0SDgoGaGVpZ2h0GAQgASgNEhQKDGpwZWdfcXVhbGl0eRgFIAEoDSK4AgoJWHJheUZyYW1lEg0KBWluZGV4GAEgASgEEg4KBnRpbWVfcxgCIAEoARINCgV3aWR0aBgDIAEoDRIOCgZoZWlnaHQYBCABKA0SKwoIZW5jb2RpbmcYBSABKA4yGS5jYXRobGFiLnYxLkZyYW1lRW5jb2RpbmcSDAoEZGF0YRgGIAEoDBIlCgRtb2RlGAcgASgOMhcuY2F0aGxhYi52MS5JbWFnaW5nTW9kZRIMCgRoZWxkGAggASgIEhAKCGxhc3Rfc2VxGAkgASgEEg8KB3NraXBwZWQYCiABKAQSHwoXcmVmZXJlbmNlX2Fpcl9rZXJtYV9tZ3kYCyABKAESIQoZa2VybWFfYXJlYV9wcm9kdWN0X2d5X2NtMhgMIAEoARIWCg50YXJnZXRfb3V0bGluZRgNIAMoAiIqChRTdHJlYW1NZXRyaWNzUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIkQKBUV2ZW50EgwKBHN0ZXAYASABKAQSDgoGdGltZV9zGAIgASgBEgwKBGtpbmQYAyABKAkSDwoHbWVzc2FnZRgEIAEoCSJjCg1TZXNzaW9uVXBkYXRlEiYKB21ldHJpY3MYASABKAsyEy5jYXRobGFiLnYxLk1ldHJpY3NIABIiCgVldmVudBgCIAEoCzIRLmNhdGhsYWIudjEuRXZlbnRIAEIGCgRraW5kIicKEUdldEFuYXRvbXlSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkiOwoGQnJhbmNoEgwKBG5hbWUYASABKAkSEQoJcG9pbnRzX21tGAIgAygCEhAKCHJhZGlpX21tGAMgAygCIowBCgdBbmF0b215EiQKCGJyYW5jaGVzGAEgAygLMhIuY2F0aGxhYi52MS5CcmFuY2gSEwoLdmVydGljZXNfbW0YAiADKAISEQoJdHJpYW5nbGVzGAMgAygNEiMKCWFjY2Vzc19tbRgEIAEoCzIQLmNhdGhsYWIudjEuVmVjMxIOCgZ0YXJnZXQYBSABKAkiKgoUUmVwbGF5U2Vzc2lvblJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSKtAQoMUmVwbGF5UmVzdWx0Eg0KBXN0ZXBzGAEgASgEEhAKCGNvbW1hbmRzGAIgASgNEhMKC2NoZWNrcG9pbnRzGAMgASgNEg8KB21hdGNoZWQYBCABKA0SFwoPcmVjb3JkZWRfZGlnZXN0GAUgASgJEhcKD3JlcGxheWVkX2RpZ2VzdBgGIAEoCRIkCgdtZXRyaWNzGAcgASgLMhMuY2F0aGxhYi52MS5NZXRyaWNzKoYBCg1TZXNzaW9uU3RhdHVzEh4KGlNFU1NJT05fU1RBVFVTX1VOU1BFQ0lGSUVEEAASGgoWU0VTU0lPTl9TVEFUVVNfUlVOTklORxABEhkKFVNFU1NJT05fU1RBVFVTX0NMT1NFRBACEh4KGlNFU1NJT05fU1RBVFVTX0lOVEVSUlVQVEVEEAMqYQoJUHVsc2VSYXRlEhoKFlBVTFNFX1JBVEVfVU5TUEVDSUZJRUQQABISCg5QVUxTRV9SQVRFXzdfNRABEhEKDVBVTFNFX1JBVEVfMTUQAhIRCg1QVUxTRV9SQVRFXzMwEAMqTQoJUHVzaExpbWl0EhMKD1BVU0hfTElNSVRfTk9ORRAAEhQKEFBVU0hfTElNSVRfRk9SQ0UQARIVChFQVVNIX0xJTUlUX0xFTkdUSBACKpMBCg1GcmFtZUVuY29kaW5nEh4KGkZSQU1FX0VOQ09ESU5HX1VOU1BFQ0lGSUVEEAASFwoTRlJBTUVfRU5DT0RJTkdfUkFXOBABEhgKFEZSQU1FX0VOQ09ESU5HX1JBVzE2EAISFgoSRlJBTUVfRU5DT0RJTkdfUE5HEAMSFwoTRlJBTUVfRU5DT0RJTkdfSlBFRxAEKoEBCgtJbWFnaW5nTW9kZRIcChhJTUFHSU5HX01PREVfVU5TUEVDSUZJRUQQABIcChhJTUFHSU5HX01PREVfRkxVT1JPU0NPUFkQARIcChhJTUFHSU5HX01PREVfU1VCVFJBQ1RJT04QAhIYChRJTUFHSU5HX01PREVfUk9BRE1BUBADMpgHCglTaW11bGF0b3ISSwoKTGlzdFNjZW5lcxIdLmNhdGhsYWIudjEuTGlzdFNjZW5lc1JlcXVlc3QaHi5jYXRobGFiLnYxLkxpc3RTY2VuZXNSZXNwb25zZRJUCg1DcmVhdGVTZXNzaW9uEiAuY2F0aGxhYi52MS5DcmVhdGVTZXNzaW9uUmVxdWVzdBohLmNhdGhsYWIudjEuQ3JlYXRlU2Vzc2lvblJlc3BvbnNlElEKDExpc3RTZXNzaW9ucxIfLmNhdGhsYWIudjEuTGlzdFNlc3Npb25zUmVxdWVzdBogLmNhdGhsYWIudjEuTGlzdFNlc3Npb25zUmVzcG9uc2USRAoKR2V0U2Vzc2lvbhIdLmNhdGhsYWIudjEuR2V0U2Vzc2lvblJlcXVlc3QaFy5jYXRobGFiLnYxLlNlc3Npb25JbmZvElEKDENsb3NlU2Vzc2lvbhIfLmNhdGhsYWIudjEuQ2xvc2VTZXNzaW9uUmVxdWVzdBogLmNhdGhsYWIudjEuQ2xvc2VTZXNzaW9uUmVzcG9uc2USRQoLU2VuZENvbW1hbmQSHi5jYXRobGFiLnYxLlNlbmRDb21tYW5kUmVxdWVzdBoWLmNhdGhsYWIudjEuQ29tbWFuZEFjaxJCCgdDb250cm9sEhguY2F0aGxhYi52MS5Db250cm9sSW5wdXQaGS5jYXRobGFiLnYxLkNvbnRyb2xPdXRwdXQoATABEkgKC1N0cmVhbVN0YXRlEh4uY2F0aGxhYi52MS5TdHJlYW1TdGF0ZVJlcXVlc3QaFy5jYXRobGFiLnYxLkRldmljZVN0YXRlMAESSAoMU3RyZWFtRnJhbWVzEh8uY2F0aGxhYi52MS5TdHJlYW1GcmFtZXNSZXF1ZXN0GhUuY2F0aGxhYi52MS5YcmF5RnJhbWUwARJOCg1TdHJlYW1NZXRyaWNzEiAuY2F0aGxhYi52MS5TdHJlYW1NZXRyaWNzUmVxdWVzdBoZLmNhdGhsYWIudjEuU2Vzc2lvblVwZGF0ZTABEkAKCkdldEFuYXRvbXkSHS5jYXRobGFiLnYxLkdldEFuYXRvbXlSZXF1ZXN0GhMuY2F0aGxhYi52MS5BbmF0b215EksKDVJlcGxheVNlc3Npb24SIC5jYXRobGFiLnYxLlJlcGxheVNlc3Npb25SZXF1ZXN0GhguY2F0aGxhYi52MS5SZXBsYXlSZXN1bHRiBnByb3RvMw");
+  fileDesc("ChpjYXRobGFiL3YxL3NpbXVsYXRvci5wcm90bxIKY2F0aGxhYi52MSITChFMaXN0U2NlbmVzUmVxdWVzdCKgAQoMU2NlbmVTdW1tYXJ5EgwKBG5hbWUYASABKAkSEwoLZGVzY3JpcHRpb24YAiABKAkSDwoHZGV2aWNlcxgDIAMoCRIQCghoYXNfZmxvdxgEIAEoCBIOCgZ0YXJnZXQYBSABKAkSKgoFc3RhY2sYBiADKAsyGy5jYXRobGFiLnYxLlN0YWNrSW5zdHJ1bWVudBIOCgZzcGFyZXMYByADKAkiNgoPU3RhY2tJbnN0cnVtZW50Eg4KBmRldmljZRgBIAEoCRITCgtpbnNlcnRlZF9tbRgCIAEoASKCAQoPQ2F0YWxvZ3VlRGV2aWNlEgoKAmlkGAEgASgJEgwKBG5hbWUYAiABKAkSDAoEa2luZBgDIAEoCRIRCglsZW5ndGhfbW0YBCABKAESGQoRb3V0ZXJfZGlhbWV0ZXJfbW0YBSABKAESGQoRaW5uZXJfZGlhbWV0ZXJfbW0YBiABKAEibgoSTGlzdFNjZW5lc1Jlc3BvbnNlEigKBnNjZW5lcxgBIAMoCzIYLmNhdGhsYWIudjEuU2NlbmVTdW1tYXJ5Ei4KCWNhdGFsb2d1ZRgCIAMoCzIbLmNhdGhsYWIudjEuQ2F0YWxvZ3VlRGV2aWNlIoQBChRDcmVhdGVTZXNzaW9uUmVxdWVzdBIUCgpzY2VuZV9uYW1lGAEgASgJSAASFAoKc2NlbmVfdG9tbBgCIAEoCUgAEhQKCnNjZW5lX2pzb24YAyABKAlIABINCgVsYWJlbBgEIAEoCRISCgphc3Nlc3NtZW50GAUgASgIQgcKBXNjZW5lIksKCEd1aWRhbmNlEhUKDXRhcmdldF9tYXJrZXIYASABKAgSFwoPdGFyZ2V0X2Rpc3RhbmNlGAIgASgIEg8KB3Byb21wdHMYAyABKAgihAEKFUNyZWF0ZVNlc3Npb25SZXNwb25zZRISCgpzZXNzaW9uX2lkGAEgASgJEhgKEGNvbnRyb2xsZXJfdG9rZW4YAiABKAkSFgoOb2JzZXJ2ZXJfdG9rZW4YAyABKAkSJQoEaW5mbxgEIAEoCzIXLmNhdGhsYWIudjEuU2Vzc2lvbkluZm8iLwoTTGlzdFNlc3Npb25zUmVxdWVzdBIYChBpbmNsdWRlX3JlY29yZGVkGAEgASgIIkEKFExpc3RTZXNzaW9uc1Jlc3BvbnNlEikKCHNlc3Npb25zGAEgAygLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyInChFHZXRTZXNzaW9uUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIikKE0Nsb3NlU2Vzc2lvblJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSI9ChRDbG9zZVNlc3Npb25SZXNwb25zZRIlCgRpbmZvGAEgASgLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyLQAgoLU2Vzc2lvbkluZm8SEgoKc2Vzc2lvbl9pZBgBIAEoCRISCgpzY2VuZV9uYW1lGAIgASgJEg0KBWxhYmVsGAMgASgJEikKBnN0YXR1cxgEIAEoDjIZLmNhdGhsYWIudjEuU2Vzc2lvblN0YXR1cxIWCg5jcmVhdGVkX3VuaXhfcxgFIAEoARIUCgxzdGVwX3JhdGVfaHoYBiABKAESJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcxIiCgZ0aW1pbmcYCCABKAsyEi5jYXRobGFiLnYxLlRpbWluZxIQCghjb21tYW5kcxgJIAEoBBIVCg1hY3RpdmVfZGV2aWNlGAogASgNEhYKDm9ic2VydmVyX3Rva2VuGAsgASgJEiYKCGd1aWRhbmNlGAwgASgLMhQuY2F0aGxhYi52MS5HdWlkYW5jZSLxAwoHTWV0cmljcxIYChBwcm9jZWR1cmVfdGltZV9zGAEgASgBEhoKEmZsdW9yb3Njb3B5X3RpbWVfcxgCIAEoARIQCghkc2FfcnVucxgDIAEoDRIaChJjb250cmFzdF92b2x1bWVfbWwYBCABKAESGAoQbWF4X3dhbGxfZm9yY2VfbhgFIAEoARIZChFtZWFuX3dhbGxfZm9yY2VfbhgGIAEoARIaChJ0aXBfcGF0aF9sZW5ndGhfbW0YByABKAESFgoOdGFyZ2V0X3JlYWNoZWQYCCABKAgSGwoTdGFyZ2V0X3JlYWNoZWRfYXRfcxgJIAEoARINCgVzdGVwcxgKIAEoBBIZChFkaXZlcmdlbmNlX3Jlc2V0cxgLIAEoDRIXCg9vcGVyYXRvcl9yZXNldHMYDCABKA0SHAoUYXR0ZW1wdF9zdGFydGVkX2F0X3MYDSABKAESGwoTdGFyZ2V0X3JlbWFpbmluZ19tbRgOIAEoARIyCgtpbnN0cnVtZW50cxgPIAMoCzIdLmNhdGhsYWIudjEuSW5zdHJ1bWVudE1ldHJpY3MSGgoSbGVhZGluZ19pbnN0cnVtZW50GBAgASgNEhQKDGxlYWRfY2hhbmdlcxgRIAEoDRIYChBwYXNzZWRfaW5uZXJfdGlwGBIgASgNImIKEUluc3RydW1lbnRNZXRyaWNzEhoKEnRpcF9wYXRoX2xlbmd0aF9tbRgBIAEoARIVCg1tb3ZpbmdfdGltZV9zGAIgASgBEhoKEnBlYWtfYXhpYWxfZm9yY2VfbhgDIAEoASLwAQoGVGltaW5nEg0KBXN0ZXBzGAEgASgEEhIKCmxhdGVfc3RlcHMYAiABKAQSFAoMbWlzc2VkX3N0ZXBzGAMgASgEEhgKEHN0ZXBfdGltZV9wNTBfbXMYBCABKAESGAoQc3RlcF90aW1lX3A5OV9tcxgFIAEoARIYChBzdGVwX3RpbWVfbWF4X21zGAYgASgBEg4KBmZyYW1lcxgHIAEoBBIZChFmcmFtZV90aW1lX3A1MF9tcxgIIAEoARIZChFmcmFtZV90aW1lX3A5OV9tcxgJIAEoARIZChFmcmFtZV90aW1lX21heF9tcxgKIAEoASJPCglJbnNlcnRpb24SFwoNdmVsb2NpdHlfbW1fcxgBIAEoAUgAEhMKCXRhcmdldF9tbRgCIAEoAUgAEgwKBGhvbGQYAyABKAhCBgoEbW9kZSJJCgVUd2lzdBIUCgpyYXRlX2RlZ19zGAEgASgBSAASFAoKdGFyZ2V0X2RlZxgCIAEoAUgAEgwKBGhvbGQYAyABKAhCBgoEbW9kZSI2CghDQXJtUG9zZRITCgtwcmltYXJ5X2RlZxgBIAEoARIVCg1zZWNvbmRhcnlfZGVnGAIgASgBIjEKCUluamVjdGlvbhIRCgl2b2x1bWVfbWwYASABKAESEQoJcmF0ZV9tbF9zGAIgASgBIpIDCgdDb21tYW5kEioKCWluc2VydGlvbhgBIAEoCzIVLmNhdGhsYWIudjEuSW5zZXJ0aW9uSAASIgoFdHdpc3QYAiABKAsyES5jYXRobGFiLnYxLlR3aXN0SAASFwoNc2VsZWN0X2RldmljZRgDIAEoDUgAEhUKC2ZsdW9yb3Njb3B5GAQgASgISAASKwoKcHVsc2VfcmF0ZRgFIAEoDjIVLmNhdGhsYWIudjEuUHVsc2VSYXRlSAASDQoDZHNhGAYgASgISAASEQoHcm9hZG1hcBgHIAEoCEgAEiQKBGNhcm0YCCABKAsyFC5jYXRobGFiLnYxLkNBcm1Qb3NlSAASJwoGaW5qZWN0GAkgASgLMhUuY2F0aGxhYi52MS5JbmplY3Rpb25IABIPCgVyZXNldBgKIAEoCEgAEigKCGV4Y2hhbmdlGAsgASgLMhQuY2F0aGxhYi52MS5FeGNoYW5nZUgAEhcKCmluc3RydW1lbnQYDCABKA1IAYgBAUIGCgRraW5kQg0KC19pbnN0cnVtZW50IlEKCEV4Y2hhbmdlEhIKCmluc3RydW1lbnQYASABKA0SFgoMY2F0YWxvZ3VlX2lkGAIgASgJSAASDwoFc3BhcmUYAyABKA1IAEIICgZkZXZpY2UiWwoSU2VuZENvbW1hbmRSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSCwoDc2VxGAIgASgEEiQKB2NvbW1hbmQYAyABKAsyEy5jYXRobGFiLnYxLkNvbW1hbmQiJwoKQ29tbWFuZEFjaxILCgNzZXEYASABKAQSDAoEc3RlcBgCIAEoBCJXCgxDb250cm9sSW5wdXQSEgoKc2Vzc2lvbl9pZBgBIAEoCRILCgNzZXEYAiABKAQSEQoJcHVzaF9tbV9zGAMgASgBEhMKC3R3aXN0X2RlZ19zGAQgASgBIkwKDUNvbnRyb2xPdXRwdXQSJgoFc3RhdGUYASABKAsyFy5jYXRobGFiLnYxLkRldmljZVN0YXRlEhMKC2R1cmFibGVfc2VxGAIgASgEIjoKElN0cmVhbVN0YXRlUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEhAKCHRpcF9vbmx5GAIgASgIIicKBFZlYzMSCQoBeBgBIAEoARIJCgF5GAIgASgBEgkKAXoYAyABKAEiUgoLV2FsbENvbnRhY3QSIgoIcG9zaXRpb24YASABKAsyEC5jYXRobGFiLnYxLlZlYzMSHwoFZm9yY2UYAiABKAsyEC5jYXRobGFiLnYxLlZlYzMiwgQKC0RldmljZVN0YXRlEgwKBHN0ZXAYASABKAQSDgoGdGltZV9zGAIgASgBEhAKCGxhc3Rfc2VxGAMgASgEEhAKCG5vZGVzX21tGAQgAygCEikKD3RpcF9wb3NpdGlvbl9tbRgFIAEoCzIQLmNhdGhsYWIudjEuVmVjMxInCg10aXBfZGlyZWN0aW9uGAYgASgLMhAuY2F0aGxhYi52MS5WZWMzEhMKC2luc2VydGVkX21tGAcgASgBEhEKCXR3aXN0X2RlZxgIIAEoARIpCghjb250YWN0cxgJIAMoCzIXLmNhdGhsYWIudjEuV2FsbENvbnRhY3QSKgoQcHJveGltYWxfZm9yY2VfbhgKIAEoCzIQLmNhdGhsYWIudjEuVmVjMxItChNwcm94aW1hbF90b3JxdWVfbm1tGAsgASgLMhAuY2F0aGxhYi52MS5WZWMzEhUKDWFjdGl2ZV9kZXZpY2UYDCABKA0SFgoOc2VydmVyX3VuaXhfdXMYDSABKAQSFQoNYXhpYWxfZm9yY2VfbhgOIAEoARIYChBheGlhbF90b3JxdWVfbm1tGA8gASgBEikKCnB1c2hfbGltaXQYECABKA4yFS5jYXRobGFiLnYxLlB1c2hMaW1pdBIaChJwdXNoX2ZvcmNlX2xpbWl0X24YESABKAESFgoOZmlkZWxpdHlfbGV2ZWwYEiABKA0SMAoLaW5zdHJ1bWVudHMYEyADKAsyGy5jYXRobGFiLnYxLkluc3RydW1lbnRTdGF0ZSKrAgoPSW5zdHJ1bWVudFN0YXRlEgwKBG5hbWUYASABKAkSFAoMY2F0YWxvZ3VlX2lkGAIgASgJEhAKCG5vZGVzX21tGAMgAygCEhMKC2luc2VydGVkX21tGAQgASgBEhEKCXR3aXN0X2RlZxgFIAEoARIpCg90aXBfcG9zaXRpb25fbW0YBiABKAsyEC5jYXRobGFiLnYxLlZlYzMSFwoPYmV5b25kX291dGVyX21tGAcgASgBEhUKDWF4aWFsX2ZvcmNlX24YCCABKAESGAoQYXhpYWxfdG9ycXVlX25tbRgJIAEoARIpCgpwdXNoX2xpbWl0GAogASgOMhUuY2F0aGxhYi52MS5QdXNoTGltaXQSGgoScHVzaF9mb3JjZV9saW1pdF9uGAsgASgBIosBChNTdHJlYW1GcmFtZXNSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSKwoIZW5jb2RpbmcYAiABKA4yGS5jYXRobGFiLnYxLkZyYW1lRW5jb2RpbmcSDQoFd2lkdGgYAyABKA0SDgoGaGVpZ2h0GAQgASgNEhQKDGpwZWdfcXVhbGl0eRgFIAEoDSK4AgoJWHJheUZyYW1lEg0KBWluZGV4GAEgASgEEg4KBnRpbWVfcxgCIAEoARINCgV3aWR0aBgDIAEoDRIOCgZoZWlnaHQYBCABKA0SKwoIZW5jb2RpbmcYBSABKA4yGS5jYXRobGFiLnYxLkZyYW1lRW5jb2RpbmcSDAoEZGF0YRgGIAEoDBIlCgRtb2RlGAcgASgOMhcuY2F0aGxhYi52MS5JbWFnaW5nTW9kZRIMCgRoZWxkGAggASgIEhAKCGxhc3Rfc2VxGAkgASgEEg8KB3NraXBwZWQYCiABKAQSHwoXcmVmZXJlbmNlX2Fpcl9rZXJtYV9tZ3kYCyABKAESIQoZa2VybWFfYXJlYV9wcm9kdWN0X2d5X2NtMhgMIAEoARIWCg50YXJnZXRfb3V0bGluZRgNIAMoAiIqChRTdHJlYW1NZXRyaWNzUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIkQKBUV2ZW50EgwKBHN0ZXAYASABKAQSDgoGdGltZV9zGAIgASgBEgwKBGtpbmQYAyABKAkSDwoHbWVzc2FnZRgEIAEoCSJjCg1TZXNzaW9uVXBkYXRlEiYKB21ldHJpY3MYASABKAsyEy5jYXRobGFiLnYxLk1ldHJpY3NIABIiCgVldmVudBgCIAEoCzIRLmNhdGhsYWIudjEuRXZlbnRIAEIGCgRraW5kIicKEUdldEFuYXRvbXlSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkiOwoGQnJhbmNoEgwKBG5hbWUYASABKAkSEQoJcG9pbnRzX21tGAIgAygCEhAKCHJhZGlpX21tGAMgAygCIowBCgdBbmF0b215EiQKCGJyYW5jaGVzGAEgAygLMhIuY2F0aGxhYi52MS5CcmFuY2gSEwoLdmVydGljZXNfbW0YAiADKAISEQoJdHJpYW5nbGVzGAMgAygNEiMKCWFjY2Vzc19tbRgEIAEoCzIQLmNhdGhsYWIudjEuVmVjMxIOCgZ0YXJnZXQYBSABKAkiKgoUUmVwbGF5U2Vzc2lvblJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSKtAQoMUmVwbGF5UmVzdWx0Eg0KBXN0ZXBzGAEgASgEEhAKCGNvbW1hbmRzGAIgASgNEhMKC2NoZWNrcG9pbnRzGAMgASgNEg8KB21hdGNoZWQYBCABKA0SFwoPcmVjb3JkZWRfZGlnZXN0GAUgASgJEhcKD3JlcGxheWVkX2RpZ2VzdBgGIAEoCRIkCgdtZXRyaWNzGAcgASgLMhMuY2F0aGxhYi52MS5NZXRyaWNzKoYBCg1TZXNzaW9uU3RhdHVzEh4KGlNFU1NJT05fU1RBVFVTX1VOU1BFQ0lGSUVEEAASGgoWU0VTU0lPTl9TVEFUVVNfUlVOTklORxABEhkKFVNFU1NJT05fU1RBVFVTX0NMT1NFRBACEh4KGlNFU1NJT05fU1RBVFVTX0lOVEVSUlVQVEVEEAMqYQoJUHVsc2VSYXRlEhoKFlBVTFNFX1JBVEVfVU5TUEVDSUZJRUQQABISCg5QVUxTRV9SQVRFXzdfNRABEhEKDVBVTFNFX1JBVEVfMTUQAhIRCg1QVUxTRV9SQVRFXzMwEAMqTQoJUHVzaExpbWl0EhMKD1BVU0hfTElNSVRfTk9ORRAAEhQKEFBVU0hfTElNSVRfRk9SQ0UQARIVChFQVVNIX0xJTUlUX0xFTkdUSBACKpMBCg1GcmFtZUVuY29kaW5nEh4KGkZSQU1FX0VOQ09ESU5HX1VOU1BFQ0lGSUVEEAASFwoTRlJBTUVfRU5DT0RJTkdfUkFXOBABEhgKFEZSQU1FX0VOQ09ESU5HX1JBVzE2EAISFgoSRlJBTUVfRU5DT0RJTkdfUE5HEAMSFwoTRlJBTUVfRU5DT0RJTkdfSlBFRxAEKoEBCgtJbWFnaW5nTW9kZRIcChhJTUFHSU5HX01PREVfVU5TUEVDSUZJRUQQABIcChhJTUFHSU5HX01PREVfRkxVT1JPU0NPUFkQARIcChhJTUFHSU5HX01PREVfU1VCVFJBQ1RJT04QAhIYChRJTUFHSU5HX01PREVfUk9BRE1BUBADMpgHCglTaW11bGF0b3ISSwoKTGlzdFNjZW5lcxIdLmNhdGhsYWIudjEuTGlzdFNjZW5lc1JlcXVlc3QaHi5jYXRobGFiLnYxLkxpc3RTY2VuZXNSZXNwb25zZRJUCg1DcmVhdGVTZXNzaW9uEiAuY2F0aGxhYi52MS5DcmVhdGVTZXNzaW9uUmVxdWVzdBohLmNhdGhsYWIudjEuQ3JlYXRlU2Vzc2lvblJlc3BvbnNlElEKDExpc3RTZXNzaW9ucxIfLmNhdGhsYWIudjEuTGlzdFNlc3Npb25zUmVxdWVzdBogLmNhdGhsYWIudjEuTGlzdFNlc3Npb25zUmVzcG9uc2USRAoKR2V0U2Vzc2lvbhIdLmNhdGhsYWIudjEuR2V0U2Vzc2lvblJlcXVlc3QaFy5jYXRobGFiLnYxLlNlc3Npb25JbmZvElEKDENsb3NlU2Vzc2lvbhIfLmNhdGhsYWIudjEuQ2xvc2VTZXNzaW9uUmVxdWVzdBogLmNhdGhsYWIudjEuQ2xvc2VTZXNzaW9uUmVzcG9uc2USRQoLU2VuZENvbW1hbmQSHi5jYXRobGFiLnYxLlNlbmRDb21tYW5kUmVxdWVzdBoWLmNhdGhsYWIudjEuQ29tbWFuZEFjaxJCCgdDb250cm9sEhguY2F0aGxhYi52MS5Db250cm9sSW5wdXQaGS5jYXRobGFiLnYxLkNvbnRyb2xPdXRwdXQoATABEkgKC1N0cmVhbVN0YXRlEh4uY2F0aGxhYi52MS5TdHJlYW1TdGF0ZVJlcXVlc3QaFy5jYXRobGFiLnYxLkRldmljZVN0YXRlMAESSAoMU3RyZWFtRnJhbWVzEh8uY2F0aGxhYi52MS5TdHJlYW1GcmFtZXNSZXF1ZXN0GhUuY2F0aGxhYi52MS5YcmF5RnJhbWUwARJOCg1TdHJlYW1NZXRyaWNzEiAuY2F0aGxhYi52MS5TdHJlYW1NZXRyaWNzUmVxdWVzdBoZLmNhdGhsYWIudjEuU2Vzc2lvblVwZGF0ZTABEkAKCkdldEFuYXRvbXkSHS5jYXRobGFiLnYxLkdldEFuYXRvbXlSZXF1ZXN0GhMuY2F0aGxhYi52MS5BbmF0b215EksKDVJlcGxheVNlc3Npb24SIC5jYXRobGFiLnYxLlJlcGxheVNlc3Npb25SZXF1ZXN0GhguY2F0aGxhYi52MS5SZXBsYXlSZXN1bHRiBnByb3RvMw");
 
 /**
  * @generated from message cathlab.v1.ListScenesRequest
@@ -583,6 +583,33 @@ export type Metrics = Message<"cathlab.v1.Metrics"> & {
    * @generated from field: double target_remaining_mm = 14;
    */
   targetRemainingMm: number;
+
+  /**
+   * Per instrument, outermost first (one for a one-device scene).
+   *
+   * @generated from field: repeated cathlab.v1.InstrumentMetrics instruments = 15;
+   */
+  instruments: InstrumentMetrics[];
+
+  /**
+   * The instrument whose tip leads now (index) and how often the lead passed between them.
+   *
+   * @generated from field: uint32 leading_instrument = 16;
+   */
+  leadingInstrument: number;
+
+  /**
+   * @generated from field: uint32 lead_changes = 17;
+   */
+  leadChanges: number;
+
+  /**
+   * How often an instrument was pushed past the tip of the one inside it while that one led
+   * (the catheter overtaking the wire's tip, a classic error).
+   *
+   * @generated from field: uint32 passed_inner_tip = 18;
+   */
+  passedInnerTip: number;
 };
 
 /**
@@ -591,6 +618,39 @@ export type Metrics = Message<"cathlab.v1.Metrics"> & {
  */
 export const MetricsSchema: GenMessage<Metrics> = /*@__PURE__*/
   messageDesc(file_cathlab_v1_simulator, 14);
+
+/**
+ * @generated from message cathlab.v1.InstrumentMetrics
+ */
+export type InstrumentMetrics = Message<"cathlab.v1.InstrumentMetrics"> & {
+  /**
+   * Distance its tip travelled (mm).
+   *
+   * @generated from field: double tip_path_length_mm = 1;
+   */
+  tipPathLengthMm: number;
+
+  /**
+   * Simulated time its hand moved it (s).
+   *
+   * @generated from field: double moving_time_s = 2;
+   */
+  movingTimeS: number;
+
+  /**
+   * Largest axial force its hand felt either way (N).
+   *
+   * @generated from field: double peak_axial_force_n = 3;
+   */
+  peakAxialForceN: number;
+};
+
+/**
+ * Describes the message cathlab.v1.InstrumentMetrics.
+ * Use `create(InstrumentMetricsSchema)` to create a new message.
+ */
+export const InstrumentMetricsSchema: GenMessage<InstrumentMetrics> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 15);
 
 /**
  * Wall-clock timing of the session's threads.
@@ -658,7 +718,7 @@ export type Timing = Message<"cathlab.v1.Timing"> & {
  * Use `create(TimingSchema)` to create a new message.
  */
 export const TimingSchema: GenMessage<Timing> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 15);
+  messageDesc(file_cathlab_v1_simulator, 16);
 
 /**
  * Push/pull.
@@ -702,7 +762,7 @@ export type Insertion = Message<"cathlab.v1.Insertion"> & {
  * Use `create(InsertionSchema)` to create a new message.
  */
 export const InsertionSchema: GenMessage<Insertion> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 16);
+  messageDesc(file_cathlab_v1_simulator, 17);
 
 /**
  * Twist about the device axis at the entry point.
@@ -740,7 +800,7 @@ export type Twist = Message<"cathlab.v1.Twist"> & {
  * Use `create(TwistSchema)` to create a new message.
  */
 export const TwistSchema: GenMessage<Twist> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 17);
+  messageDesc(file_cathlab_v1_simulator, 18);
 
 /**
  * @generated from message cathlab.v1.CArmPose
@@ -766,7 +826,7 @@ export type CArmPose = Message<"cathlab.v1.CArmPose"> & {
  * Use `create(CArmPoseSchema)` to create a new message.
  */
 export const CArmPoseSchema: GenMessage<CArmPose> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 18);
+  messageDesc(file_cathlab_v1_simulator, 19);
 
 /**
  * @generated from message cathlab.v1.Injection
@@ -792,7 +852,7 @@ export type Injection = Message<"cathlab.v1.Injection"> & {
  * Use `create(InjectionSchema)` to create a new message.
  */
 export const InjectionSchema: GenMessage<Injection> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 19);
+  messageDesc(file_cathlab_v1_simulator, 20);
 
 /**
  * @generated from message cathlab.v1.Command
@@ -896,7 +956,7 @@ export type Command = Message<"cathlab.v1.Command"> & {
  * Use `create(CommandSchema)` to create a new message.
  */
 export const CommandSchema: GenMessage<Command> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 20);
+  messageDesc(file_cathlab_v1_simulator, 21);
 
 /**
  * @generated from message cathlab.v1.Exchange
@@ -936,7 +996,7 @@ export type Exchange = Message<"cathlab.v1.Exchange"> & {
  * Use `create(ExchangeSchema)` to create a new message.
  */
 export const ExchangeSchema: GenMessage<Exchange> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 21);
+  messageDesc(file_cathlab_v1_simulator, 22);
 
 /**
  * @generated from message cathlab.v1.SendCommandRequest
@@ -965,7 +1025,7 @@ export type SendCommandRequest = Message<"cathlab.v1.SendCommandRequest"> & {
  * Use `create(SendCommandRequestSchema)` to create a new message.
  */
 export const SendCommandRequestSchema: GenMessage<SendCommandRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 22);
+  messageDesc(file_cathlab_v1_simulator, 23);
 
 /**
  * @generated from message cathlab.v1.CommandAck
@@ -989,7 +1049,7 @@ export type CommandAck = Message<"cathlab.v1.CommandAck"> & {
  * Use `create(CommandAckSchema)` to create a new message.
  */
 export const CommandAckSchema: GenMessage<CommandAck> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 23);
+  messageDesc(file_cathlab_v1_simulator, 24);
 
 /**
  * @generated from message cathlab.v1.ControlInput
@@ -1027,7 +1087,7 @@ export type ControlInput = Message<"cathlab.v1.ControlInput"> & {
  * Use `create(ControlInputSchema)` to create a new message.
  */
 export const ControlInputSchema: GenMessage<ControlInput> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 24);
+  messageDesc(file_cathlab_v1_simulator, 25);
 
 /**
  * @generated from message cathlab.v1.ControlOutput
@@ -1056,7 +1116,7 @@ export type ControlOutput = Message<"cathlab.v1.ControlOutput"> & {
  * Use `create(ControlOutputSchema)` to create a new message.
  */
 export const ControlOutputSchema: GenMessage<ControlOutput> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 25);
+  messageDesc(file_cathlab_v1_simulator, 26);
 
 /**
  * @generated from message cathlab.v1.StreamStateRequest
@@ -1081,7 +1141,7 @@ export type StreamStateRequest = Message<"cathlab.v1.StreamStateRequest"> & {
  * Use `create(StreamStateRequestSchema)` to create a new message.
  */
 export const StreamStateRequestSchema: GenMessage<StreamStateRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 26);
+  messageDesc(file_cathlab_v1_simulator, 27);
 
 /**
  * @generated from message cathlab.v1.Vec3
@@ -1108,7 +1168,7 @@ export type Vec3 = Message<"cathlab.v1.Vec3"> & {
  * Use `create(Vec3Schema)` to create a new message.
  */
 export const Vec3Schema: GenMessage<Vec3> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 27);
+  messageDesc(file_cathlab_v1_simulator, 28);
 
 /**
  * @generated from message cathlab.v1.WallContact
@@ -1134,7 +1194,7 @@ export type WallContact = Message<"cathlab.v1.WallContact"> & {
  * Use `create(WallContactSchema)` to create a new message.
  */
 export const WallContactSchema: GenMessage<WallContact> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 28);
+  messageDesc(file_cathlab_v1_simulator, 29);
 
 /**
  * @generated from message cathlab.v1.DeviceState
@@ -1268,7 +1328,7 @@ export type DeviceState = Message<"cathlab.v1.DeviceState"> & {
  * Use `create(DeviceStateSchema)` to create a new message.
  */
 export const DeviceStateSchema: GenMessage<DeviceState> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 29);
+  messageDesc(file_cathlab_v1_simulator, 30);
 
 /**
  * @generated from message cathlab.v1.InstrumentState
@@ -1350,7 +1410,7 @@ export type InstrumentState = Message<"cathlab.v1.InstrumentState"> & {
  * Use `create(InstrumentStateSchema)` to create a new message.
  */
 export const InstrumentStateSchema: GenMessage<InstrumentState> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 30);
+  messageDesc(file_cathlab_v1_simulator, 31);
 
 /**
  * @generated from message cathlab.v1.StreamFramesRequest
@@ -1391,7 +1451,7 @@ export type StreamFramesRequest = Message<"cathlab.v1.StreamFramesRequest"> & {
  * Use `create(StreamFramesRequestSchema)` to create a new message.
  */
 export const StreamFramesRequestSchema: GenMessage<StreamFramesRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 31);
+  messageDesc(file_cathlab_v1_simulator, 32);
 
 /**
  * @generated from message cathlab.v1.XrayFrame
@@ -1483,7 +1543,7 @@ export type XrayFrame = Message<"cathlab.v1.XrayFrame"> & {
  * Use `create(XrayFrameSchema)` to create a new message.
  */
 export const XrayFrameSchema: GenMessage<XrayFrame> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 32);
+  messageDesc(file_cathlab_v1_simulator, 33);
 
 /**
  * @generated from message cathlab.v1.StreamMetricsRequest
@@ -1500,7 +1560,7 @@ export type StreamMetricsRequest = Message<"cathlab.v1.StreamMetricsRequest"> & 
  * Use `create(StreamMetricsRequestSchema)` to create a new message.
  */
 export const StreamMetricsRequestSchema: GenMessage<StreamMetricsRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 33);
+  messageDesc(file_cathlab_v1_simulator, 34);
 
 /**
  * @generated from message cathlab.v1.Event
@@ -1534,7 +1594,7 @@ export type Event = Message<"cathlab.v1.Event"> & {
  * Use `create(EventSchema)` to create a new message.
  */
 export const EventSchema: GenMessage<Event> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 34);
+  messageDesc(file_cathlab_v1_simulator, 35);
 
 /**
  * @generated from message cathlab.v1.SessionUpdate
@@ -1563,7 +1623,7 @@ export type SessionUpdate = Message<"cathlab.v1.SessionUpdate"> & {
  * Use `create(SessionUpdateSchema)` to create a new message.
  */
 export const SessionUpdateSchema: GenMessage<SessionUpdate> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 35);
+  messageDesc(file_cathlab_v1_simulator, 36);
 
 /**
  * @generated from message cathlab.v1.GetAnatomyRequest
@@ -1580,7 +1640,7 @@ export type GetAnatomyRequest = Message<"cathlab.v1.GetAnatomyRequest"> & {
  * Use `create(GetAnatomyRequestSchema)` to create a new message.
  */
 export const GetAnatomyRequestSchema: GenMessage<GetAnatomyRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 36);
+  messageDesc(file_cathlab_v1_simulator, 37);
 
 /**
  * @generated from message cathlab.v1.Branch
@@ -1611,7 +1671,7 @@ export type Branch = Message<"cathlab.v1.Branch"> & {
  * Use `create(BranchSchema)` to create a new message.
  */
 export const BranchSchema: GenMessage<Branch> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 37);
+  messageDesc(file_cathlab_v1_simulator, 38);
 
 /**
  * @generated from message cathlab.v1.Anatomy
@@ -1652,7 +1712,7 @@ export type Anatomy = Message<"cathlab.v1.Anatomy"> & {
  * Use `create(AnatomySchema)` to create a new message.
  */
 export const AnatomySchema: GenMessage<Anatomy> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 38);
+  messageDesc(file_cathlab_v1_simulator, 39);
 
 /**
  * @generated from message cathlab.v1.ReplaySessionRequest
@@ -1669,7 +1729,7 @@ export type ReplaySessionRequest = Message<"cathlab.v1.ReplaySessionRequest"> & 
  * Use `create(ReplaySessionRequestSchema)` to create a new message.
  */
 export const ReplaySessionRequestSchema: GenMessage<ReplaySessionRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 39);
+  messageDesc(file_cathlab_v1_simulator, 40);
 
 /**
  * @generated from message cathlab.v1.ReplayResult
@@ -1722,7 +1782,7 @@ export type ReplayResult = Message<"cathlab.v1.ReplayResult"> & {
  * Use `create(ReplayResultSchema)` to create a new message.
  */
 export const ReplayResultSchema: GenMessage<ReplayResult> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 40);
+  messageDesc(file_cathlab_v1_simulator, 41);
 
 /**
  * @generated from enum cathlab.v1.SessionStatus
