@@ -827,3 +827,49 @@ fn pushing_the_catheter_past_the_wire_tip_is_counted_and_reported() {
     assert_eq!(m.leading_instrument, 1);
     assert_eq!(m.lead_changes, 2);
 }
+
+#[test]
+fn a_wire_shows_through_the_hollow_catheter_around_it() {
+    use nalgebra::{Point3, Vector3};
+    let text = std::fs::read_to_string(scenes().join("arch_to_cow_lcca_coaxial.toml")).unwrap();
+    let assets = assets(&text);
+    let mut world = World::new(assets.clone()).unwrap();
+    world.step().unwrap();
+    let snapshot = world.snapshot();
+    // 5 mm beyond the entry: inside the catheter (10 mm in), 25 mm from the wire's tip, so
+    // within its 30 mm platinum coil.
+    let nodes = &snapshot.instruments[0].nodes;
+    let (mut walked, mut at, mut tangent) = (0.0, nodes[0], Vector3::x());
+    for w in nodes.windows(2) {
+        let d = (w[1] - w[0]).norm();
+        if walked + d >= 0.005 {
+            tangent = (w[1] - w[0]) / d;
+            at = w[0] + tangent * (0.005 - walked);
+            break;
+        }
+        walked += d;
+    }
+    let across = tangent.cross(&Vector3::z()).normalize();
+    let origin = Point3::from(at - across * 0.02);
+    let paths = |s: &Snapshot| {
+        cathlab_engine::imaging::layers_of(&assets, s)
+            .unwrap()
+            .paths_along(&origin, &across)
+    };
+    let both = paths(&snapshot);
+    let mut catheter_only = snapshot.clone();
+    catheter_only.instruments.truncate(1);
+    let alone = paths(&catheter_only);
+    let c = &snapshot.instruments[0].look;
+    let w = &snapshot.instruments[1].look;
+    // Through the axis: the catheter's braid in its wall twice, and the wire's coil across.
+    let wall = 2.0 * (c.outer_radius_m - c.inner_radius_m) * c.fill;
+    assert!((alone[1] - wall).abs() < 0.05 * wall, "{alone:?} {wall}");
+    assert_eq!(alone[2], 0.0);
+    let coil = 2.0 * w.outer_radius_m * w.bands[0].fill;
+    assert!((both[2] - coil).abs() < 0.05 * coil, "{both:?} {coil}");
+    assert!(
+        (both[1] - alone[1]).abs() < 1e-12,
+        "the coil replaces the core there"
+    );
+}
