@@ -31,6 +31,10 @@ struct Cli {
     /// Latency samples (unary) and control inputs (1 kHz stream).
     #[arg(long, default_value_t = 2000)]
     samples: usize,
+    /// The scene every session runs (a name in the scene directory), e.g. the triaxial
+    /// `neuro_phantom_m1`.
+    #[arg(long, default_value = "arch_to_cow_lcca")]
+    scene: String,
     #[command(flatten)]
     target: ServerArgs,
 }
@@ -99,10 +103,10 @@ struct Loaded {
     frames: std::sync::Arc<std::sync::atomic::AtomicU64>,
 }
 
-async fn load_session(client: &mut SimulatorClient<Channel>) -> Result<Loaded> {
+async fn load_session(client: &mut SimulatorClient<Channel>, scene: &str) -> Result<Loaded> {
     load_scene(
         client,
-        pb::create_session_request::Scene::SceneName("arch_to_cow_lcca".into()),
+        pb::create_session_request::Scene::SceneName(scene.into()),
     )
     .await
 }
@@ -312,7 +316,7 @@ async fn main() -> Result<()> {
     let mut loaded = Vec::new();
     let mut rss = Vec::new();
     for _ in 0..4 {
-        loaded.push(load_session(&mut client).await?);
+        loaded.push(load_session(&mut client, &cli.scene).await?);
         tokio::time::sleep(Duration::from_secs(3)).await;
         rss.push(rss_mib(pid));
     }
@@ -331,7 +335,8 @@ async fn main() -> Result<()> {
 
     // Latency on an otherwise idle server (one session, fluoroscopy on), at the default 500 Hz
     // physics and on the same scene at 1 kHz (the haptic bridge's rate).
-    let default_scene = std::fs::read_to_string(cli.target.scenes.join("arch_to_cow_lcca.toml"))?;
+    let default_scene =
+        std::fs::read_to_string(cli.target.scenes.join(format!("{}.toml", cli.scene)))?;
     for rate in [500, 1000] {
         let text = default_scene.replace("step_rate_hz = 500", &format!("step_rate_hz = {rate}"));
         let probe = load_scene(
@@ -367,7 +372,7 @@ async fn main() -> Result<()> {
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for &n in &cli.sessions {
         for _ in 0..n {
-            loaded.push(load_session(&mut client).await?);
+            loaded.push(load_session(&mut client, &cli.scene).await?);
         }
         tokio::time::sleep(Duration::from_secs(3)).await;
         let start_frames: Vec<u64> = loaded
