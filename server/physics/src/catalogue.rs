@@ -186,6 +186,24 @@ impl Catalogue {
     }
 }
 
+/// `value` if it is finite and `ok`, else the fault naming `owner`'s `field` and `rule`.
+fn checked(
+    fault: &impl Fn(&str, &str, String) -> PhysicsError,
+    owner: &str,
+    field: &str,
+    value: f64,
+    ok: bool,
+    rule: &str,
+) -> Result<f64> {
+    if !value.is_finite() {
+        Err(fault(owner, field, format!("must be finite, got {value}")))
+    } else if !ok {
+        Err(fault(owner, field, format!("must be {rule}, got {value}")))
+    } else {
+        Ok(value)
+    }
+}
+
 /// Checks one raw device field by field and builds it.
 fn convert(raw: RawDevice) -> Result<CatalogueEntry> {
     let id = raw.id;
@@ -209,13 +227,7 @@ fn convert(raw: RawDevice) -> Result<CatalogueEntry> {
     for s in raw.section {
         let owner = format!("section \"{}\"", s.name);
         let check = |field: &str, value: f64, ok: bool, rule: &str| {
-            if !value.is_finite() {
-                Err(fault(&owner, field, format!("must be finite, got {value}")))
-            } else if !ok {
-                Err(fault(&owner, field, format!("must be {rule}, got {value}")))
-            } else {
-                Ok(value)
-            }
+            checked(&fault, &owner, field, value, ok, rule)
         };
         let length_mm = check("length_mm", s.length_mm, s.length_mm > 0.0, "> 0")?;
         let outer = check(
@@ -312,13 +324,7 @@ fn convert(raw: RawDevice) -> Result<CatalogueEntry> {
     for (k, m) in raw.marker.iter().enumerate() {
         let owner = format!("marker {k}");
         let check = |field: &str, value: f64, ok: bool, rule: &str| {
-            if !value.is_finite() {
-                Err(fault(&owner, field, format!("must be finite, got {value}")))
-            } else if !ok {
-                Err(fault(&owner, field, format!("must be {rule}, got {value}")))
-            } else {
-                Ok(value)
-            }
+            checked(&fault, &owner, field, value, ok, rule)
         };
         let from_tip = check("from_tip_mm", m.from_tip_mm, m.from_tip_mm >= 0.0, "≥ 0")?;
         let length = check(

@@ -1082,3 +1082,27 @@ fn a_stack_under_a_capped_effort_does_less_work() {
         other => panic!("{other:?}"),
     }
 }
+
+#[test]
+fn catalogue_markers_are_checked_and_named() {
+    let base = catalogue_with("lumen_friction", "0.04");
+    let marker = |from_tip: &str, length: &str| {
+        format!("{base}\n[[device.marker]]\nfrom_tip_mm = {from_tip}\nlength_mm = {length}\n")
+    };
+    let (device, section, field) = definition_error(&marker("-1.0", "1.0"));
+    assert_eq!(
+        (device.as_str(), section.as_str(), field.as_str()),
+        ("test-catheter", "marker 0", "from_tip_mm")
+    );
+    let (_, _, field) = definition_error(&marker("0.0", "5000.0"));
+    assert_eq!(field, "length_mm");
+    let ok = Catalogue::from_toml_str(&marker("0.5", "1.0")).unwrap();
+    let m = ok.get("test-catheter").unwrap().markers[0];
+    assert_eq!((m.from_tip_m, m.length_m, m.fill), (0.5e-3, 1e-3, 1.0));
+    // Every built-in microcatheter carries its two marker bands 30 mm apart.
+    for entry in Catalogue::builtin().entries() {
+        if entry.kind == cathlab_physics::DeviceKind::Microcatheter {
+            assert_eq!(entry.markers.len(), 2, "{}", entry.id);
+        }
+    }
+}
