@@ -106,6 +106,9 @@ struct CellGrid {
     block_of: Vec<u32>,
     cells: Vec<CellEntry>,
     candidates: Vec<u32>,
+    /// Distance from its cell's centre to each candidate, less the cell's half diagonal: a
+    /// lower bound on the distance to it from any point of the cell (m, ascending per cell).
+    candidate_bounds: Vec<f32>,
 }
 
 impl CellGrid {
@@ -156,6 +159,7 @@ impl Lumen {
             + self.grid.block_of.len() * size_of::<u32>()
             + self.grid.cells.len() * size_of::<CellEntry>()
             + self.grid.candidates.len() * size_of::<u32>()
+            + self.grid.candidate_bounds.len() * size_of::<f32>()
     }
 
     /// Prepares `mesh`, which must be a closed, consistently oriented 2-manifold; a surface
@@ -319,6 +323,7 @@ impl Lumen {
         let per_block = BLOCK * BLOCK * BLOCK;
         let mut cells = vec![CellEntry::default(); allocated as usize * per_block];
         let mut candidates = Vec::new();
+        let mut candidate_bounds = Vec::new();
         let half_diagonal = 0.5 * cell * 3f64.sqrt();
         for bk in 0..blocks[2] {
             for bj in 0..blocks[1] {
@@ -365,6 +370,12 @@ impl Lumen {
                             .collect();
                         near.sort_by(|x, y| x.0.total_cmp(&y.0));
                         candidates.extend(near.iter().map(|&(_, leaf)| leaf));
+                        // Rounded down, so that it stays a lower bound in f32.
+                        candidate_bounds.extend(
+                            near.iter().map(|&(d, _)| {
+                                ((d - half_diagonal).max(0.0) * (1.0 - 1e-6)) as f32
+                            }),
+                        );
                         entry.count = candidates.len() as u32 - entry.start;
                     }
                 }
@@ -377,6 +388,7 @@ impl Lumen {
             block_of,
             cells,
             candidates,
+            candidate_bounds,
         })
     }
 
@@ -393,7 +405,7 @@ impl Lumen {
     pub fn grid_bytes(&self) -> usize {
         self.grid.block_of.len() * 4
             + self.grid.cells.len() * std::mem::size_of::<CellEntry>()
-            + self.grid.candidates.len() * 4
+            + self.grid.candidates.len() * 8
     }
 
     /// Exact wall query for a point: the grid's candidate triangles near the wall, the BVH
@@ -402,8 +414,10 @@ impl Lumen {
     pub fn query(&self, point: &Point3<f64>) -> WallQuery {
         match self.grid.entry(point) {
             Some(e) if e.count > 0 => {
-                let list = &self.grid.candidates[e.start as usize..(e.start + e.count) as usize];
-                self.query_candidates(point, list)
+                let range = e.start as usize..(e.start + e.count) as usize;
+                let list = &self.grid.candidates[range.clone()];
+                let bounds = &self.grid.candidate_bounds[range];
+                self.query_candidates(point, list, bounds)
             }
             _ => self.query_bvh(point),
         }
@@ -428,9 +442,14 @@ impl Lumen {
         }
     }
 
-    fn query_candidates(&self, point: &Point3<f64>, list: &[u32]) -> WallQuery {
+    fn query_candidates(&self, point: &Point3<f64>, list: &[u32], bounds: &[f32]) -> WallQuery {
         let mut best = (f64::INFINITY, Point3::origin(), Feature::Face, 0u32);
-        for &t in list {
+        for (&t, &bound) in list.iter().zip(bounds) {
+            // Ascending lower bounds: no later candidate can be nearer.
+            let bound = f64::from(bound);
+            if bound * bound >= best.0 {
+                break;
+            }
             let [a, b, c] = &self.corners[t as usize];
             // The distance to the triangle's plane bounds the distance to the triangle.
             let plane = (point - a).dot(&self.face_normals[t as usize]);

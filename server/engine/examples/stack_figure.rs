@@ -20,9 +20,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
     let base = path.parent().unwrap_or(Path::new("."));
+    let started = std::time::Instant::now();
     let assets = AssetCache::default().load(&spec, base)?;
+    println!("loaded in {:.1} s", started.elapsed().as_secs_f64());
     let mut world = World::new(assets.clone())?;
+    let started = std::time::Instant::now();
     let reached = world.follow_two_hands(40_000, 1)?;
+    println!(
+        "two-hand run: {:.2} s wall, {:.3} ms a step",
+        started.elapsed().as_secs_f64(),
+        started.elapsed().as_secs_f64() * 1e3 / world.step_index().max(1) as f64
+    );
     let snapshot = world.snapshot();
     for i in &snapshot.instruments {
         println!(
