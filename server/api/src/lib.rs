@@ -227,6 +227,17 @@ fn vec3(x: f64, y: f64, z: f64) -> pb::Vec3 {
     pb::Vec3 { x, y, z }
 }
 
+/// Node positions as x y z per node (mm, f32); none when `tip_only`.
+fn nodes_to_wire(nodes: &[nalgebra::Vector3<f64>], tip_only: bool) -> Vec<f32> {
+    if tip_only {
+        return Vec::new();
+    }
+    nodes
+        .iter()
+        .flat_map(|n| [n.x as f32 * 1e3, n.y as f32 * 1e3, n.z as f32 * 1e3])
+        .collect()
+}
+
 /// A snapshot on the wire (mm, N, N·mm); `tip_only` leaves out the nodes.
 pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::DeviceState {
     let p = &s.proximal;
@@ -235,14 +246,7 @@ pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::D
         step: s.step,
         time_s: s.time_s,
         last_seq: s.last_seq,
-        nodes_mm: if tip_only {
-            Vec::new()
-        } else {
-            s.nodes
-                .iter()
-                .flat_map(|n| [n.x as f32 * 1e3, n.y as f32 * 1e3, n.z as f32 * 1e3])
-                .collect()
-        },
+        nodes_mm: nodes_to_wire(&s.nodes, tip_only),
         tip_position_mm: Some(vec3_mm(&s.tip())),
         tip_direction: Some(vec3(
             s.tip_direction.x,
@@ -276,14 +280,7 @@ pub fn state_to_wire(s: &Snapshot, tip_only: bool, server_unix_us: u64) -> pb::D
             .map(|(k, i)| pb::InstrumentState {
                 name: i.name.clone(),
                 catalogue_id: i.catalogue_id.clone(),
-                nodes_mm: if tip_only {
-                    Vec::new()
-                } else {
-                    i.nodes
-                        .iter()
-                        .flat_map(|n| [n.x as f32 * 1e3, n.y as f32 * 1e3, n.z as f32 * 1e3])
-                        .collect()
-                },
+                nodes_mm: nodes_to_wire(&i.nodes, tip_only),
                 inserted_mm: i.inserted_m * 1e3,
                 twist_deg: i.twist_rad.to_degrees(),
                 tip_position_mm: i.tip.as_ref().map(vec3_mm),
