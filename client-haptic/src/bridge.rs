@@ -18,7 +18,7 @@ use tokio::sync::mpsc;
 use tonic::transport::{Channel, Endpoint};
 
 use crate::coupling::{Coupling, CouplingSettings, ServerSample};
-use crate::protocol::{DATAGRAM_BYTES, DeviceSample, Feedback, lost_between};
+use crate::protocol::{DeviceSample, Feedback, HandFeedback, lost_between};
 
 /// Which session to drive.
 #[derive(Debug, Clone)]
@@ -115,6 +115,16 @@ pub struct Report {
     pub inserted_mm: f64,
     /// Axial reaction (N).
     pub server_force_n: f64,
+    /// A two-channel device's outer hand: last rendered force (N) and torque (N·mm).
+    pub outer_force_n: f64,
+    /// Torque (N·mm).
+    pub outer_torque_nmm: f64,
+    /// The outer instrument's last server inserted length (mm) and axial reaction (N).
+    pub outer_inserted_mm: f64,
+    /// Axial reaction (N).
+    pub outer_server_force_n: f64,
+    /// The stack index the outer hand drives (absent without an outer instrument).
+    pub outer_instrument: Option<u32>,
     /// Last error from the server side, if any.
     pub last_error: String,
 }
@@ -305,6 +315,7 @@ async fn stream_once(
             seq: 0,
             push_mm_s: 0.0,
             twist_deg_s: 0.0,
+            hands: Vec::new(),
         })
         .await?;
     let response = client
@@ -390,6 +401,60 @@ async fn stream_once(
     }
 }
 
+/// A server state's instrument as the coupling law needs it.
+fn sample_of(i: &pb::InstrumentState, age_s: f64) -> ServerSample {
+    ServerSample {
+        inserted_mm: i.inserted_mm,
+        twist_deg: i.twist_deg,
+        axial_force_n: i.axial_force_n,
+        axial_torque_nmm: i.axial_torque_nmm,
+        age_s,
+    }
+}
+
+/// What the loop reads from the server link in one tick: the inner (or only) instrument's
+/// sample, the outer hand's (its sample and stack index, and the innermost's index) when the
+/// scene has two instruments or more, and the state's age.
+struct ServerView {
+    inner: ServerSample,
+    outer: Option<(ServerSample, u32, u32)>,
+    age_s: f64,
+}
+
+fn view(state: &pb::DeviceState, age_s: f64) -> ServerView {
+    let n = state.instruments.len();
+    let inner = match state.instruments.last() {
+        Some(i) => sample_of(i, age_s),
+        None => ServerSample {
+            inserted_mm: state.inserted_mm,
+            twist_deg: state.twist_deg,
+            axial_force_n: state.axial_force_n,
+            axial_torque_nmm: state.axial_torque_nmm,
+            age_s,
+        },
+    };
+    ServerView {
+        inner,
+        outer: (n >= 2).then(|| {
+            (
+                sample_of(&state.instruments[n - 2], age_s),
+                (n - 2) as u32,
+                (n - 1) as u32,
+            )
+        }),
+        age_s,
+    }
+}
+
+/// The last tick's outputs and server view, for the reports.
+#[derive(Default)]
+struct Last {
+    inner: crate::coupling::Output,
+    outer: crate::coupling::Output,
+    server: Option<ServerSample>,
+    outer_server: Option<(ServerSample, u32)>,
+}
+
 fn control_loop(
     config: &BridgeConfig,
     shared: &Shared,
@@ -398,18 +463,20 @@ fn control_loop(
 ) -> anyhow::Result<Report> {
     let period = Duration::from_secs_f64(1.0 / config.rate_hz);
     let dt = period.as_secs_f64();
+    // One law per hand: the inner (or only) instrument's, and a two-channel device's outer.
     let mut coupling = Coupling::new(config.coupling);
+    let mut outer_coupling = Coupling::new(config.coupling);
     let mut periods = Histogram::<u64>::new_with_bounds(1, 10_000_000, 3)?;
     let mut ages = Histogram::<u64>::new_with_bounds(1, 60_000_000, 3)?;
     let start = Instant::now();
     let (mut next, mut previous_tick) = (start, start);
-    // The last tick's output and server state, for the reports.
-    let mut last: (crate::coupling::Output, Option<ServerSample>) = Default::default();
+    let mut last = Last::default();
     let (mut ticks, mut overruns) = (0u64, 0u64);
     let mut next_report = config.report_every_s;
     let mut generation = 0;
     let mut input_seq = 0u64;
-    let mut sent: Option<(f64, f64, Instant)> = None;
+    // The setpoints last sent (inner push, twist, outer push, twist) and when.
+    let mut sent: Option<([f64; 4], Instant)> = None;
     let mut buttons = (false, false);
     while !shared.stop.load(Ordering::Relaxed) {
         let now = Instant::now();
@@ -430,21 +497,13 @@ fn control_loop(
             if link.generation != generation {
                 generation = link.generation;
                 coupling.disengage();
+                outer_coupling.disengage();
                 sent = None;
             }
-            let server = link.latest.as_ref().map(|(s, at)| {
-                let age = now.saturating_duration_since(*at).as_secs_f64();
-                (
-                    ServerSample {
-                        inserted_mm: s.inserted_mm,
-                        twist_deg: s.twist_deg,
-                        axial_force_n: s.axial_force_n,
-                        axial_torque_nmm: s.axial_torque_nmm,
-                        age_s: age,
-                    },
-                    age,
-                )
-            });
+            let server = link
+                .latest
+                .as_ref()
+                .map(|(s, at)| view(s, now.saturating_duration_since(*at).as_secs_f64()));
             (
                 server,
                 link.inputs.clone(),
@@ -452,37 +511,82 @@ fn control_loop(
                 link.inputs.is_some(),
             )
         };
-        if let Some((_, age)) = server {
-            let _ = ages.record(((age * 1e6) as u64).max(1));
+        if let Some(v) = &server {
+            let _ = ages.record(((v.age_s * 1e6) as u64).max(1));
         }
         let output = match device {
-            Some(d) => coupling.update(dt, d.insertion_mm, d.rotation_deg, server.map(|(s, _)| s)),
+            Some(d) => coupling.update(
+                dt,
+                d.insertion_mm,
+                d.rotation_deg,
+                server.as_ref().map(|v| v.inner),
+            ),
             // No device: stop the simulated one, render nothing, re-engage on return.
             None => {
                 coupling.disengage();
                 Default::default()
             }
         };
+        // The outer hand: a two-channel device on a scene with an outer instrument.
+        let outer_server = server.as_ref().and_then(|v| v.outer);
+        let outer = match (device.and_then(|d| d.outer), outer_server) {
+            (Some(p), Some((sample, _, _))) => {
+                outer_coupling.update(dt, p.insertion_mm, p.rotation_deg, Some(sample))
+            }
+            _ => {
+                outer_coupling.disengage();
+                Default::default()
+            }
+        };
+        let hands = device.is_some_and(|d| d.outer.is_some());
         // Setpoints: on change but no faster than the server's physics (every 2 ms: each one
         // is a recorded command), and at least every 20 ms as a keep-alive.
         if let Some(inputs) = &inputs {
-            let due = sent.is_none_or(|(p, t, at)| {
+            let setpoints = [
+                output.push_mm_s,
+                output.twist_deg_s,
+                outer.push_mm_s,
+                outer.twist_deg_s,
+            ];
+            let due = sent.is_none_or(|(p, at)| {
                 let since = now.duration_since(at);
-                let changed =
-                    (p - output.push_mm_s).abs() > 0.01 || (t - output.twist_deg_s).abs() > 0.01;
+                let changed = p.iter().zip(&setpoints).any(|(a, b)| (a - b).abs() > 0.01);
                 (changed && since >= Duration::from_millis(2)) || since >= Duration::from_millis(20)
             });
             if due {
                 input_seq += 1;
-                let input = pb::ControlInput {
-                    session_id: String::new(),
-                    seq: input_seq,
-                    push_mm_s: output.push_mm_s,
-                    twist_deg_s: output.twist_deg_s,
+                // Two hands: each names its instrument; one: the plain setpoints drive the
+                // innermost.
+                let input = match outer_server.filter(|_| hands) {
+                    Some((_, outer_index, inner_index)) => pb::ControlInput {
+                        session_id: String::new(),
+                        seq: input_seq,
+                        push_mm_s: 0.0,
+                        twist_deg_s: 0.0,
+                        hands: vec![
+                            pb::HandSetpoint {
+                                instrument: outer_index,
+                                push_mm_s: outer.push_mm_s,
+                                twist_deg_s: outer.twist_deg_s,
+                            },
+                            pb::HandSetpoint {
+                                instrument: inner_index,
+                                push_mm_s: output.push_mm_s,
+                                twist_deg_s: output.twist_deg_s,
+                            },
+                        ],
+                    },
+                    None => pb::ControlInput {
+                        session_id: String::new(),
+                        seq: input_seq,
+                        push_mm_s: output.push_mm_s,
+                        twist_deg_s: output.twist_deg_s,
+                        hands: Vec::new(),
+                    },
                 };
                 if inputs.try_send(input).is_ok() {
                     shared.server.lock().pending.push_back((input_seq, now));
-                    sent = Some((output.push_mm_s, output.twist_deg_s, now));
+                    sent = Some((setpoints, now));
                 }
             }
         }
@@ -502,26 +606,38 @@ fn control_loop(
             buttons = (d.pedal, d.reset);
         }
         if let (Some(d), Some(to)) = (device, from) {
+            // Answered in the device's own version: the outer channel only to a device that
+            // sent one (live only when the scene has an outer instrument).
             let feedback = Feedback {
                 seq: d.seq,
                 device_time_us: d.device_time_us,
                 state_age_us: server
-                    .map(|(_, age)| (age * 1e6).min(u32::MAX as f64) as u32)
+                    .as_ref()
+                    .map(|v| (v.age_s * 1e6).min(u32::MAX as f64) as u32)
                     .unwrap_or(u32::MAX),
                 connected,
                 live: output.live,
                 force_n: output.force_n,
                 torque_nmm: output.torque_nmm,
+                outer: d.outer.map(|_| HandFeedback {
+                    force_n: outer.force_n,
+                    torque_nmm: outer.torque_nmm,
+                    live: outer.live,
+                }),
             };
-            let datagram: [u8; DATAGRAM_BYTES] = feedback.encode();
-            let _ = socket.send_to(&datagram, to);
+            let _ = socket.send_to(&feedback.encode(), to);
         }
-        last = (output, server.map(|(s, _)| s));
+        last = Last {
+            inner: output,
+            outer,
+            server: server.as_ref().map(|v| v.inner),
+            outer_server: outer_server.map(|(s, i, _)| (s, i)),
+        };
         // Reports (locks, quantiles, string copies) only when due, not every tick.
         let t = start.elapsed().as_secs_f64();
         if t >= next_report {
             report(&snapshot(
-                t, ticks, overruns, &periods, &ages, shared, &last.0, last.1,
+                t, ticks, overruns, &periods, &ages, shared, &last,
             ));
             next_report += config.report_every_s;
         }
@@ -535,12 +651,9 @@ fn control_loop(
         }
     }
     let t = start.elapsed().as_secs_f64();
-    Ok(snapshot(
-        t, ticks, overruns, &periods, &ages, shared, &last.0, last.1,
-    ))
+    Ok(snapshot(t, ticks, overruns, &periods, &ages, shared, &last))
 }
 
-#[allow(clippy::too_many_arguments)]
 fn snapshot(
     t_s: f64,
     ticks: u64,
@@ -548,9 +661,9 @@ fn snapshot(
     periods: &Histogram<u64>,
     ages: &Histogram<u64>,
     shared: &Shared,
-    output: &crate::coupling::Output,
-    server: Option<ServerSample>,
+    last: &Last,
 ) -> Report {
+    let (output, server) = (&last.inner, last.server);
     let device = shared.device.lock();
     let link = shared.server.lock();
     let trips = link.round_trip_us.as_ref();
@@ -581,6 +694,11 @@ fn snapshot(
         torque_nmm: output.torque_nmm,
         inserted_mm: server.map_or(0.0, |s| s.inserted_mm),
         server_force_n: server.map_or(0.0, |s| s.axial_force_n),
+        outer_force_n: last.outer.force_n,
+        outer_torque_nmm: last.outer.torque_nmm,
+        outer_inserted_mm: last.outer_server.map_or(0.0, |(s, _)| s.inserted_mm),
+        outer_server_force_n: last.outer_server.map_or(0.0, |(s, _)| s.axial_force_n),
+        outer_instrument: last.outer_server.map(|(_, i)| i),
         last_error: link.last_error.clone(),
     }
 }

@@ -1,6 +1,7 @@
 //! A scripted virtual haptic device: speaks the device side of the UDP protocol at a fixed
-//! rate, moves by a script of constant-speed segments, drops a chosen fraction of datagrams
-//! both ways (to test loss), and reports the force it is asked to render.
+//! rate, with one channel or two (an outer hand beside the inner one), moves by a script of
+//! constant-speed segments, drops a chosen fraction of datagrams both ways (to test loss),
+//! and reports the force each hand is asked to render.
 
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
@@ -8,7 +9,7 @@ use std::time::{Duration, Instant};
 use rand::RngExt;
 use serde::Serialize;
 
-use crate::protocol::{DATAGRAM_BYTES, DeviceSample, Feedback};
+use crate::protocol::{DeviceSample, Feedback, HandPosition};
 
 /// One piece of the script.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -22,6 +23,20 @@ pub enum Segment {
     },
     /// Turn.
     Twist {
+        /// Rate (deg/s, + clockwise).
+        deg_s: f64,
+        /// Duration (s).
+        seconds: f64,
+    },
+    /// The outer hand (a two-channel device) pushes (+) or pulls (−).
+    OuterPush {
+        /// Speed (mm/s).
+        mm_s: f64,
+        /// Duration (s).
+        seconds: f64,
+    },
+    /// The outer hand turns.
+    OuterTwist {
         /// Rate (deg/s, + clockwise).
         deg_s: f64,
         /// Duration (s).
@@ -41,6 +56,8 @@ impl Segment {
         match *self {
             Segment::Push { seconds, .. }
             | Segment::Twist { seconds, .. }
+            | Segment::OuterPush { seconds, .. }
+            | Segment::OuterTwist { seconds, .. }
             | Segment::Hold { seconds } => seconds,
             Segment::Pedal(_) => 0.0,
         }
@@ -59,8 +76,9 @@ pub struct ScriptError {
     pub reason: String,
 }
 
-/// Parses `push:MM_S:SECONDS`, `twist:DEG_S:SECONDS`, `hold:SECONDS`, `pedal:on|off`,
-/// separated by commas: e.g. `hold:0.5,push:15:4,twist:90:1`.
+/// Parses `push:MM_S:SECONDS`, `twist:DEG_S:SECONDS`, `outer-push:MM_S:SECONDS`,
+/// `outer-twist:DEG_S:SECONDS`, `hold:SECONDS`, `pedal:on|off`, separated by commas: e.g.
+/// `hold:0.5,push:15:4,twist:90:1`. The outer segments move a two-channel device's outer hand.
 pub fn parse_script(text: &str) -> Result<Vec<Segment>, ScriptError> {
     text.split(',')
         .map(str::trim)
@@ -95,13 +113,22 @@ pub fn parse_script(text: &str) -> Result<Vec<Segment>, ScriptError> {
                     deg_s: number(v, "rate")?,
                     seconds: duration(t)?,
                 }),
+                ["outer-push", v, t] => Ok(Segment::OuterPush {
+                    mm_s: number(v, "speed")?,
+                    seconds: duration(t)?,
+                }),
+                ["outer-twist", v, t] => Ok(Segment::OuterTwist {
+                    deg_s: number(v, "rate")?,
+                    seconds: duration(t)?,
+                }),
                 ["hold", t] => Ok(Segment::Hold {
                     seconds: duration(t)?,
                 }),
                 ["pedal", "on"] => Ok(Segment::Pedal(true)),
                 ["pedal", "off"] => Ok(Segment::Pedal(false)),
                 _ => Err(fail(
-                    "expected push:MM_S:S, twist:DEG_S:S, hold:S or pedal:on|off",
+                    "expected push:MM_S:S, twist:DEG_S:S, outer-push:MM_S:S, outer-twist:DEG_S:S, \
+                     hold:S or pedal:on|off",
                 )),
             }
         })
@@ -121,6 +148,15 @@ pub struct VirtualDevice {
     pub loss: f64,
     /// How often to report (s).
     pub report_every_s: f64,
+    /// Two channels (protocol version 2: an outer hand too); one otherwise.
+    pub two_hands: bool,
+}
+
+/// Whether a script moves an outer hand (and so needs a two-channel device).
+pub fn moves_outer_hand(script: &[Segment]) -> bool {
+    script
+        .iter()
+        .any(|s| matches!(s, Segment::OuterPush { .. } | Segment::OuterTwist { .. }))
 }
 
 /// What the device saw at one moment.
@@ -148,6 +184,17 @@ pub struct DeviceReport {
     pub received: u64,
     /// Device-to-device round trip of the last feedback (ms).
     pub round_trip_ms: f64,
+    /// The outer hand (a two-channel device; zeros otherwise): position (mm), angle (deg),
+    /// force (N), torque (N·mm) and whether its feedback is live.
+    pub outer_position_mm: f64,
+    /// Angle (deg).
+    pub outer_rotation_deg: f64,
+    /// Force (N).
+    pub outer_force_n: f64,
+    /// Torque (N·mm).
+    pub outer_torque_nmm: f64,
+    /// Live.
+    pub outer_live: bool,
 }
 
 /// Runs the script, calling `report` every `report_every_s`; returns the last report.
@@ -163,6 +210,7 @@ pub fn run(
     let start = Instant::now();
     let mut rng = rand::rng();
     let (mut position, mut angle, mut pedal) = (0.0f64, 0.0f64, false);
+    let mut outer = HandPosition::default();
     let mut state = DeviceReport {
         t_s: 0.0,
         position_mm: 0.0,
@@ -175,6 +223,11 @@ pub fn run(
         dropped: 0,
         received: 0,
         round_trip_ms: 0.0,
+        outer_position_mm: 0.0,
+        outer_rotation_deg: 0.0,
+        outer_force_n: 0.0,
+        outer_torque_nmm: 0.0,
+        outer_live: false,
     };
     let (mut seq, mut next_tick, mut next_report) = (0u32, start, 0.0);
     let mut previous_t = 0.0;
@@ -201,6 +254,8 @@ pub fn run(
         match running {
             Some(Segment::Push { mm_s, .. }) => position += mm_s * dt,
             Some(Segment::Twist { deg_s, .. }) => angle += deg_s * dt,
+            Some(Segment::OuterPush { mm_s, .. }) => outer.insertion_mm += mm_s * dt,
+            Some(Segment::OuterTwist { deg_s, .. }) => outer.rotation_deg += deg_s * dt,
             _ => {}
         }
         seq = seq.wrapping_add(1);
@@ -211,6 +266,7 @@ pub fn run(
             rotation_deg: angle,
             pedal,
             reset: false,
+            outer: device.two_hands.then_some(outer),
         };
         if rng.random::<f64>() < device.loss {
             state.dropped += 1;
@@ -220,10 +276,15 @@ pub fn run(
             state.sent += 1;
         }
         while let Ok(n) = socket.recv(&mut buffer) {
-            if n != DATAGRAM_BYTES || rng.random::<f64>() < device.loss {
+            if rng.random::<f64>() < device.loss {
                 continue;
             }
             if let Ok(feedback) = Feedback::decode(&buffer[..n]) {
+                if let Some(o) = feedback.outer {
+                    state.outer_force_n = o.force_n;
+                    state.outer_torque_nmm = o.torque_nmm;
+                    state.outer_live = o.live;
+                }
                 state.received += 1;
                 state.force_n = feedback.force_n;
                 state.torque_nmm = feedback.torque_nmm;
@@ -236,6 +297,8 @@ pub fn run(
         state.t_s = t;
         state.position_mm = position;
         state.rotation_deg = angle;
+        state.outer_position_mm = outer.insertion_mm;
+        state.outer_rotation_deg = outer.rotation_deg;
         if t >= next_report {
             report(&state);
             next_report += device.report_every_s;
@@ -290,5 +353,21 @@ mod tests {
                 .contains("expected")
         );
         assert!(parse_script("push:NaN:1").is_err());
+        let two = parse_script("outer-push:10:1,outer-twist:-45:0.5,push:5:1").unwrap();
+        assert_eq!(
+            two[0],
+            Segment::OuterPush {
+                mm_s: 10.0,
+                seconds: 1.0
+            }
+        );
+        assert!(moves_outer_hand(&two));
+        assert!(!moves_outer_hand(&parse_script("push:5:1,hold:1").unwrap()));
+        assert!(
+            parse_script("outer-push:x:1")
+                .unwrap_err()
+                .to_string()
+                .contains("speed")
+        );
     }
 }

@@ -61,9 +61,13 @@ enum Action {
         /// The bridge's UDP address.
         #[arg(long, default_value = "127.0.0.1:7700")]
         bridge: SocketAddr,
-        /// Motion: push:MM_S:S, twist:DEG_S:S, hold:S, pedal:on|off, comma-separated.
+        /// Motion: push:MM_S:S, twist:DEG_S:S, outer-push:MM_S:S, outer-twist:DEG_S:S,
+        /// hold:S, pedal:on|off, comma-separated (the outer segments move the outer hand).
         #[arg(long)]
         script: String,
+        /// Speak protocol version 2 with two channels (implied by outer-hand segments).
+        #[arg(long)]
+        two_hands: bool,
         /// Device rate (Hz).
         #[arg(long, default_value_t = 1000.0)]
         rate_hz: f64,
@@ -157,6 +161,7 @@ fn main() -> anyhow::Result<()> {
         Action::VirtualDevice {
             bridge,
             script,
+            two_hands,
             rate_hz,
             loss,
             report_s,
@@ -164,9 +169,11 @@ fn main() -> anyhow::Result<()> {
             if !(0.0..1.0).contains(&loss) {
                 anyhow::bail!("--loss {loss} is outside [0, 1)");
             }
+            let script = device::parse_script(&script)?;
             let device = VirtualDevice {
                 bridge,
-                script: device::parse_script(&script)?,
+                two_hands: two_hands || device::moves_outer_hand(&script),
+                script,
                 rate_hz: positive("rate-hz", rate_hz, 10_000.0)?,
                 loss,
                 report_every_s: positive("report-s", report_s, 3600.0)?,

@@ -88,3 +88,81 @@ fn a_virtual_device_feels_the_wall_through_loss_and_a_server_restart() {
     server.stop();
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A two-channel device (protocol version 2) on a coaxial scene: the outer hand pushes the
+/// catheter into the capped LCCA while the inner hand holds the wire inside it. The outer
+/// hand feels the wall; the wire's hand does not. Then a one-channel device (version 1) on
+/// the same bridge and scene drives the innermost instrument, as before.
+#[test]
+fn a_two_hand_device_feels_the_catheter_apart_from_the_wire() {
+    let dir = std::env::temp_dir().join(format!("cathlab-haptic-two-{}", std::process::id()));
+    let database = dir.join("haptic.sqlite");
+    let Rig {
+        server,
+        mut bridge,
+        udp,
+        ..
+    } = Rig::start_with(&dir, &database, &common::coaxial_wall_scene());
+    let start = bridge.latest();
+    // Hold, then the outer hand pushes 75 mm at 15 mm/s: free for ~56 mm, then the cap.
+    let samples = device(&udp, "hold:1,outer-push:15:5,hold:0.8", 0.0);
+    let end = bridge.latest();
+    let outer_free = common::mean_of(&samples, "outer_force_n", 1.5, 3.0);
+    let outer_wall = common::mean_of(&samples, "outer_force_n", 6.0, 6.8);
+    let inner_wall = common::mean_of(&samples, "force_n", 6.0, 6.8);
+    let live = samples.iter().filter(|s| s["outer_live"] == true).count();
+    println!(
+        "outer hand: free {outer_free:.4} N, at the wall {outer_wall:.4} N; the wire's hand \
+         then {inner_wall:.4} N; {live} of {} samples with live outer feedback",
+        samples.len()
+    );
+    println!("bridge before: {start}\nbridge after: {end}");
+    assert_eq!(
+        end["outer_instrument"], 0,
+        "the outer hand holds the catheter"
+    );
+    assert!(live * 10 >= samples.len() * 8, "outer feedback live");
+    assert!(
+        outer_wall > 0.05,
+        "the catheter's hand feels the wall: {outer_wall} N"
+    );
+    assert!(
+        outer_wall > 3.0 * outer_free.abs().max(0.005),
+        "the catheter's force rises at the wall: {outer_free} → {outer_wall} N"
+    );
+    assert!(
+        outer_wall > 3.0 * inner_wall.abs().max(0.005),
+        "the wire's hand does not feel the catheter's wall: {inner_wall} vs {outer_wall} N"
+    );
+    let advanced =
+        end["outer_inserted_mm"].as_f64().unwrap() - start["outer_inserted_mm"].as_f64().unwrap();
+    let wire = end["inserted_mm"].as_f64().unwrap() - start["inserted_mm"].as_f64().unwrap();
+    assert!(advanced > 40.0, "the catheter advanced {advanced} mm");
+    assert!(wire.abs() < 2.0, "the wire held still: {wire} mm");
+
+    // A one-channel device: its push drives the wire (the innermost).
+    let before = bridge.latest();
+    let one = device(&udp, "hold:0.5,push:15:1.5,hold:0.3", 0.0);
+    let after = bridge.latest();
+    assert!(
+        one.iter().all(|s| s["outer_force_n"] == 0.0),
+        "no outer channel for version 1"
+    );
+    let wire = after["inserted_mm"].as_f64().unwrap() - before["inserted_mm"].as_f64().unwrap();
+    let catheter = after["outer_inserted_mm"].as_f64().unwrap()
+        - before["outer_inserted_mm"].as_f64().unwrap();
+    println!("one-channel device: wire {wire:+.1} mm, catheter {catheter:+.1} mm");
+    assert!(
+        wire > 10.0,
+        "a one-channel device pushes the wire: {wire} mm"
+    );
+    assert!(
+        catheter.abs() < 2.0,
+        "and leaves the catheter: {catheter} mm"
+    );
+
+    drop(bridge.child.stdin.take());
+    assert!(bridge.child.wait().unwrap().success());
+    server.stop();
+    let _ = std::fs::remove_dir_all(&dir);
+}

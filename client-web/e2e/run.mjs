@@ -125,7 +125,8 @@ let toGoAtStart = Number.NaN;
 
 try {
   await test("trainee_page_loads_and_connects", async () => {
-    await trainee.goto(`${url}/?label=e2e-trainee`);
+    // The one-device scene (the default is coaxial: the two-hand tests below take it).
+    await trainee.goto(`${url}/?label=e2e-trainee&scene=arch_to_cow_lcca`);
     await trainee.waitForSelector('#connection[data-status="connected"]', { timeout: 30_000 });
     sessionId = await trainee.$eval("body", (b) => b.dataset.session ?? "");
     assert(/^[0-9a-f-]{8,}$/.test(sessionId), `session id on the page: ${sessionId}`);
@@ -409,13 +410,124 @@ try {
     await dashboard.close();
   });
 
+  await test("two_hands_drive_their_own_instruments_the_stack_panel_and_the_observer_follow", async () => {
+    // A trainee on another machine, on the default scene (coaxial: catheter over a wire).
+    const machine = await browser.newContext({ viewport: { width: 1280, height: 800 } });
+    const hands = await machine.newPage();
+    hands.on("pageerror", (e) => pageErrors.push(`two hands: ${e.message}`));
+    await hands.goto(`${url}/?label=e2e-two-hands`);
+    await hands.waitForSelector('#connection[data-status="connected"]', { timeout: 30_000 });
+    const scene = await hands.textContent("#scene");
+    assert(scene.includes("arch_to_cow_lcca_coaxial"), `the default scene is the coaxial one: ${scene}`);
+    assert(await hands.isVisible("#left-hand"), "the left hand's controls show");
+    assert(!(await hands.isVisible("#device-choice")), "no device list in a coaxial scene");
+    await hands.waitForFunction(() => document.querySelectorAll("#stack li").length === 2, null, { timeout: 15_000 });
+    const row = async (page, i) =>
+      page.$eval(`#stack li[data-instrument="${i}"]`, (li) => ({
+        name: li.querySelector(".name").textContent,
+        inserted: Number.parseFloat(li.querySelector(".inserted").textContent.replace("−", "-")),
+        relative: li.querySelector(".relative").textContent,
+      }));
+    const out = (r) => {
+      const m = /([\d.]+) mm (out of|inside)/.exec(r.relative);
+      return m ? (m[2] === "inside" ? -1 : 1) * Number(m[1]) : 0;
+    };
+    const hold = async (page, key, ms) => {
+      await page.keyboard.down(key);
+      await page.waitForTimeout(ms);
+      await page.keyboard.up(key);
+      await page.waitForTimeout(400);
+    };
+    await hands.click("#screen");
+    const c0 = await row(hands, 0);
+    const w0 = await row(hands, 1);
+    console.log(`  start: ${c0.name} ${c0.inserted} mm; ${w0.name} ${w0.inserted} mm, ${w0.relative}`);
+    // The right hand (arrows) drives the wire only.
+    await hold(hands, "ArrowUp", 1000);
+    const c1 = await row(hands, 0);
+    const w1 = await row(hands, 1);
+    console.log(`  ↑ 1 s: catheter ${c1.inserted} mm; wire ${w1.inserted} mm, ${w1.relative}`);
+    assert(w1.inserted - w0.inserted > 10, `the right hand pushed the wire ${w1.inserted - w0.inserted} mm`);
+    assert(Math.abs(c1.inserted - c0.inserted) < 1, `the catheter stayed: ${c0.inserted} → ${c1.inserted}`);
+    assert(out(w1) - out(w0) > 10, `the panel's tip offset follows: ${w0.relative} → ${w1.relative}`);
+    // The left hand (W) drives the catheter only: it follows over the wire.
+    await hold(hands, "w", 1000);
+    const c2 = await row(hands, 0);
+    const w2 = await row(hands, 1);
+    console.log(`  W 1 s: catheter ${c2.inserted} mm; wire ${w2.inserted} mm, ${w2.relative}`);
+    assert(c2.inserted - c1.inserted > 10, `the left hand pushed the catheter ${c2.inserted - c1.inserted} mm`);
+    assert(Math.abs(w2.inserted - w1.inserted) < 1, `the wire stayed: ${w1.inserted} → ${w2.inserted}`);
+    assert(out(w1) - out(w2) > 10, `the wire's lead shrank as the catheter followed: ${w1.relative} → ${w2.relative}`);
+    // The left hand's on-screen button pulls the catheter back.
+    const button = await hands.$('#left-hand button[data-hold="pull"]');
+    const box = await button.boundingBox();
+    await hands.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+    await hands.mouse.down();
+    await hands.waitForTimeout(600);
+    await hands.mouse.up();
+    await hands.waitForTimeout(400);
+    const c3 = await row(hands, 0);
+    assert(c2.inserted - c3.inserted > 5, `the left pull button withdrew the catheter ${c2.inserted - c3.inserted} mm`);
+    await hands.screenshot({ path: join(artifacts, "trainee-two-hands.png") });
+    // The observer, from an instructor's dashboard, sees both instruments move.
+    const desk = await browser.newContext({ viewport: { width: 1280, height: 860 } });
+    const dashboard = await desk.newPage();
+    dashboard.on("pageerror", (e) => pageErrors.push(`dashboard (two hands): ${e.message}`));
+    await dashboard.goto(`${url}/dashboard.html`);
+    await dashboard.fill("#key", KEY);
+    await dashboard.click('#key-form button[type="submit"]');
+    const id = await hands.$eval("body", (b) => b.dataset.session ?? "");
+    const card = `.card[data-session="${id}"]`;
+    await dashboard.waitForSelector(card, { timeout: 15_000 });
+    const href = await dashboard.$eval(`${card} a`, (a) => a.href);
+    await dashboard.close();
+    const watcher = await desk.newPage();
+    watcher.on("pageerror", (e) => pageErrors.push(`observer (two hands): ${e.message}`));
+    await watcher.goto(href);
+    await watcher.waitForFunction(() => document.querySelectorAll("#stack li").length === 2, null, { timeout: 15_000 });
+    await hands.bringToFront();
+    await hold(hands, "ArrowUp", 700);
+    await hold(hands, "w", 700);
+    const seen = [await row(hands, 0), await row(hands, 1)];
+    await watcher.bringToFront();
+    await watcher.waitForTimeout(600);
+    const watched = [await row(watcher, 0), await row(watcher, 1)];
+    console.log(`  trainee ${seen.map((r) => r.inserted).join(" / ")} mm; observer ${watched.map((r) => r.inserted).join(" / ")} mm`);
+    for (const i of [0, 1]) {
+      assert(Math.abs(seen[i].inserted - watched[i].inserted) < 1, `observer's instrument ${i}: ${watched[i].inserted} vs ${seen[i].inserted}`);
+    }
+    assert(seen[0].inserted - c3.inserted > 5 && seen[1].inserted - w2.inserted > 5, "both instruments moved again");
+    await watcher.close();
+    await desk.close();
+    // An exchange from the page: the wire withdrawn, a catalogue wire in its place.
+    await hands.bringToFront();
+    await hands.selectOption("#exchange-device", "catalogue:guidewire-035-j-3mm");
+    await hands.click("#exchange-go");
+    await hands.waitForFunction(() => /J-tip/.test(document.querySelector('#stack li[data-instrument="1"] .name')?.textContent ?? ""), null, {
+      timeout: 15_000,
+    });
+    const message = await hands.textContent("#message");
+    assert(/Exchanged/.test(message), `the page confirms the exchange: ${message}`);
+    assert((await hands.textContent("#right-instrument")).includes("J-tip"), "the right hand now holds the new wire");
+    // A device that cannot go in is refused with the server's reason, and nothing changes.
+    await hands.selectOption("#exchange-device", "catalogue:guide-6f-071-90");
+    await hands.click("#exchange-go");
+    await hands.waitForFunction(() => /Command failed/.test(document.querySelector("#message")?.textContent ?? ""), null, { timeout: 10_000 });
+    console.log(`  refused: ${await hands.textContent("#message")}`);
+    assert((await hands.textContent("#right-instrument")).includes("J-tip"), "the refused exchange left the wire");
+    await machine.close();
+  });
+
   await test("layouts_fit_1280x800_and_1024x640_without_scrolling", async () => {
     await trainee.bringToFront();
     for (const [width, height] of [[1280, 800], [1024, 640]]) {
       await trainee.setViewportSize({ width, height });
       await trainee.waitForTimeout(300);
       const layout = await trainee.evaluate(() => {
-        const boxes = [...document.querySelectorAll("#controls button, #controls input, #controls select, #hud dd")].map(
+        const shown = [...document.querySelectorAll("#controls button, #controls input, #controls select, #hud dd")].filter(
+          (e) => e.checkVisibility(),
+        );
+        const boxes = shown.map(
           (e) => {
             const r = e.getBoundingClientRect();
             return { id: e.id || e.textContent?.trim().slice(0, 20), bottom: r.bottom, right: r.right, width: r.width };

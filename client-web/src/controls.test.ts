@@ -6,15 +6,31 @@ import {
   TWIST_DEG_S,
   combine,
   deadZone,
-  gamepadDemand,
+  driveKey,
+  gamepadHands,
   isDriveKey,
   keyboardDemand,
+  keyboardHands,
 } from "./controls.js";
 
 describe("keyboard", () => {
-  it("takes the arrows and F as drive keys, and nothing else", () => {
-    for (const k of ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight", "f", "F"]) expect(isDriveKey(k)).toBe(true);
-    for (const k of ["Tab", "Enter", " ", "PageUp", "g", "1"]) expect(isDriveKey(k)).toBe(false);
+  it("takes the arrows, W A S D and F as drive keys, in either case, and nothing else", () => {
+    for (const k of ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight", "f", "F", "w", "A", "s", "D"])
+      expect(isDriveKey(k)).toBe(true);
+    for (const k of ["Tab", "Enter", " ", "PageUp", "g", "1", "q", "Shift"]) expect(isDriveKey(k)).toBe(false);
+    expect(driveKey("W")).toBe("w");
+    expect(driveKey("ArrowUp")).toBe("ArrowUp");
+  });
+  it("gives W/S/A/D to the left hand and the arrows to the right, each independent", () => {
+    expect(keyboardHands(new Set(["w", "ArrowLeft"]))).toEqual({
+      left: { push: 1, twist: 0 },
+      right: { push: 0, twist: -1 },
+    });
+    expect(keyboardHands(new Set(["s", "d", "ArrowUp"]))).toEqual({
+      left: { push: -1, twist: 1 },
+      right: { push: 1, twist: 0 },
+    });
+    expect(keyboardHands(new Set(["w", "s", "a"]))).toEqual({ left: { push: 0, twist: -1 }, right: { push: 0, twist: 0 } });
   });
   it("maps the arrows to push/pull and twist, opposite keys cancelling", () => {
     expect(keyboardDemand(new Set(["ArrowUp"]))).toEqual({ push: 1, twist: 0 });
@@ -36,15 +52,18 @@ describe("gamepad", () => {
     expect(deadZone(DEAD_ZONE + 1e-9)).toBeCloseTo(0, 6);
     expect(deadZone((1 + DEAD_ZONE) / 2)).toBeCloseTo(0.5, 12);
   });
-  it("pushes on the left stick up (axis 1 negative) and twists on the right stick and D-pad", () => {
+  it("drives the left hand with the left stick and the right hand with the right stick and D-pad", () => {
     const none = Array(16).fill(false);
-    expect(gamepadDemand([0, -1, 0, 0], none)).toEqual({ push: 1, twist: 0 });
-    expect(gamepadDemand([0, 1, 1, 0], none)).toEqual({ push: -1, twist: 1 });
+    const idle = { push: 0, twist: 0 };
+    // Up (axis negative) pushes; sideways twists.
+    expect(gamepadHands([0, -1, 0, 0], none)).toEqual({ left: { push: 1, twist: 0 }, right: idle });
+    expect(gamepadHands([1, 1, 0, 0], none)).toEqual({ left: { push: -1, twist: 1 }, right: idle });
+    expect(gamepadHands([0, 0, -1, -1], none)).toEqual({ left: idle, right: { push: 1, twist: -1 } });
     const dpad = none.slice();
     dpad[12] = true; // up
     dpad[14] = true; // left
-    expect(gamepadDemand([0, 0, 0, 0], dpad)).toEqual({ push: 1, twist: -1 });
-    expect(gamepadDemand([], [])).toEqual({ push: 0, twist: 0 });
+    expect(gamepadHands([0, 0, 0, 0], dpad)).toEqual({ left: idle, right: { push: 1, twist: -1 } });
+    expect(gamepadHands([], [])).toEqual({ left: idle, right: idle });
   });
   it("combines sources with each axis clamped", () => {
     expect(combine({ push: 1, twist: 0.5 }, { push: 1, twist: -0.25 })).toEqual({ push: 1, twist: 0.25 });
@@ -66,6 +85,20 @@ describe("drive commands", () => {
     const stop = drive.next({ push: 0, twist: 0 });
     expect(stop).toHaveLength(1);
     expect(stop[0].kind.case === "twist" && stop[0].kind.value.mode).toEqual({ case: "rateDegS", value: 0 });
+  });
+  it("names its instrument, and a regrip stops the old one before taking the new", () => {
+    expect(new DriveCommands().next({ push: 1, twist: 0 })[0].instrument).toBeUndefined();
+    const hand = new DriveCommands(1);
+    const [push] = hand.next({ push: 1, twist: 0 });
+    expect(push.instrument).toBe(1);
+    const stop = hand.regrip(0);
+    expect(stop).toHaveLength(1);
+    expect(stop[0].instrument).toBe(1);
+    expect(stop[0].kind.case === "insertion" && stop[0].kind.value.mode).toEqual({ case: "velocityMmS", value: 0 });
+    expect(hand.repeat()).toHaveLength(0);
+    expect(hand.next({ push: 0, twist: 1 })[0].instrument).toBe(0);
+    // A still hand regrips silently.
+    expect(new DriveCommands(2).regrip(1)).toHaveLength(0);
   });
   it("sends speeds in hold mode and repeats only those in force", () => {
     const drive = new DriveCommands();

@@ -1,5 +1,10 @@
-//! Trainee input: keyboard, on-screen buttons and a gamepad combined into one push/pull speed
-//! (mm/s) and twist rate (deg/s), sent as commands only when they change.
+//! Trainee input: keyboard, on-screen buttons and a gamepad combined into a push/pull speed
+//! (mm/s) and twist rate (deg/s) per hand, sent as commands only when they change.
+//!
+//! Two hands, as at the table: the left hand holds an outer instrument (the catheter hub),
+//! the right hand the innermost (the wire's torquer). Keys: W/S push/pull and A/D twist the
+//! left hand's instrument, the arrows the right hand's; gamepad: left stick left hand, right
+//! stick (and D-pad) right hand. A one-device scene has one instrument: both hands drive it.
 import { create } from "@bufbuild/protobuf";
 import { type Command, CommandSchema } from "./gen/cathlab/v1/simulator_pb.js";
 
@@ -15,15 +20,43 @@ export interface Demand {
   twist: number;
 }
 
-/** The keys that drive the device (arrows) and the fluoroscopy pedal (F). */
-export function isDriveKey(key: string): boolean {
-  return key === "ArrowUp" || key === "ArrowDown" || key === "ArrowLeft" || key === "ArrowRight" || key === "f" || key === "F";
+/** Both hands' demands: `left` for the outer instrument, `right` for the innermost. */
+export interface Hands {
+  left: Demand;
+  right: Demand;
 }
 
-/** Keys held → demand: ↑ pushes, ↓ pulls, → twists clockwise, ← counter-clockwise. */
+export const IDLE: Demand = { push: 0, twist: 0 };
+
+/** The left hand's keys, lower case (W push, S pull, D clockwise, A counter-clockwise). */
+const LEFT_KEYS = ["w", "s", "a", "d"];
+
+/** A key as the drive keys see it: letters in lower case (Caps Lock or Shift held). */
+export function driveKey(key: string): string {
+  return key.length === 1 ? key.toLowerCase() : key;
+}
+
+/** The keys that drive the instruments (arrows, W A S D) and the fluoroscopy pedal (F). */
+export function isDriveKey(key: string): boolean {
+  const k = driveKey(key);
+  return k === "ArrowUp" || k === "ArrowDown" || k === "ArrowLeft" || k === "ArrowRight" || k === "f" || LEFT_KEYS.includes(k);
+}
+
+function keyAxis(held: ReadonlySet<string>, plus: string, minus: string): number {
+  return (held.has(plus) ? 1 : 0) - (held.has(minus) ? 1 : 0);
+}
+
+/** The right hand's keys held → demand: ↑ pushes, ↓ pulls, → twists clockwise, ← counter-clockwise. */
 export function keyboardDemand(held: ReadonlySet<string>): Demand {
-  const axis = (plus: string, minus: string) => (held.has(plus) ? 1 : 0) - (held.has(minus) ? 1 : 0);
-  return { push: axis("ArrowUp", "ArrowDown"), twist: axis("ArrowRight", "ArrowLeft") };
+  return { push: keyAxis(held, "ArrowUp", "ArrowDown"), twist: keyAxis(held, "ArrowRight", "ArrowLeft") };
+}
+
+/** Keys held (as `driveKey` gives them) → both hands: W/S/A/D the left, the arrows the right. */
+export function keyboardHands(held: ReadonlySet<string>): Hands {
+  return {
+    left: { push: keyAxis(held, "w", "s"), twist: keyAxis(held, "d", "a") },
+    right: keyboardDemand(held),
+  };
 }
 
 /** A stick axis with a dead zone, rescaled so the output starts at 0 at its edge. */
@@ -32,13 +65,17 @@ export function deadZone(value: number, zone = DEAD_ZONE): number {
   return (Math.sign(value) * (Math.min(Math.abs(value), 1) - zone)) / (1 - zone);
 }
 
-/** Standard-mapping gamepad → demand: left stick up pushes (axis 1 is down-positive), right
- *  stick x twists; the D-pad (buttons 12–15) works like the arrow keys. */
-export function gamepadDemand(axes: readonly number[], pressed: readonly boolean[]): Demand {
+/** Standard-mapping gamepad → both hands: each stick's y pushes (up, which is negative) and
+ *  its x twists, the left stick (axes 0, 1) the left hand, the right stick (axes 2, 3) the
+ *  right hand; the D-pad (buttons 12–15) works like the arrow keys. */
+export function gamepadHands(axes: readonly number[], pressed: readonly boolean[]): Hands {
   const pad = (i: number) => (pressed[i] ? 1 : 0);
   return {
-    push: clamp(-deadZone(axes[1] ?? 0) + pad(12) - pad(13)),
-    twist: clamp(deadZone(axes[2] ?? 0) + pad(15) - pad(14)),
+    left: { push: clamp(-deadZone(axes[1] ?? 0)), twist: clamp(deadZone(axes[0] ?? 0)) },
+    right: {
+      push: clamp(-deadZone(axes[3] ?? 0) + pad(12) - pad(13)),
+      twist: clamp(deadZone(axes[2] ?? 0) + pad(15) - pad(14)),
+    },
   };
 }
 
@@ -50,8 +87,9 @@ export function combine(...demands: Demand[]): Demand {
   };
 }
 
+/** −1..1, and 0 rather than −0 (a still stick is not a negative demand). */
 function clamp(v: number): number {
-  return Math.max(-1, Math.min(1, v));
+  return Math.max(-1, Math.min(1, v)) || 0;
 }
 
 /** How often a held speed is repeated (ms): well inside the server's control timeout (250 ms
@@ -65,13 +103,17 @@ export const HOLD_REPEAT_MS = 100;
 export class DriveCommands {
   private last: Demand = { push: 0, twist: 0 };
 
+  /** `instrument`: the stack index the commands name (none: the server's default, the
+   *  innermost, which is the only one in a one-device scene). */
   constructor(
+    public instrument: number | undefined = undefined,
     private readonly pushMmS = PUSH_MM_S,
     private readonly twistDegS = TWIST_DEG_S,
   ) {}
 
   private push(demand: number): Command {
     return create(CommandSchema, {
+      instrument: this.instrument,
       kind: {
         case: "insertion",
         value: { mode: { case: "velocityMmS", value: demand * this.pushMmS }, hold: true },
@@ -81,8 +123,17 @@ export class DriveCommands {
 
   private twist(demand: number): Command {
     return create(CommandSchema, {
+      instrument: this.instrument,
       kind: { case: "twist", value: { mode: { case: "rateDegS", value: demand * this.twistDegS }, hold: true } },
     });
+  }
+
+  /** Takes the hand to another instrument: the zero speeds that stop the one it held (when
+   *  it was moving), then nothing moves until the next demand. */
+  regrip(instrument: number | undefined): Command[] {
+    const stop = this.next(IDLE);
+    this.instrument = instrument;
+    return stop;
   }
 
   next(demand: Demand): Command[] {

@@ -218,8 +218,10 @@ void poll(polling.signal);
 // trainee gets the controller link; the instructor watches it like any other.
 void (async () => {
   try {
-    const { scenes } = await simulatorClient(base).listScenes({});
-    for (const s of scenes) $<HTMLSelectElement>("new-scene").add(new Option(`${s.name} — ${s.description}`, s.name));
+    const { scenes, defaultScene } = await simulatorClient(base).listScenes({});
+    const select = $<HTMLSelectElement>("new-scene");
+    for (const s of scenes) select.add(new Option(`${s.name} — ${s.description}`, s.name));
+    if (defaultScene) select.value = defaultScene;
   } catch {
     // The poll reports an unreachable server.
   }

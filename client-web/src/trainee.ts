@@ -2,18 +2,31 @@
 import { type MessageInitShape, create } from "@bufbuild/protobuf";
 import { Code, ConnectError } from "@connectrpc/connect";
 import { type SimulatorClient, serverUrl, simulatorClient } from "./api.js";
-import { DriveCommands, HOLD_REPEAT_MS, combine, gamepadDemand, isDriveKey, keyboardDemand } from "./controls.js";
+import {
+  DriveCommands,
+  HOLD_REPEAT_MS,
+  type Hands,
+  IDLE,
+  combine,
+  driveKey,
+  gamepadHands,
+  isDriveKey,
+  keyboardHands,
+} from "./controls.js";
 import {
   type Command,
   CommandSchema,
   type DeviceState,
   ImagingMode,
+  type ListScenesResponse,
   type Metrics,
   PulseRate,
+  type SceneSummary,
 } from "./gen/cathlab/v1/simulator_pb.js";
 import { showFrames } from "./frames.js";
 import { doseLine, hudLines } from "./hud.js";
 import { drawMarker } from "./marker.js";
+import { shortName, stackLines } from "./stack.js";
 import { type ConnectionStatus, keepOpen } from "./reconnect.js";
 
 const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
@@ -43,8 +56,8 @@ async function join(): Promise<Joined> {
     }
   }
   const anonymous = simulatorClient(base);
-  const { scenes } = await anonymous.listScenes({});
-  const scene = params.get("scene") ?? scenes[0]?.name;
+  const { scenes, defaultScene } = await anonymous.listScenes({});
+  const scene = params.get("scene") ?? (defaultScene || scenes[0]?.name);
   if (!scene) throw new Error("the server lists no scenes");
   const created = await anonymous.createSession({
     scene: { case: "sceneName", value: scene },
@@ -112,11 +125,16 @@ async function main() {
   document.body.dataset.session = joined.id;
   $("role").textContent = joined.readOnly ? "observer (read-only)" : "";
   const info = await client.getSession({ sessionId: joined.id });
-  const scene = (await client.listScenes({})).scenes.find((s) => s.name === info.sceneName);
+  const listed = await client.listScenes({});
+  const scene = listed.scenes.find((s) => s.name === info.sceneName);
   $("scene").textContent = `${info.label || "session"} · ${info.sceneName}`;
   const device = $<HTMLSelectElement>("device");
   for (const [i, name] of (scene?.devices ?? []).entries()) device.add(new Option(name, String(i)));
   device.value = String(info.activeDevice);
+  // A coaxial scene: two hands, the stack panel and the exchange instead of the device list.
+  const stacked = (scene?.stack.length ?? 0) >= 2;
+  if (stacked) setUpStack(scene!, listed);
+  $("device-choice").hidden = stacked || device.options.length < 2;
   const target = scene?.target ?? "";
   // Guidance the session allows (an assessment turns it off; an older server sends none).
   const guidance = info.guidance ?? { targetMarker: true, targetDistance: true, prompts: true };
@@ -146,6 +164,7 @@ async function main() {
       $("hud-force-box").classList.toggle("warning", lines.warning);
       $("hud-target").textContent = lines.target;
       $("hud-target").classList.toggle("success", lines.reached);
+      if (stacked && state) showStack(state);
     }, 50);
   };
 
@@ -222,11 +241,71 @@ async function main() {
     }
     return;
   }
-  controls(client, joined.id);
+  controls(client, joined.id, stacked ? scene!.stack.length : 1);
 }
 
-/** Wires the keyboard, buttons, gamepad and forms to commands. */
-function controls(client: SimulatorClient, sessionId: string) {
+/** Fills the hands' instrument names, the exchange lists and shows the stack panel. */
+function setUpStack(scene: SceneSummary, listed: ListScenesResponse) {
+  const n = scene.stack.length;
+  $("left-hand").hidden = false;
+  $("right-title").textContent = "Right hand";
+  $("right-instrument").textContent = scene.stack[n - 1].device;
+  const left = $<HTMLSelectElement>("left-instrument");
+  for (let i = 0; i < n - 1; i++) left.add(new Option(scene.stack[i].device, String(i)));
+  // The left hand holds the instrument just outside the innermost (the catheter over the
+  // wire); a parked guide is there to be chosen.
+  left.value = String(n - 2);
+  $("stack-panel").hidden = false;
+  $("exchange").hidden = false;
+  const which = $<HTMLSelectElement>("exchange-instrument");
+  for (let i = 1; i < n; i++) which.add(new Option(scene.stack[i].device, String(i)));
+  which.value = String(n - 1);
+  const bring = $<HTMLSelectElement>("exchange-device");
+  for (const [i, spare] of scene.spares.entries()) bring.add(new Option(`back table: ${spare}`, `spare:${i}`));
+  for (const d of listed.catalogue) bring.add(new Option(`${d.name}`, `catalogue:${d.id}`));
+}
+
+/** The stack panel and the hands' instrument names from a state. */
+function showStack(state: DeviceState) {
+  const list = $("stack");
+  const lines = stackLines(state.instruments);
+  while (list.children.length > lines.length) list.lastElementChild!.remove();
+  while (list.children.length < lines.length) {
+    const li = document.createElement("li");
+    for (const part of ["name", "inserted", "relative", "force"]) {
+      const span = document.createElement("span");
+      span.className = part;
+      li.append(span, part === "name" ? "" : " ");
+    }
+    list.append(li);
+  }
+  for (const [i, line] of lines.entries()) {
+    const li = list.children[i] as HTMLElement;
+    li.dataset.instrument = String(i);
+    li.querySelector(".name")!.textContent = line.name;
+    (li.querySelector(".name") as HTMLElement).title = line.name;
+    li.querySelector(".inserted")!.textContent = line.inserted;
+    li.querySelector(".relative")!.textContent = `· ${line.relative}`;
+    li.querySelector(".force")!.textContent = `· ${line.force}`;
+  }
+  // After an exchange the names change: keep the hands' and the exchange's labels true.
+  const names = state.instruments.map((it) => shortName(it.name));
+  const rename = (select: HTMLSelectElement) => {
+    for (const o of select.options) {
+      const name = state.instruments[Number(o.value)]?.name;
+      if (name && o.text !== name) o.text = name;
+    }
+  };
+  rename($<HTMLSelectElement>("left-instrument"));
+  rename($<HTMLSelectElement>("exchange-instrument"));
+  const innermost = state.instruments.at(-1)?.name;
+  if (innermost) $("right-instrument").textContent = innermost;
+  document.body.dataset.instruments = names.join(",");
+}
+
+/** Wires the keyboard, buttons, gamepad and forms to commands; `instruments` is the stack's
+ *  size (1 for a one-device scene, whose device both hands drive). */
+function controls(client: SimulatorClient, sessionId: string, instruments: number) {
   let seq = 0n;
   /** Sends one command; says why when the server refuses it. Resolves to whether it applied. */
   const send = async (command: Command): Promise<boolean> => {
@@ -243,19 +322,37 @@ function controls(client: SimulatorClient, sessionId: string) {
   };
   const command = (kind: MessageInitShape<typeof CommandSchema>["kind"]) => send(create(CommandSchema, { kind }));
 
-  // Push/pull and twist: keys and on-screen buttons held, plus the gamepad.
+  // Push/pull and twist per hand: keys and on-screen buttons held, plus the gamepad. With one
+  // instrument both hands drive it (no instrument named: the server's default).
+  const stacked = instruments >= 2;
   const held = new Set<string>();
-  const drive = new DriveCommands();
-  let pad = { push: 0, twist: 0 };
+  const leftSelect = $<HTMLSelectElement>("left-instrument");
+  const left = new DriveCommands(stacked ? Number(leftSelect.value) : undefined);
+  const right = new DriveCommands(stacked ? instruments - 1 : undefined);
+  let pad: Hands = { left: IDLE, right: IDLE };
   const update = () => {
-    for (const c of drive.next(combine(keyboardDemand(held), pad))) void send(c);
+    const keys = keyboardHands(held);
+    const l = combine(keys.left, pad.left);
+    const r = combine(keys.right, pad.right);
+    if (stacked) {
+      for (const c of [...left.next(l), ...right.next(r)]) void send(c);
+    } else {
+      for (const c of right.next(combine(l, r))) void send(c);
+    }
   };
+  leftSelect.addEventListener("change", () => {
+    for (const c of left.regrip(Number(leftSelect.value))) void send(c);
+    update();
+  });
   // Held speeds are repeated while held: the server lets a held speed lapse when it stops
   // hearing it (a closed tab, a lost network, a sleeping laptop).
   setInterval(() => {
-    for (const c of drive.repeat()) void send(c);
+    for (const c of [...left.repeat(), ...right.repeat()]) void send(c);
   }, HOLD_REPEAT_MS);
-  const HOLD_KEYS: Record<string, string> = { push: "ArrowUp", pull: "ArrowDown", ccw: "ArrowLeft", cw: "ArrowRight" };
+  const HOLD_KEYS: Record<string, Record<string, string>> = {
+    right: { push: "ArrowUp", pull: "ArrowDown", ccw: "ArrowLeft", cw: "ArrowRight" },
+    left: { push: "w", pull: "s", ccw: "a", cw: "d" },
+  };
   let pedal = false;
   const setPedal = (down: boolean) => {
     if (down === pedal) return;
@@ -263,18 +360,19 @@ function controls(client: SimulatorClient, sessionId: string) {
     $("pedal").classList.toggle("held", down);
     void command({ case: "fluoroscopy", value: down });
   };
-  // The drive keys drive the device wherever focus is: listened to in the capture phase and
-  // kept from the focused control (an arrow on a focused slider would turn the C-arm).
+  // The drive keys drive the instruments wherever focus is: listened to in the capture phase
+  // and kept from the focused control (an arrow on a focused slider would turn the C-arm).
   window.addEventListener(
     "keydown",
     (e) => {
-      if (!isDriveKey(e.key)) return;
+      if (!isDriveKey(e.key) || e.ctrlKey || e.metaKey || e.altKey) return;
       e.preventDefault();
       e.stopPropagation();
-      if (e.key === "f" || e.key === "F") {
+      const key = driveKey(e.key);
+      if (key === "f") {
         setPedal(true);
-      } else if (!held.has(e.key)) {
-        held.add(e.key);
+      } else if (!held.has(key)) {
+        held.add(key);
         update();
       }
     },
@@ -286,8 +384,9 @@ function controls(client: SimulatorClient, sessionId: string) {
       if (!isDriveKey(e.key)) return;
       e.preventDefault();
       e.stopPropagation();
-      if (e.key === "f" || e.key === "F") setPedal(false);
-      else if (held.delete(e.key)) update();
+      const key = driveKey(e.key);
+      if (key === "f") setPedal(false);
+      else if (held.delete(key)) update();
     },
     { capture: true },
   );
@@ -299,20 +398,21 @@ function controls(client: SimulatorClient, sessionId: string) {
   });
   for (const button of document.querySelectorAll<HTMLButtonElement>("button[data-hold]")) {
     const what = button.dataset.hold!;
+    const key = HOLD_KEYS[button.dataset.hand ?? "right"]?.[what];
     const down = (e: PointerEvent) => {
       e.preventDefault();
       button.setPointerCapture(e.pointerId);
       button.classList.add("held");
       if (what === "pedal") setPedal(true);
-      else {
-        held.add(HOLD_KEYS[what]);
+      else if (key) {
+        held.add(key);
         update();
       }
     };
     const up = () => {
       button.classList.remove("held");
       if (what === "pedal") setPedal(false);
-      else if (held.delete(HOLD_KEYS[what])) update();
+      else if (key && held.delete(key)) update();
     };
     button.addEventListener("pointerdown", down);
     button.addEventListener("pointerup", up);
@@ -320,10 +420,12 @@ function controls(client: SimulatorClient, sessionId: string) {
     button.addEventListener("lostpointercapture", up);
   }
   let padPedal = false;
+  const same = (a: Hands, b: Hands) =>
+    a.left.push === b.left.push && a.left.twist === b.left.twist && a.right.push === b.right.push && a.right.twist === b.right.twist;
   const pollGamepad = () => {
     const gamepad = navigator.getGamepads?.().find((g) => g?.connected);
-    const next = gamepad ? gamepadDemand(gamepad.axes, gamepad.buttons.map((b) => b.pressed)) : { push: 0, twist: 0 };
-    if (next.push !== pad.push || next.twist !== pad.twist) {
+    const next = gamepad ? gamepadHands(gamepad.axes, gamepad.buttons.map((b) => b.pressed)) : { left: IDLE, right: IDLE };
+    if (!same(next, pad)) {
       pad = next;
       update();
     }
@@ -336,6 +438,15 @@ function controls(client: SimulatorClient, sessionId: string) {
   };
   requestAnimationFrame(pollGamepad);
 
+  $("exchange-go").addEventListener("click", async () => {
+    const instrument = Number($<HTMLSelectElement>("exchange-instrument").value);
+    const [kind, value] = $<HTMLSelectElement>("exchange-device").value.split(/:(.*)/s);
+    const device =
+      kind === "spare" ? { case: "spare" as const, value: Number(value) } : { case: "catalogueId" as const, value };
+    if (await command({ case: "exchange", value: { instrument, device } })) {
+      say(`Exchanged: ${$<HTMLSelectElement>("exchange-device").selectedOptions[0]?.text ?? ""} is in.`, "success");
+    }
+  });
   $<HTMLSelectElement>("device").addEventListener("change", (e) =>
     command({ case: "selectDevice", value: Number((e.target as HTMLSelectElement).value) }),
   );

@@ -29,6 +29,20 @@ pub fn wall_scene() -> String {
     text.replace("along_route_mm = 0.0", "along_route_mm = 360.0")
 }
 
+/// The wall scene with a coaxial stack instead: a 5 F catheter with its tip at the start and
+/// a 0.014" microwire withdrawn 20 mm inside it.
+pub fn coaxial_wall_scene() -> String {
+    let text = wall_scene();
+    let start = text.find("[[devices]]").unwrap();
+    let end = text.find("[start]").unwrap();
+    format!(
+        "{}[[stack]]\ndevice = \"catheter-5f-vertebral\"\ninserted_mm = 0.0\n\n\
+         [[stack]]\ndevice = \"microwire-014-angled\"\ninserted_mm = -20.0\n\n{}",
+        &text[..start],
+        &text[end..]
+    )
+}
+
 /// A loopback server on a free port (recording to `database`) and the bridge connected to
 /// it with the wall scene written into `dir`, once the bridge reports its UDP address and a
 /// connection.
@@ -45,9 +59,14 @@ pub struct Rig {
 
 impl Rig {
     pub fn start(dir: &Path, database: &Path) -> Self {
+        Self::start_with(dir, database, &wall_scene())
+    }
+
+    /// The same with another scene text.
+    pub fn start_with(dir: &Path, database: &Path, scene_text: &str) -> Self {
         std::fs::create_dir_all(dir).unwrap();
         let scene = dir.join("wall.toml");
-        std::fs::write(&scene, wall_scene()).unwrap();
+        std::fs::write(&scene, scene_text).unwrap();
         let port = std::net::TcpListener::bind("127.0.0.1:0")
             .unwrap()
             .local_addr()
@@ -212,10 +231,15 @@ pub fn device(bridge: &str, script: &str, loss: f64) -> Vec<Value> {
 }
 
 pub fn mean_force(samples: &[Value], from_s: f64, to_s: f64) -> f64 {
+    mean_of(samples, "force_n", from_s, to_s)
+}
+
+/// A sample field's mean over `from_s..to_s`.
+pub fn mean_of(samples: &[Value], field: &str, from_s: f64, to_s: f64) -> f64 {
     let picked: Vec<f64> = samples
         .iter()
         .filter(|s| (from_s..to_s).contains(&s["t_s"].as_f64().unwrap()))
-        .map(|s| s["force_n"].as_f64().unwrap())
+        .map(|s| s[field].as_f64().unwrap())
         .collect();
     assert!(!picked.is_empty(), "no samples in {from_s}..{to_s} s");
     picked.iter().sum::<f64>() / picked.len() as f64

@@ -201,18 +201,72 @@ fn plain_command(kind: &pb::command::Kind) -> Result<Command, Status> {
     })
 }
 
-/// A haptic bridge input as an engine command.
-pub fn control_from_wire(input: &pb::ControlInput) -> Result<Command, Status> {
-    Ok(Command::Setpoints {
-        push_m_s: checked("push_mm_s", input.push_mm_s, -MAX_PUSH_MM_S, MAX_PUSH_MM_S)? * 1e-3,
-        twist_rad_s: checked(
-            "twist_deg_s",
-            input.twist_deg_s,
-            -MAX_TWIST_DEG_S,
-            MAX_TWIST_DEG_S,
-        )?
-        .to_radians(),
-    })
+/// A haptic bridge input as engine commands, for a scene of `instruments` instruments: the
+/// one-channel setpoints (driving the innermost), or one `Instrument` setpoint per hand.
+pub fn control_from_wire(
+    input: &pb::ControlInput,
+    instruments: u32,
+) -> Result<Vec<Command>, Status> {
+    // The field's path is written only on the error path (inputs arrive at 1 kHz).
+    let speeds = |prefix: &str, push_mm_s: f64, twist_deg_s: f64| -> Result<(f64, f64), Status> {
+        let named = |e: Status| Status::invalid_argument(format!("{prefix}{}", e.message()));
+        Ok((
+            checked("push_mm_s", push_mm_s, -MAX_PUSH_MM_S, MAX_PUSH_MM_S).map_err(named)? * 1e-3,
+            checked(
+                "twist_deg_s",
+                twist_deg_s,
+                -MAX_TWIST_DEG_S,
+                MAX_TWIST_DEG_S,
+            )
+            .map_err(named)?
+            .to_radians(),
+        ))
+    };
+    if input.hands.is_empty() {
+        let (push_m_s, twist_rad_s) = speeds("", input.push_mm_s, input.twist_deg_s)?;
+        return Ok(vec![Command::Setpoints {
+            push_m_s,
+            twist_rad_s,
+        }]);
+    }
+    if input.push_mm_s != 0.0 || input.twist_deg_s != 0.0 {
+        return Err(Status::invalid_argument(
+            "push_mm_s, twist_deg_s: must be 0 when hands are given (each hand names its instrument)",
+        ));
+    }
+    let mut seen = 0u64;
+    input
+        .hands
+        .iter()
+        .enumerate()
+        .map(|(i, hand)| {
+            if hand.instrument >= instruments {
+                return Err(Status::invalid_argument(format!(
+                    "hands[{i}].instrument: {} is not an instrument of this scene, which has \
+                     {instruments} (0 is the outermost)",
+                    hand.instrument
+                )));
+            }
+            // Fewer than 64 instruments: checked above against the scene's stack.
+            let bit = 1u64 << hand.instrument.min(63);
+            if seen & bit != 0 {
+                return Err(Status::invalid_argument(format!(
+                    "hands[{i}].instrument: {} is driven twice in one input",
+                    hand.instrument
+                )));
+            }
+            seen |= bit;
+            let (push_m_s, twist_rad_s) =
+                speeds(&format!("hands[{i}]."), hand.push_mm_s, hand.twist_deg_s)?;
+            Ok(Command::Instrument {
+                index: hand.instrument,
+                drive: Drive::Setpoints {
+                    push_m_s,
+                    twist_rad_s,
+                },
+            })
+        })
+        .collect()
 }
 
 fn vec3_mm(v: &nalgebra::Vector3<f64>) -> pb::Vec3 {
@@ -393,23 +447,84 @@ mod tests {
             seq: 1,
             push_mm_s,
             twist_deg_s,
+            hands: Vec::new(),
         };
         for (bad, field) in [
             (input(f64::NAN, 0.0), "push_mm_s"),
             (input(1e6, 0.0), "push_mm_s"),
             (input(0.0, f64::NEG_INFINITY), "twist_deg_s"),
         ] {
-            let err = control_from_wire(&bad).unwrap_err();
+            let err = control_from_wire(&bad, 1).unwrap_err();
             assert_eq!(err.code(), tonic::Code::InvalidArgument);
             assert!(err.message().starts_with(field), "{}", err.message());
         }
         assert_eq!(
-            control_from_wire(&input(10.0, 180.0)).unwrap(),
-            Command::Setpoints {
+            control_from_wire(&input(10.0, 180.0), 1).unwrap(),
+            vec![Command::Setpoints {
                 push_m_s: 0.01,
                 twist_rad_s: std::f64::consts::PI,
-            }
+            }]
         );
+    }
+
+    #[test]
+    fn two_hand_control_inputs_drive_their_instruments_and_bad_ones_are_named() {
+        let hand = |instrument, push_mm_s, twist_deg_s| pb::HandSetpoint {
+            instrument,
+            push_mm_s,
+            twist_deg_s,
+        };
+        let input = |hands: Vec<pb::HandSetpoint>| pb::ControlInput {
+            session_id: String::new(),
+            seq: 1,
+            push_mm_s: 0.0,
+            twist_deg_s: 0.0,
+            hands,
+        };
+        assert_eq!(
+            control_from_wire(&input(vec![hand(0, 5.0, 0.0), hand(2, -10.0, 90.0)]), 3).unwrap(),
+            vec![
+                Command::Instrument {
+                    index: 0,
+                    drive: Drive::Setpoints {
+                        push_m_s: 0.005,
+                        twist_rad_s: 0.0
+                    }
+                },
+                Command::Instrument {
+                    index: 2,
+                    drive: Drive::Setpoints {
+                        push_m_s: -0.01,
+                        twist_rad_s: std::f64::consts::FRAC_PI_2
+                    }
+                },
+            ]
+        );
+        let mut both = input(vec![hand(0, 5.0, 0.0)]);
+        both.push_mm_s = 1.0;
+        for (bad, instruments, expected) in [
+            (
+                input(vec![hand(2, 1.0, 0.0)]),
+                2,
+                "hands[0].instrument: 2 is not an instrument",
+            ),
+            (
+                input(vec![hand(0, 1.0, 0.0), hand(0, 2.0, 0.0)]),
+                2,
+                "hands[1].instrument: 0 is driven twice",
+            ),
+            (
+                input(vec![hand(0, 0.0, 0.0), hand(1, f64::NAN, 0.0)]),
+                2,
+                "hands[1].push_mm_s: NaN is not a finite number",
+            ),
+            (input(vec![hand(1, 0.0, 1e9)]), 2, "hands[0].twist_deg_s"),
+            (both, 2, "push_mm_s, twist_deg_s: must be 0"),
+        ] {
+            let err = control_from_wire(&bad, instruments).unwrap_err();
+            assert_eq!(err.code(), tonic::Code::InvalidArgument);
+            assert!(err.message().starts_with(expected), "{}", err.message());
+        }
     }
 
     #[test]

@@ -90,6 +90,8 @@ pub struct ConfigFile {
     pub cors_origins: Option<Vec<String>>,
     /// How long a frame may wait for its reader before the reader's connection is cut (ms).
     pub stream_stall_timeout_ms: Option<u64>,
+    /// The scene a client starts when its user names none (must be listed).
+    pub default_scene: Option<String>,
 }
 
 impl ConfigFile {
@@ -147,7 +149,13 @@ pub struct ServerConfig {
     pub cors_origins: Vec<String>,
     /// How long a frame may wait for its reader before the reader's connection is cut (ms).
     pub stream_stall_timeout_ms: u64,
+    /// The scene a client starts when its user names none; `None`: `DEFAULT_SCENE` when
+    /// the scene directory has it, else its first scene. A named scene must be listed.
+    pub default_scene: Option<String>,
 }
+
+/// The scene clients start by default: the coaxial approach to the left common carotid.
+pub const DEFAULT_SCENE: &str = "arch_to_cow_lcca_coaxial";
 
 impl Default for ServerConfig {
     fn default() -> Self {
@@ -172,11 +180,27 @@ impl Default for ServerConfig {
             control_inputs_per_second: service::CONTROL_INPUTS_PER_SECOND,
             cors_origins: Vec::new(),
             stream_stall_timeout_ms: service::STREAM_STALL.as_millis() as u64,
+            default_scene: None,
         }
     }
 }
 
 impl ServerConfig {
+    /// The default scene among `listed` (scene names in the directory's order): the one
+    /// named, `DEFAULT_SCENE` or the first; an error names a named scene that is not listed.
+    pub fn resolve_default_scene(&self, listed: &[&str]) -> anyhow::Result<String> {
+        match &self.default_scene {
+            Some(name) if listed.contains(&name.as_str()) => Ok(name.clone()),
+            Some(name) => anyhow::bail!(
+                "default_scene: no scene named {name:?} in {} (it has: {})",
+                self.scenes.display(),
+                listed.join(", ")
+            ),
+            None if listed.contains(&DEFAULT_SCENE) => Ok(DEFAULT_SCENE.into()),
+            None => Ok(listed.first().map_or_else(String::new, |s| (*s).to_owned())),
+        }
+    }
+
     /// Defaults, overridden by the file's fields.
     pub fn from_file(file: ConfigFile) -> Self {
         let d = Self::default();
@@ -209,6 +233,7 @@ impl ServerConfig {
             stream_stall_timeout_ms: file
                 .stream_stall_timeout_ms
                 .unwrap_or(d.stream_stall_timeout_ms),
+            default_scene: file.default_scene,
         }
     }
 }
@@ -242,5 +267,36 @@ mod tests {
             ("0.0.0.0:50051", 3)
         );
         assert_eq!(config.database, ServerConfig::default().database);
+    }
+
+    #[test]
+    fn the_default_scene_is_named_listed_or_first() {
+        let listed = ["arch_to_cow_lcca", DEFAULT_SCENE, "neuro_phantom_m1"];
+        let mut config = ServerConfig::default();
+        assert_eq!(
+            config.resolve_default_scene(&listed).unwrap(),
+            DEFAULT_SCENE
+        );
+        assert_eq!(
+            config
+                .resolve_default_scene(&["b_scene", "a_scene"])
+                .unwrap(),
+            "b_scene"
+        );
+        assert_eq!(config.resolve_default_scene(&[]).unwrap(), "");
+        config.default_scene = Some("neuro_phantom_m1".into());
+        assert_eq!(
+            config.resolve_default_scene(&listed).unwrap(),
+            "neuro_phantom_m1"
+        );
+        config.default_scene = Some("nowhere".into());
+        let message = config
+            .resolve_default_scene(&listed)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            message.contains("default_scene") && message.contains("\"nowhere\""),
+            "{message}"
+        );
     }
 }

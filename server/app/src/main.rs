@@ -102,6 +102,10 @@ struct Options {
     /// (repeatable; the built-in web client is same-origin and needs none).
     #[arg(long = "cors-origin", global = true)]
     cors_origins: Vec<String>,
+    /// The scene clients start when their user names none (default: arch_to_cow_lcca_coaxial
+    /// when listed, else the first scene).
+    #[arg(long, global = true)]
+    default_scene: Option<String>,
     /// Shut down gracefully when standard input closes (for supervisors and test harnesses
     /// that hold the server's stdin).
     #[arg(long, global = true)]
@@ -146,6 +150,9 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
     }
     if !options.cors_origins.is_empty() {
         config.cors_origins = options.cors_origins.clone();
+    }
+    if let Some(v) = &options.default_scene {
+        config.default_scene = Some(v.clone());
     }
     match (&options.tls_cert, &options.tls_key) {
         (Some(cert), Some(key)) => {

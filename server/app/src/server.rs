@@ -107,8 +107,16 @@ pub async fn serve(
         scenes = engine.catalog().scenes().len(),
         "engine ready"
     );
+    let listed: Vec<&str> = engine
+        .catalog()
+        .scenes()
+        .iter()
+        .map(|(s, _)| s.name.as_str())
+        .collect();
+    let default_scene = config.resolve_default_scene(&listed)?;
     let service = Arc::new(
         SimulatorService::new(engine.clone(), store.clone(), config.instructor_key.clone())
+            .with_default_scene(default_scene)
             .with_inline_scenes(config.inline_scenes)
             .with_auth_failures_per_minute(config.auth_failures_per_minute)
             .with_control_timeout(std::time::Duration::from_millis(config.control_timeout_ms))

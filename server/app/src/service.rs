@@ -66,6 +66,7 @@ pub struct SimulatorService {
     stream_budget: Arc<StreamBudget>,
     stream_stall: Duration,
     control_inputs_per_second: u32,
+    default_scene: String,
 }
 
 /// A held speed: the instrument it drives (`None`: the innermost) and its axis.
@@ -189,8 +190,25 @@ impl SimulatorService {
             stream_budget: StreamBudget::new(STREAM_BUFFER_BYTES, engine.metrics().clone()),
             stream_stall: STREAM_STALL,
             control_inputs_per_second: CONTROL_INPUTS_PER_SECOND,
+            default_scene: {
+                let names: Vec<&str> = engine
+                    .catalog()
+                    .scenes()
+                    .iter()
+                    .map(|(s, _)| s.name.as_str())
+                    .collect();
+                crate::config::ServerConfig::default()
+                    .resolve_default_scene(&names)
+                    .unwrap_or_default()
+            },
             engine,
         }
+    }
+
+    /// The scene `ListScenes` names as the default (`ServerConfig::resolve_default_scene`).
+    pub fn with_default_scene(mut self, name: String) -> Self {
+        self.default_scene = name;
+        self
     }
 
     /// The bytes all frame streams' encoded frames may hold together, and how long one may
@@ -472,7 +490,11 @@ impl Simulator for SimulatorService {
                 }
             })
             .collect();
-        Ok(Response::new(pb::ListScenesResponse { scenes, catalogue }))
+        Ok(Response::new(pb::ListScenesResponse {
+            scenes,
+            catalogue,
+            default_scene: self.default_scene.clone(),
+        }))
     }
 
     async fn create_session(
@@ -706,7 +728,11 @@ impl Simulator for SimulatorService {
                 // A token bucket: `per_second` inputs a second, a second's worth at once.
                 let (mut tokens, mut refilled) = (per_second as f64, tokio::time::Instant::now());
                 // The dead-man rule: a stream that goes quiet or away leaves the device still.
-                let stop = |seq: u64, why: &str| {
+                // It zeroes the innermost's setpoints and those of every instrument a hand of
+                // this stream drove (bit i: instrument i).
+                let instruments = session.assets().spec.stack.len().max(1) as u32;
+                let mut driven = 0u64;
+                let stop = |seq: u64, why: &str, driven: u64| {
                     tracing::info!(session = %session.id(), "control stream {why}: setpoints zeroed");
                     let _ = session.send(
                         seq,
@@ -716,6 +742,19 @@ impl Simulator for SimulatorService {
                         },
                         None,
                     );
+                    for index in (0..instruments.min(64)).filter(|i| driven & (1 << i) != 0) {
+                        let _ = session.send(
+                            seq,
+                            Command::Instrument {
+                                index,
+                                drive: cathlab_engine::world::Drive::Setpoints {
+                                    push_m_s: 0.0,
+                                    twist_rad_s: 0.0,
+                                },
+                            },
+                            None,
+                        );
+                    }
                 };
                 loop {
                     let input = match next.take() {
@@ -723,17 +762,17 @@ impl Simulator for SimulatorService {
                         None => match tokio::time::timeout(quiet_after, inputs.message()).await {
                             Ok(Ok(Some(i))) => i,
                             Ok(Ok(None)) => {
-                                stop(last_seq, "ended");
+                                stop(last_seq, "ended", driven);
                                 break;
                             }
                             Ok(Err(e)) => {
-                                stop(last_seq, "broke");
+                                stop(last_seq, "broke", driven);
                                 let _ = out_tx.send(Err(e)).await;
                                 break;
                             }
                             Err(_) => {
                                 if driving {
-                                    stop(last_seq, "went quiet");
+                                    stop(last_seq, "went quiet", driven);
                                     driving = false;
                                 }
                                 continue;
@@ -743,7 +782,11 @@ impl Simulator for SimulatorService {
                     if let Some(p) = previous
                         && input.seq <= p
                     {
-                        stop(last_seq, "sent a sequence number that does not increase");
+                        stop(
+                            last_seq,
+                            "sent a sequence number that does not increase",
+                            driven,
+                        );
                         let _ = out_tx
                             .send(Err(Status::invalid_argument(format!(
                                 "seq: {} does not increase (the last was {p})",
@@ -757,7 +800,7 @@ impl Simulator for SimulatorService {
                         .min(per_second as f64);
                     refilled = now;
                     if tokens < 1.0 {
-                        stop(last_seq, "sent too fast");
+                        stop(last_seq, "sent too fast", driven);
                         let _ = out_tx
                             .send(Err(Status::resource_exhausted(format!(
                                 "control inputs: more than {per_second} a second"
@@ -768,19 +811,31 @@ impl Simulator for SimulatorService {
                     tokens -= 1.0;
                     previous = Some(input.seq);
                     (last_seq, driving) = (input.seq, true);
-                    let command = match control_from_wire(&input) {
+                    let commands = match control_from_wire(&input, instruments) {
                         Ok(c) => c,
                         Err(e) => {
+                            stop(last_seq, "sent a bad input", driven);
                             let _ = out_tx.send(Err(e)).await;
                             break;
                         }
                     };
-                    let (ack_tx, ack_rx) = oneshot::channel();
-                    if let Err(e) = session.send(input.seq, command, Some(ack_tx)) {
-                        let _ = out_tx.send(Err(engine_status(e))).await;
-                        break;
+                    let mut sent = true;
+                    for command in commands {
+                        if let Command::Instrument { index, .. } = command {
+                            driven |= 1 << index.min(63);
+                        }
+                        let (ack_tx, ack_rx) = oneshot::channel();
+                        if let Err(e) = session.send(input.seq, command, Some(ack_tx)) {
+                            let _ = out_tx.send(Err(engine_status(e))).await;
+                            sent = false;
+                            break;
+                        }
+                        if pending_tx.send((input.seq, ack_rx)).await.is_err() {
+                            sent = false;
+                            break;
+                        }
                     }
-                    if pending_tx.send((input.seq, ack_rx)).await.is_err() {
+                    if !sent {
                         break;
                     }
                 }

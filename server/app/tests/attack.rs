@@ -369,6 +369,7 @@ async fn coast_after_the_last_input(server: &ServerProcess, hang_up: bool) -> f6
             seq: 1,
             push_mm_s: 50.0,
             twist_deg_s: 0.0,
+            hands: Vec::new(),
         })
         .await
         .unwrap();
@@ -389,6 +390,7 @@ async fn coast_after_the_last_input(server: &ServerProcess, hang_up: bool) -> f6
                 seq,
                 push_mm_s: 50.0,
                 twist_deg_s: 0.0,
+                hands: Vec::new(),
             })
             .await
             .unwrap();
@@ -845,6 +847,7 @@ async fn the_smaller_holes_are_closed() {
         seq,
         push_mm_s: 1.0,
         twist_deg_s: 0.0,
+        hands: Vec::new(),
     };
 
     // A 900 KB session id is refused by its size, not echoed.

@@ -576,6 +576,7 @@ async fn bad_input_gets_named_errors() {
         seq: 1,
         push_mm_s: f64::NAN,
         twist_deg_s: 0.0,
+        hands: Vec::new(),
     })
     .await
     .unwrap();
@@ -619,6 +620,7 @@ async fn the_control_stream_applies_setpoints_and_returns_forces() {
                 seq,
                 push_mm_s: 30.0,
                 twist_deg_s: 0.0,
+                hands: Vec::new(),
             };
             if tx.send(input).await.is_err() {
                 break;
@@ -674,6 +676,7 @@ async fn the_control_stream_applies_setpoints_and_returns_forces() {
         seq: 1,
         push_mm_s: 1.0,
         twist_deg_s: 0.0,
+        hands: Vec::new(),
     })
     .await
     .unwrap();

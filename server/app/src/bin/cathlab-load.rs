@@ -263,6 +263,7 @@ async fn control_round_trip(
                 seq: base_seq + i,
                 push_mm_s: if (i / 250) % 2 == 0 { 10.0 } else { -10.0 },
                 twist_deg_s: 0.0,
+                hands: Vec::new(),
             };
             if tx.blocking_send(input).is_err() {
                 break;

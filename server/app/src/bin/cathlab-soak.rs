@@ -453,6 +453,7 @@ impl Chaos {
             seq: first_seq,
             push_mm_s: 5.0,
             twist_deg_s: 0.0,
+            hands: Vec::new(),
         })
         .await?;
         let opened = own
@@ -498,6 +499,7 @@ impl Chaos {
                     seq: seq_sent,
                     push_mm_s: push,
                     twist_deg_s: twist,
+                    hands: Vec::new(),
                 })
                 .await
                 .is_err()
