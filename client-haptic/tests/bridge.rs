@@ -89,12 +89,13 @@ fn a_virtual_device_feels_the_wall_through_loss_and_a_server_restart() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// A two-channel device (protocol version 2) on a coaxial scene: the outer hand pushes the
-/// catheter into the capped LCCA while the inner hand holds the wire inside it. The outer
-/// hand feels the wall; the wire's hand does not. Then a one-channel device (version 1) on
-/// the same bridge and scene drives the innermost instrument, as before.
+/// A two-channel device (protocol version 2) on a coaxial scene: the inner hand pushes the
+/// microwire out of the parked catheter into the capped end of the LCCA. The wire's hand
+/// feels the wall; the catheter's hand, on the other channel, does not. Then the outer hand
+/// pulls the catheter back over the still wire, and a one-channel device (version 1) on the
+/// same bridge and scene drives the innermost instrument, as before.
 #[test]
-fn a_two_hand_device_feels_the_catheter_apart_from_the_wire() {
+fn a_two_hand_device_feels_the_wire_apart_from_the_catheter() {
     let dir = std::env::temp_dir().join(format!("cathlab-haptic-two-{}", std::process::id()));
     let database = dir.join("haptic.sqlite");
     let Rig {
@@ -103,58 +104,64 @@ fn a_two_hand_device_feels_the_catheter_apart_from_the_wire() {
         udp,
         ..
     } = Rig::start_with(&dir, &database, &common::coaxial_wall_scene());
-    let start = bridge.latest();
-    // Hold, then the outer hand pushes 75 mm at 15 mm/s: free for ~56 mm, then the cap.
-    let samples = device(&udp, "hold:1,outer-push:15:5,hold:0.8", 0.0);
-    let end = bridge.latest();
-    let outer_free = common::mean_of(&samples, "outer_force_n", 1.5, 3.0);
-    let outer_wall = common::mean_of(&samples, "outer_force_n", 6.0, 6.8);
-    let inner_wall = common::mean_of(&samples, "force_n", 6.0, 6.8);
+    let field = |v: &serde_json::Value, name: &str| v[name].as_f64().unwrap();
+    // Hold (the baseline: a catheter at rest in a curved vessel holds some force), then the
+    // wire goes 60 mm at 15 mm/s: free for ~26 mm, then into the cap.
+    let samples = common::two_hand_device(&udp, "hold:1,push:15:4,hold:0.6");
+    let report = bridge.latest();
+    let rest = |f: &str| common::mean_of(&samples, f, 0.5, 1.0);
+    let wall = |f: &str| common::mean_of(&samples, f, 4.6, 5.6);
+    let wire = wall("force_n") - rest("force_n");
+    let catheter = wall("outer_force_n") - rest("outer_force_n");
     let live = samples.iter().filter(|s| s["outer_live"] == true).count();
     println!(
-        "outer hand: free {outer_free:.4} N, at the wall {outer_wall:.4} N; the wire's hand \
-         then {inner_wall:.4} N; {live} of {} samples with live outer feedback",
+        "wire into the cap: the wire's hand {:.3} → {:.3} N, the catheter's hand {:.3} → {:.3} N; \
+         {live} of {} samples with live outer feedback",
+        rest("force_n"),
+        wall("force_n"),
+        rest("outer_force_n"),
+        wall("outer_force_n"),
         samples.len()
     );
-    println!("bridge before: {start}\nbridge after: {end}");
+    println!("bridge: {report}");
     assert_eq!(
-        end["outer_instrument"], 0,
+        report["outer_instrument"], 0,
         "the outer hand holds the catheter"
     );
     assert!(live * 10 >= samples.len() * 8, "outer feedback live");
+    assert!(wire > 0.05, "the wire's hand feels the wall: {wire} N more");
     assert!(
-        outer_wall > 0.05,
-        "the catheter's hand feels the wall: {outer_wall} N"
+        wire > 3.0 * catheter.abs().max(0.005),
+        "the catheter's hand does not feel the wire's wall: {catheter} vs {wire} N"
     );
+
+    // The outer hand pulls the catheter back 10 mm; the wire stays.
+    let before = bridge.latest();
+    common::two_hand_device(&udp, "hold:0.5,outer-push:-10:1,hold:0.3");
+    let after = bridge.latest();
+    let catheter = field(&after, "outer_inserted_mm") - field(&before, "outer_inserted_mm");
+    let wire = field(&after, "inserted_mm") - field(&before, "inserted_mm");
+    println!("outer hand pulls: catheter {catheter:+.1} mm, wire {wire:+.1} mm");
     assert!(
-        outer_wall > 3.0 * outer_free.abs().max(0.005),
-        "the catheter's force rises at the wall: {outer_free} → {outer_wall} N"
+        catheter < -5.0,
+        "the outer hand withdrew the catheter: {catheter} mm"
     );
-    assert!(
-        outer_wall > 3.0 * inner_wall.abs().max(0.005),
-        "the wire's hand does not feel the catheter's wall: {inner_wall} vs {outer_wall} N"
-    );
-    let advanced =
-        end["outer_inserted_mm"].as_f64().unwrap() - start["outer_inserted_mm"].as_f64().unwrap();
-    let wire = end["inserted_mm"].as_f64().unwrap() - start["inserted_mm"].as_f64().unwrap();
-    assert!(advanced > 40.0, "the catheter advanced {advanced} mm");
     assert!(wire.abs() < 2.0, "the wire held still: {wire} mm");
 
-    // A one-channel device: its push drives the wire (the innermost).
+    // A one-channel device: its pull drives the wire (the innermost).
     let before = bridge.latest();
-    let one = device(&udp, "hold:0.5,push:15:1.5,hold:0.3", 0.0);
+    let one = device(&udp, "hold:0.5,push:-15:1,hold:0.3", 0.0);
     let after = bridge.latest();
     assert!(
         one.iter().all(|s| s["outer_force_n"] == 0.0),
-        "no outer channel for version 1"
+        "no outer channel in version 1"
     );
-    let wire = after["inserted_mm"].as_f64().unwrap() - before["inserted_mm"].as_f64().unwrap();
-    let catheter = after["outer_inserted_mm"].as_f64().unwrap()
-        - before["outer_inserted_mm"].as_f64().unwrap();
-    println!("one-channel device: wire {wire:+.1} mm, catheter {catheter:+.1} mm");
+    let wire = field(&after, "inserted_mm") - field(&before, "inserted_mm");
+    let catheter = field(&after, "outer_inserted_mm") - field(&before, "outer_inserted_mm");
+    println!("one-channel device pulls: wire {wire:+.1} mm, catheter {catheter:+.1} mm");
     assert!(
-        wire > 10.0,
-        "a one-channel device pushes the wire: {wire} mm"
+        wire < -8.0,
+        "a one-channel device drives the wire: {wire} mm"
     );
     assert!(
         catheter.abs() < 2.0,

@@ -29,15 +29,15 @@ pub fn wall_scene() -> String {
     text.replace("along_route_mm = 0.0", "along_route_mm = 360.0")
 }
 
-/// The wall scene with a coaxial stack instead: a 5 F catheter with its tip at the start and
-/// a 0.014" microwire withdrawn 20 mm inside it.
+/// The wall scene with a coaxial stack instead: a 5 F catheter with its tip 20 mm in and a
+/// 0.014" microwire 10 mm out of it (the cap is 56 mm beyond the entry).
 pub fn coaxial_wall_scene() -> String {
     let text = wall_scene();
     let start = text.find("[[devices]]").unwrap();
     let end = text.find("[start]").unwrap();
     format!(
-        "{}[[stack]]\ndevice = \"catheter-5f-vertebral\"\ninserted_mm = 0.0\n\n\
-         [[stack]]\ndevice = \"microwire-014-angled\"\ninserted_mm = -20.0\n\n{}",
+        "{}[[stack]]\ndevice = \"catheter-5f-vertebral\"\ninserted_mm = 20.0\n\n\
+         [[stack]]\ndevice = \"microwire-014-angled\"\ninserted_mm = 30.0\n\n{}",
         &text[..start],
         &text[end..]
     )
@@ -207,17 +207,30 @@ impl Lines {
 
 /// Runs a virtual device to the end of its script; returns its samples.
 pub fn device(bridge: &str, script: &str, loss: f64) -> Vec<Value> {
-    let run = Lines::spawn(&[
+    run_device(&[bridge, script, &loss.to_string()], false)
+}
+
+/// The same with a two-channel device (protocol version 2), no loss.
+pub fn two_hand_device(bridge: &str, script: &str) -> Vec<Value> {
+    run_device(&[bridge, script, "0"], true)
+}
+
+fn run_device([bridge, script, loss]: &[&str; 3], two_hands: bool) -> Vec<Value> {
+    let mut args = vec![
         "virtual-device",
         "--bridge",
         bridge,
         "--script",
         script,
         "--loss",
-        &loss.to_string(),
+        loss,
         "--report-s",
         "0.05",
-    ]);
+    ];
+    if two_hands {
+        args.push("--two-hands");
+    }
+    let run = Lines::spawn(&args);
     let mut samples = Vec::new();
     loop {
         let v = run.next("device sample");

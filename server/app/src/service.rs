@@ -1106,11 +1106,15 @@ impl Simulator for SimulatorService {
         std::thread::Builder::new()
             .name("replay".into())
             .spawn(move || {
-                let _permit = permit;
                 cathlab_engine::priority::lower_current_thread(
                     cathlab_engine::priority::REPLAY_NICE,
                 );
-                let _ = done_tx.send(replay_stored(&engine, &store, &id, &flag));
+                let outcome = replay_stored(&engine, &store, &id, &flag);
+                // The place is given back before the answer goes out: a caller that starts
+                // another replay on hearing it must find the place free (a niced thread
+                // could otherwise hold it for a while after answering).
+                drop(permit);
+                let _ = done_tx.send(outcome);
             })
             .map_err(|e| Status::internal(format!("cannot start a replay thread: {e}")))?;
         let outcome = done_rx
