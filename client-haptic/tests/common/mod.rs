@@ -30,14 +30,14 @@ pub fn wall_scene() -> String {
 }
 
 /// The wall scene with a coaxial stack instead: a 5 F catheter with its tip 20 mm in and a
-/// 0.014" microwire 10 mm out of it (the cap is 56 mm beyond the entry).
+/// straight 0.014" microwire (the wall scene's) 10 mm out of it (the cap is 56 mm beyond the entry).
 pub fn coaxial_wall_scene() -> String {
     let text = wall_scene();
     let start = text.find("[[devices]]").unwrap();
     let end = text.find("[start]").unwrap();
     format!(
         "{}[[stack]]\ndevice = \"catheter-5f-vertebral\"\ninserted_mm = 20.0\n\n\
-         [[stack]]\ndevice = \"microwire-014-angled\"\ninserted_mm = 30.0\n\n{}",
+         [[stack]]\ncustom = {{ preset = \"microwire_014\" }}\ninserted_mm = 30.0\n\n{}",
         &text[..start],
         &text[end..]
     )
