@@ -193,7 +193,7 @@ try {
 
   await test("on_screen_buttons_pull_back", async () => {
     const before = millimetres(await trainee.textContent("#hud-inserted"));
-    const button = await trainee.$('button[data-hold="pull"]');
+    const button = await trainee.$('#right-hand button[data-hold="pull"]');
     const box = await button.boundingBox();
     await trainee.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
     await trainee.mouse.down();
@@ -468,7 +468,21 @@ try {
     await hands.waitForTimeout(400);
     const c3 = await row(hands, 0);
     assert(c2.inserted - c3.inserted > 5, `the left pull button withdrew the catheter ${c2.inserted - c3.inserted} mm`);
+    // Every control of the two-hand page is in view at 1280×800 (two columns of controls).
+    const outside = await hands.evaluate(() =>
+      [...document.querySelectorAll("#controls button, #controls input, #controls select, #hud dd")]
+        .filter((e) => e.checkVisibility())
+        .map((e) => ({ id: e.id || e.textContent?.trim().slice(0, 20), r: e.getBoundingClientRect() }))
+        .filter(({ r }) => r.bottom > innerHeight + 0.5 || r.right > innerWidth + 0.5 || r.width === 0)
+        .map(({ id }) => id),
+    );
+    assert(outside.length === 0, `out of view on the two-hand page at 1280×800: ${outside.join(", ")}`);
+    // The README's picture: fluoroscopy on, both instruments in the image.
+    await hands.keyboard.down("f");
+    await nextFrame(hands);
+    await nextFrame(hands);
     await hands.screenshot({ path: join(artifacts, "trainee-two-hands.png") });
+    await hands.keyboard.up("f");
     // The observer, from an instructor's dashboard, sees both instruments move.
     const desk = await browser.newContext({ viewport: { width: 1280, height: 860 } });
     const dashboard = await desk.newPage();
@@ -499,21 +513,35 @@ try {
     assert(seen[0].inserted - c3.inserted > 5 && seen[1].inserted - w2.inserted > 5, "both instruments moved again");
     await watcher.close();
     await desk.close();
-    // An exchange from the page: the wire withdrawn, a catalogue wire in its place.
+    // An exchange from the page: the wire drawn back through the catheter (the panel
+    // follows), a catalogue wire in its place at the hub.
     await hands.bringToFront();
+    const wireBefore = (await row(hands, 1)).inserted;
     await hands.selectOption("#exchange-device", "catalogue:guidewire-035-j-3mm");
     await hands.click("#exchange-go");
-    await hands.waitForFunction(() => /J-tip/.test(document.querySelector('#stack li[data-instrument="1"] .name')?.textContent ?? ""), null, {
-      timeout: 15_000,
+    await hands.waitForFunction(() => /withdrawing/.test(document.querySelector("#message")?.textContent ?? ""), null, {
+      timeout: 10_000,
     });
-    const message = await hands.textContent("#message");
-    assert(/Exchanged/.test(message), `the page confirms the exchange: ${message}`);
+    console.log(`  exchange: ${await hands.textContent("#message")}`);
+    await hands.waitForTimeout(1000);
+    const withdrawing = (await row(hands, 1)).inserted;
+    assert(withdrawing < wireBefore - 50, `the wire is being withdrawn: ${wireBefore} → ${withdrawing} mm`);
+    await hands.waitForFunction(() => /J-tip/.test(document.querySelector('#stack li[data-instrument="1"] .name')?.textContent ?? ""), null, {
+      timeout: 20_000,
+    });
+    const fresh = await row(hands, 1);
+    console.log(`  after the exchange: ${fresh.name} at ${fresh.inserted} mm, ${fresh.relative}`);
     assert((await hands.textContent("#right-instrument")).includes("J-tip"), "the right hand now holds the new wire");
+    assert(/inside/.test(fresh.relative), `the new wire waits inside the catheter: ${fresh.relative}`);
     // A device that cannot go in is refused with the server's reason, and nothing changes.
     await hands.selectOption("#exchange-device", "catalogue:guide-6f-071-90");
     await hands.click("#exchange-go");
-    await hands.waitForFunction(() => /Command failed/.test(document.querySelector("#message")?.textContent ?? ""), null, { timeout: 10_000 });
-    console.log(`  refused: ${await hands.textContent("#message")}`);
+    await hands.waitForFunction(() => !/withdrawing/.test(document.querySelector("#message")?.textContent ?? ""), null, {
+      timeout: 10_000,
+    });
+    const refusal = await hands.textContent("#message");
+    console.log(`  refused: ${refusal}`);
+    assert(refusal.length > 10, "the page says why the exchange was refused");
     assert((await hands.textContent("#right-instrument")).includes("J-tip"), "the refused exchange left the wire");
     await machine.close();
   });

@@ -247,6 +247,7 @@ async function main() {
 /** Fills the hands' instrument names, the exchange lists and shows the stack panel. */
 function setUpStack(scene: SceneSummary, listed: ListScenesResponse) {
   const n = scene.stack.length;
+  document.body.dataset.stacked = "true";
   $("left-hand").hidden = false;
   $("right-title").textContent = "Right hand";
   $("right-instrument").textContent = scene.stack[n - 1].device;
@@ -443,8 +444,12 @@ function controls(client: SimulatorClient, sessionId: string, instruments: numbe
     const [kind, value] = $<HTMLSelectElement>("exchange-device").value.split(/:(.*)/s);
     const device =
       kind === "spare" ? { case: "spare" as const, value: Number(value) } : { case: "catalogueId" as const, value };
+    const incoming = $<HTMLSelectElement>("exchange-device").selectedOptions[0]?.text ?? "";
+    const outgoing = $<HTMLSelectElement>("exchange-instrument").selectedOptions[0]?.text ?? "";
+    // The server draws the instrument back to the hub first (the stack panel follows it),
+    // then puts the new one there; a push on it meanwhile cancels the exchange.
     if (await command({ case: "exchange", value: { instrument, device } })) {
-      say(`Exchanged: ${$<HTMLSelectElement>("exchange-device").selectedOptions[0]?.text ?? ""} is in.`, "success");
+      say(`Exchange: withdrawing ${outgoing} to the hub, then ${incoming} goes in.`, "success");
     }
   });
   $<HTMLSelectElement>("device").addEventListener("change", (e) =>

@@ -340,6 +340,18 @@ pub struct World {
     fidelity: u8,
     /// Each instrument's tip (None: withdrawn) and inserted length after the last step.
     previous_instruments: Vec<(Option<Vector3<f64>>, f64)>,
+    /// An exchange under way: the instrument (and those inside it) being withdrawn to the
+    /// hub of the one around it, then replaced.
+    exchanging: Option<PendingExchange>,
+}
+
+/// An exchange waiting for its instrument to be withdrawn.
+#[derive(Debug, Clone)]
+struct PendingExchange {
+    index: usize,
+    device: cathlab_physics::Device,
+    look: DeviceAppearance,
+    id: String,
 }
 
 /// One instrument's hand: its device's look and limits, and what held its push back.
@@ -531,6 +543,7 @@ impl World {
             proximal: [0.0; 6],
             fidelity: 0,
             previous_instruments: Vec::new(),
+            exchanging: None,
         })
     }
 
@@ -589,6 +602,7 @@ impl World {
     /// flow, a device index out of range) changes nothing and says why.
     pub fn apply(&mut self, seq: u64, command: &Command) -> Result<()> {
         let innermost = self.strand.len() - 1;
+        self.cancel_exchange_if_pushed(command);
         match *command {
             Command::PushVelocity(v) => self.drive(innermost, Drive::PushVelocity(v))?,
             Command::PushTarget(x) => self.drive(innermost, Drive::PushTarget(x))?,
@@ -791,7 +805,11 @@ impl World {
             .set_command(index, cathlab_physics::Command { insertion, twist })
     }
 
-    /// Exchanges stack instrument `index` for `device` (its look and the name it goes by).
+    /// Exchanges stack instrument `index` for `device` (its look and the name it goes by):
+    /// at once when it (and everything inside it) is withdrawn to the hub of the one around
+    /// it; otherwise it is first drawn back there at the hand's top speed, step by step (the
+    /// trainee sees it come out), and replaced when it arrives. A push on a withdrawing
+    /// instrument cancels the exchange.
     fn exchange(
         &mut self,
         index: u32,
@@ -801,17 +819,73 @@ impl World {
     ) -> Result<()> {
         let index = index as usize;
         self.strand.check(index, "exchange.instrument")?;
-        let Some(stack) = self.strand.stack_mut() else {
+        let Some(stack) = self.strand.stack() else {
             return Err(EngineError::FailedPrecondition(
                 "a one-device scene selects devices; only a coaxial stack exchanges them".into(),
             ));
         };
         stack
-            .exchange(index, device.clone())
+            .check_exchange(index, device)
             .map_err(|e| EngineError::FailedPrecondition(e.to_string()))?;
+        let name = stack
+            .device(index)
+            .map(|d| d.name.clone())
+            .unwrap_or_default();
+        self.exchanging = Some(PendingExchange {
+            index,
+            device: device.clone(),
+            look,
+            id: id.clone(),
+        });
+        if !self.finish_exchange()? {
+            self.event(
+                EventKind::Device,
+                format!("instrument {index}: withdrawing {name} for an exchange with {id}"),
+            );
+        }
+        Ok(())
+    }
+
+    /// Drives the instruments of a pending exchange back toward the hub (each step, as the
+    /// hub of the one around each moves with it).
+    fn withdraw_for_exchange(&mut self) -> Result<()> {
+        let Some(pending) = &self.exchanging else {
+            return Ok(());
+        };
+        let index = pending.index;
+        for k in index..self.strand.len() {
+            if let Some((lo, _)) = self.strand.stack().and_then(|s| s.inserted_range_m(k)) {
+                self.drive(k, Drive::PushTarget(lo))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Replaces the instrument of a pending exchange when it (and everything inside it) is
+    /// at the hub; whether it did.
+    fn finish_exchange(&mut self) -> Result<bool> {
+        let Some(pending) = &self.exchanging else {
+            return Ok(false);
+        };
+        let Some(stack) = self.strand.stack_mut() else {
+            self.exchanging = None;
+            return Ok(false);
+        };
+        if stack
+            .exchange(pending.index, pending.device.clone())
+            .is_err()
+        {
+            return Ok(false); // not withdrawn yet
+        }
+        let PendingExchange {
+            index,
+            device,
+            look,
+            id,
+        } = self.exchanging.take().expect("checked above");
         let old = std::mem::replace(
             &mut self.hands[index],
-            Hand::new(id.clone(), device, look, &self.assets.spec),
+            Hand::new(id.clone(), &device, look, &self.assets.spec),
         );
         let was = if old.catalogue_id.is_empty() {
             "the scene's device".to_owned()
@@ -822,7 +896,38 @@ impl World {
             EventKind::Device,
             format!("instrument {index}: {was} exchanged for {id}"),
         );
-        Ok(())
+        Ok(true)
+    }
+
+    /// A push (a non-zero speed or a target) on an instrument being withdrawn for an exchange
+    /// takes it back: the exchange is cancelled. Zero speeds (a still hand, a keep-alive) and
+    /// twists do not.
+    fn cancel_exchange_if_pushed(&mut self, command: &Command) {
+        let Some(pending) = &self.exchanging else {
+            return;
+        };
+        let pushes = |drive: &Drive| match *drive {
+            Drive::PushVelocity(v) => v != 0.0,
+            Drive::PushTarget(_) => true,
+            Drive::Setpoints { push_m_s, .. } => push_m_s != 0.0,
+            Drive::TwistRate(_) | Drive::TwistTarget(_) => false,
+        };
+        let innermost = self.strand.len() - 1;
+        let taken = match *command {
+            Command::PushVelocity(v) => (v != 0.0).then_some(innermost),
+            Command::PushTarget(_) => Some(innermost),
+            Command::Setpoints { push_m_s, .. } => (push_m_s != 0.0).then_some(innermost),
+            Command::Instrument { index, drive } if pushes(&drive) => Some(index as usize),
+            _ => None,
+        };
+        if let Some(k) = taken.filter(|k| *k >= pending.index) {
+            let index = pending.index;
+            self.exchanging = None;
+            self.event(
+                EventKind::Device,
+                format!("instrument {index}: exchange cancelled (instrument {k} pushed)"),
+            );
+        }
     }
 
     /// The command this step runs instead of the operator's for instrument `index` when a
@@ -906,6 +1011,7 @@ impl World {
 
     fn restart_device(&mut self, index: usize) -> Result<()> {
         self.strand = Strand::start(&self.assets, index)?;
+        self.exchanging = None;
         self.active_device = index;
         self.hands = start_hands(&self.assets, index);
         self.previous_instruments.clear();
@@ -1104,6 +1210,11 @@ impl World {
     /// back at its start, reports it and counts it; the world stays usable.
     pub fn step(&mut self) -> Result<()> {
         let dt = self.assets.spec.time_step_s();
+        // An exchange under way: replaced once withdrawn (after the last step), else drawn
+        // on back.
+        if !self.finish_exchange()? {
+            self.withdraw_for_exchange()?;
+        }
         let operators: Vec<cathlab_physics::Command> = (0..self.strand.len())
             .map(|i| self.strand.command(i))
             .collect();

@@ -873,3 +873,129 @@ fn a_wire_shows_through_the_hollow_catheter_around_it() {
         "the coil replaces the core there"
     );
 }
+
+#[test]
+fn an_exchange_withdraws_the_wire_through_the_catheter_then_replaces_it_and_a_push_cancels_it() {
+    let text = std::fs::read_to_string(scenes().join("arch_to_cow_lcca_coaxial.toml")).unwrap();
+    let mut world = World::new(assets(&text)).unwrap();
+    let catalogue = cathlab_engine::scene::catalogue().entries();
+    let j_tip = catalogue
+        .iter()
+        .position(|e| e.id == "guidewire-035-j-3mm")
+        .unwrap() as u32;
+    let guide = catalogue
+        .iter()
+        .position(|e| e.id == "guide-6f-071-90")
+        .unwrap() as u32;
+    // A guide catheter does not fit in a 5 F catheter: refused at once, nothing starts.
+    let refused = world
+        .apply(
+            1,
+            &Command::Exchange {
+                index: 1,
+                catalogue: guide,
+            },
+        )
+        .unwrap_err();
+    assert!(
+        refused.to_string().contains("fit") || refused.to_string().contains("lumen"),
+        "{refused}"
+    );
+    // The wire is 20 mm out of the catheter: the exchange draws it back through it first.
+    world
+        .apply(
+            2,
+            &Command::Exchange {
+                index: 1,
+                catalogue: j_tip,
+            },
+        )
+        .unwrap();
+    let started = world.take_events();
+    assert!(
+        started.iter().any(|e| e.message.contains("withdrawing")),
+        "{started:?}"
+    );
+    // A push on the wire takes it back: the exchange is cancelled.
+    world.step().unwrap();
+    world
+        .apply(
+            3,
+            &Command::Instrument {
+                index: 1,
+                drive: Drive::PushVelocity(0.01),
+            },
+        )
+        .unwrap();
+    assert!(
+        world
+            .take_events()
+            .iter()
+            .any(|e| e.message.contains("cancelled")),
+        "a push cancels the exchange"
+    );
+    let before = world.snapshot().instruments[1].inserted_m;
+    for _ in 0..50 {
+        world.step().unwrap();
+    }
+    assert!(
+        world.snapshot().instruments[1].inserted_m > before,
+        "the wire advanced again"
+    );
+    // Again, left alone: withdrawn at the hand's top speed, then replaced at the hub.
+    world
+        .apply(
+            4,
+            &Command::Exchange {
+                index: 1,
+                catalogue: j_tip,
+            },
+        )
+        .unwrap();
+    let mut steps = 0;
+    while world.snapshot().instruments[1].catalogue_id != "guidewire-035-j-3mm" {
+        world.step().unwrap();
+        steps += 1;
+        assert!(steps < 20_000, "the exchange never finished");
+    }
+    let s = world.snapshot();
+    let catheter = &s.instruments[0];
+    let wire = &s.instruments[1];
+    println!(
+        "exchange: {steps} steps ({:.1} s); the new wire starts at {:.0} mm (catheter at {:.0} mm)",
+        steps as f64 * 0.002,
+        wire.inserted_m * 1e3,
+        catheter.inserted_m * 1e3
+    );
+    assert!(wire.name.contains("J-tip"), "{}", wire.name);
+    assert!(
+        wire.tip.is_none(),
+        "the new wire waits at the catheter's hub, outside the body"
+    );
+    assert!(
+        world
+            .take_events()
+            .iter()
+            .any(|e| e.message.contains("exchanged for guidewire-035-j-3mm")),
+        "the exchange is reported"
+    );
+    // Pushed in, the new wire comes out of the catheter.
+    world
+        .apply(
+            5,
+            &Command::Instrument {
+                index: 1,
+                drive: Drive::PushTarget(catheter.inserted_m + 0.01),
+            },
+        )
+        .unwrap();
+    for _ in 0..10_000 {
+        world.step().unwrap();
+    }
+    let wire = &world.snapshot().instruments[1];
+    assert!(
+        wire.tip.is_some() && wire.inserted_m > catheter.inserted_m,
+        "{:.3} m",
+        wire.inserted_m
+    );
+}

@@ -790,10 +790,9 @@ impl<W: Wall> Stack<W> {
         Ok(self.instruments.pop().expect("checked above").device)
     }
 
-    /// Replaces instrument `index` (not the outermost) by `device`, as an operator exchanges a
-    /// wire: allowed only while it, and everything inside it, is withdrawn to the hub of the
-    /// instrument around it. The new device starts there, untwisted.
-    pub fn exchange(&mut self, index: usize, device: Device) -> Result<()> {
+    /// Whether instrument `index` may be exchanged for `device` once withdrawn: not the
+    /// outermost, a valid device that fits the one around it and the one inside it.
+    pub fn check_exchange(&self, index: usize, device: &Device) -> Result<()> {
         self.check_index(index)?;
         if index == 0 {
             return Err(PhysicsError::Stack(
@@ -801,10 +800,18 @@ impl<W: Wall> Stack<W> {
             ));
         }
         device.validate()?;
-        check_fit(&self.instruments[index - 1].device, &device)?;
+        check_fit(&self.instruments[index - 1].device, device)?;
         if let Some(inner) = self.instruments.get(index + 1) {
-            check_fit(&device, &inner.device)?;
+            check_fit(device, &inner.device)?;
         }
+        Ok(())
+    }
+
+    /// Replaces instrument `index` (not the outermost) by `device`, as an operator exchanges a
+    /// wire: allowed only while it, and everything inside it, is withdrawn to the hub of the
+    /// instrument around it. The new device starts there, untwisted.
+    pub fn exchange(&mut self, index: usize, device: Device) -> Result<()> {
+        self.check_exchange(index, &device)?;
         for (k, instrument) in self.instruments.iter().enumerate().skip(index) {
             let (lo, _) = inserted_range(
                 around(&self.instruments, k),
