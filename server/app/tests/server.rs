@@ -1008,15 +1008,34 @@ async fn two_hands_drive_their_own_instruments_of_a_coaxial_scene() {
         "{}",
         err.message()
     );
-    // An exchange of a wire still in the vessels is refused until it is withdrawn.
-    let exchange = command(pb::command::Kind::Exchange(pb::Exchange {
-        instrument: 1,
-        device: Some(pb::exchange::Device::CatalogueId(
-            "guidewire-035-angled-hydrophilic".into(),
-        )),
-    }));
-    let err = send(&mut client, &session, 5, exchange).await.unwrap_err();
+    // An exchange for a device that does not fit is refused, naming both.
+    let exchange = |id: &str| {
+        command(pb::command::Kind::Exchange(pb::Exchange {
+            instrument: 1,
+            device: Some(pb::exchange::Device::CatalogueId(id.into())),
+        }))
+    };
+    let err = send(&mut client, &session, 5, exchange("guide-6f-071-90"))
+        .await
+        .unwrap_err();
     assert_eq!(err.code(), tonic::Code::FailedPrecondition, "{err:?}");
-    assert!(err.message().contains("withdraw"), "{}", err.message());
+    assert!(err.message().contains("does not fit"), "{}", err.message());
+    // One that fits: the wire still in the vessels is drawn back through the catheter first.
+    let ack = send(
+        &mut client,
+        &session,
+        6,
+        exchange("guidewire-035-angled-hydrophilic"),
+    )
+    .await
+    .unwrap();
+    let withdrawing = state_after(&mut client, &session, ack.step + 250).await;
+    let drawn = later.instruments[1].inserted_mm - withdrawing.instruments[1].inserted_mm;
+    // At the hand's top speed (150 mm/s).
+    assert!(drawn > 60.0, "the wire was drawn back {drawn} mm in 0.5 s");
+    assert!(
+        withdrawing.instruments[1].catalogue_id.is_empty(),
+        "not yet replaced"
+    );
     close(&mut client, &session).await;
 }
