@@ -32,8 +32,8 @@ use crate::beam::{
 use crate::device::Device;
 use crate::error::{PhysicsError, Result, require_finite, require_positive};
 use crate::navigation::{
-    Command, Effort, Insertion, NavigationSettings, Sample, Twist, detect, material_of,
-    push_element_samples, spacing, warm_start,
+    ClearanceCache, Command, Effort, Insertion, NavigationSettings, Sample, Twist, detect,
+    material_of, push_element_samples, spacing, warm_start,
 };
 use crate::section::BeamProperties;
 use crate::wall::{FreeSpace, Wall};
@@ -175,6 +175,8 @@ pub struct Stack<W: Wall> {
     nested_last: nested::NestedStep,
     /// The work cap of the following steps (an overload governor lowers it).
     effort: Effort,
+    /// Wall-distance bounds that spare collision points their probes.
+    clearance: ClearanceCache,
 }
 
 /// Everything [`Stack::advance`] needs to undo a step.
@@ -431,6 +433,7 @@ impl<W: Wall> Stack<W> {
             chains: Vec::new(),
             nested_last: nested::NestedStep::default(),
             effort: Effort::FULL,
+            clearance: ClearanceCache::default(),
         };
         if coupling == Coupling::Nested {
             stack.update_chains()?;
@@ -948,8 +951,11 @@ impl<W: Wall> Stack<W> {
         let sigma: Vec<f64> = self.nodes.iter().map(|n| n.sigma).collect();
         let previous = &self.previous_contacts;
         let tolerance = self.settings.sample_spacing_m;
+        let clearance = &mut self.clearance;
         let step = self.model.step_with_contacts(
-            |positions, _rotations, free| Ok(detect(wall, &samples, positions, free, margin)),
+            |positions, _rotations, free| {
+                Ok(detect(wall, &samples, positions, free, margin, clearance))
+            },
             &self.effort.contact(&self.settings.contact),
             |contacts| warm_start(contacts, &sigma, previous, tolerance),
         )?;

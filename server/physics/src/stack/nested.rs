@@ -382,7 +382,16 @@ impl<W: Wall> Stack<W> {
                     None => lumen.push((s.element, half, predicted, d)),
                 }
             }
-            for c in detect(&self.wall, &outside, positions, &increments[i], margin) {
+            // No bounds kept across steps here (a throwaway cache probes every point).
+            let mut clearance = crate::navigation::ClearanceCache::default();
+            for c in detect(
+                &self.wall,
+                &outside,
+                positions,
+                &increments[i],
+                margin,
+                &mut clearance,
+            ) {
                 found.push(Detected {
                     sigma_first: sigma[c.element] + c.t * (sigma[c.element + 1] - sigma[c.element]),
                     sigma_second: None,
