@@ -729,8 +729,13 @@ impl<W: Wall> Navigation<W> {
         let positions = self.model.positions();
         self.sample_layout()
             .iter()
-            .filter_map(|s| {
+            .enumerate()
+            .filter_map(|(i, s)| {
                 let p = positions[s.element] * (1.0 - s.t) + positions[s.element + 1] * s.t;
+                // A point the detection's bounds show clear of the wall cannot penetrate it.
+                if self.clearance.clear_of_wall(i, &p, s.radius) {
+                    return None;
+                }
                 self.wall
                     .probe(&p, s.radius)
                     .map(|probe| s.radius - probe.clearance_m)
@@ -851,8 +856,10 @@ impl ClearanceCache {
     }
 
     /// Whether point `i`, now at `at`, is certainly farther than `search` from the wall.
-    fn clear_of_wall(&self, i: usize, at: &Vector3<f64>, search: f64) -> bool {
-        let (at0, bound) = self.points[i];
+    pub(crate) fn clear_of_wall(&self, i: usize, at: &Vector3<f64>, search: f64) -> bool {
+        let Some(&(at0, bound)) = self.points.get(i) else {
+            return false;
+        };
         bound > 0.0 && (at - at0).norm() < bound - search - CLEARANCE_SLACK_M
     }
 

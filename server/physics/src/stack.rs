@@ -646,8 +646,13 @@ impl<W: Wall> Stack<W> {
         let positions = self.model.positions();
         self.sample_layout()
             .iter()
-            .filter_map(|s| {
+            .enumerate()
+            .filter_map(|(i, s)| {
                 let p = positions[s.element] * (1.0 - s.t) + positions[s.element + 1] * s.t;
+                // A point the detection's bounds show clear of the wall cannot penetrate it.
+                if self.clearance.clear_of_wall(i, &p, s.radius) {
+                    return None;
+                }
                 self.wall
                     .probe(&p, s.radius)
                     .map(|probe| s.radius - probe.clearance_m)
