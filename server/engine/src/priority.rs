@@ -1,7 +1,10 @@
 //! Thread priorities: physics loops keep the default priority; render loops, the rayon pool
-//! and the GPU driver's threads run niced (+10), so that when the cores are busy a frame comes
-//! late rather than a physics step or a command acknowledgement; replays run niced further
-//! (+19).
+//! and the GPU driver's threads run under Linux's idle policy (`SCHED_IDLE`, and niced +10
+//! where that policy is refused), so that when the cores are busy a frame comes late rather
+//! than a physics step or a command acknowledgement; replays run there too (niced +19 where
+//! refused). A niced thread only gets a smaller share: a physics thread waking every 2 ms
+//! still waited behind it for the scheduler's granularity and missed steps with four M1
+//! sessions on two cores. An idle-policy thread yields the core to any other at once.
 
 /// The nice value of rendering threads.
 pub const RENDER_NICE: i32 = 10;
@@ -15,8 +18,20 @@ pub const REPLAY_NICE: i32 = 19;
 pub fn lower_current_thread(nice: i32) -> bool {
     #[cfg(target_os = "linux")]
     {
+        use thread_priority::unix::{
+            NormalThreadSchedulePolicy, ThreadSchedulePolicy, set_thread_priority_and_policy,
+            thread_native_id,
+        };
         let tid = rustix::thread::gettid();
-        rustix::process::setpriority_process(Some(tid), nice).is_ok()
+        let niced = rustix::process::setpriority_process(Some(tid), nice).is_ok();
+        let idle = nice >= RENDER_NICE
+            && set_thread_priority_and_policy(
+                thread_native_id(),
+                thread_priority::ThreadPriority::Min,
+                ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Idle),
+            )
+            .is_ok();
+        niced || idle
     }
     #[cfg(not(target_os = "linux"))]
     {
