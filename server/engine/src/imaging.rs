@@ -61,10 +61,19 @@ impl Renderer for SharedRenderer {
 /// One fluoroscopy exposure of `snapshot` outside any session (tests and tools): a fresh
 /// fluoroscope with the scene's settings on the CPU renderer, at time 0.
 pub fn expose_snapshot(assets: &SceneAssets, snapshot: &Snapshot) -> Result<cathlab_xray::Frame> {
-    let mut chain = cathlab_xray::Fluoroscope::new(
-        Box::new(cathlab_xray::CpuRenderer::default()),
-        crate::session::fluoroscope_settings(assets),
-    )?;
+    expose_snapshot_with(assets, snapshot, true)
+}
+
+/// The same, with the detector's quantum noise on or off (off: golden images).
+pub fn expose_snapshot_with(
+    assets: &SceneAssets,
+    snapshot: &Snapshot,
+    noise: bool,
+) -> Result<cathlab_xray::Frame> {
+    let mut settings = crate::session::fluoroscope_settings(assets);
+    settings.detector.noise &= noise;
+    let mut chain =
+        cathlab_xray::Fluoroscope::new(Box::new(cathlab_xray::CpuRenderer::default()), settings)?;
     let layers = layers_of(assets, snapshot)?;
     let carm = carm_of(assets, snapshot);
     Ok(chain.expose(

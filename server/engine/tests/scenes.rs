@@ -1,6 +1,9 @@
 //! Every scene in `scenes/` loads and runs; every stack scene's scripted two-hand operator
 //! (its `[autopilot]`) takes the scene's target instrument to the target through recorded
-//! commands, with no divergence.
+//! commands, with no divergence. The fluoroscopy of each stack where it arrives (every
+//! instrument, hollow catheters with the devices inside them visible, marker bands) is held
+//! to a golden image in `tests/golden/` (noise off; mean difference ≤ 0.5 grey level, 99.9 %
+//! of pixels within 2); `CATHLAB_BLESS=1` rewrites them after a deliberate change.
 
 use std::path::Path;
 
@@ -61,6 +64,7 @@ fn every_scene_loads_and_every_two_hand_autopilot_reaches_its_target() {
         // The scripted operator keeps the catheter behind the wire's tip.
         assert_eq!(m.passed_inner_tip, 0, "{}", spec.name);
         assert_eq!(m.leading_instrument as usize, spec.stack.len() - 1);
+        golden(&spec.name, world.assets(), &s);
         coaxial.push(spec.name.clone());
     }
     for name in [
@@ -70,4 +74,44 @@ fn every_scene_loads_and_every_two_hand_autopilot_reaches_its_target() {
     ] {
         assert!(coaxial.iter().any(|n| n == name), "{name} was run");
     }
+}
+
+/// Holds the noiseless fluoroscopy of `snapshot` to `tests/golden/{name}.png`.
+fn golden(name: &str, assets: &SceneAssets, snapshot: &Snapshot) {
+    let frame = cathlab_engine::imaging::expose_snapshot_with(assets, snapshot, false).unwrap();
+    let grey = frame.to_8bit();
+    let (w, h) = (frame.width, frame.height);
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("tests/golden/{name}.png"));
+    if std::env::var_os("CATHLAB_BLESS").is_some() {
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        image::GrayImage::from_raw(w, h, grey.clone())
+            .unwrap()
+            .save(&path)
+            .unwrap();
+    }
+    let reference = image::open(&path)
+        .unwrap_or_else(|e| panic!("{}: {e} (bless with CATHLAB_BLESS=1)", path.display()))
+        .to_luma8();
+    assert_eq!(reference.dimensions(), (w, h), "{name}: golden image size");
+    let reference = reference.into_raw();
+    let mean = grey
+        .iter()
+        .zip(&reference)
+        .map(|(a, b)| f64::from(a.abs_diff(*b)))
+        .sum::<f64>()
+        / grey.len() as f64;
+    let far = grey
+        .iter()
+        .zip(&reference)
+        .filter(|(a, b)| a.abs_diff(**b) > 2)
+        .count() as f64
+        / grey.len() as f64;
+    println!(
+        "  golden {name}: mean |Δ| {mean:.3} grey levels, {:.3} % beyond 2",
+        far * 100.0
+    );
+    assert!(
+        mean <= 0.5 && far <= 1e-3,
+        "{name}: the fluoroscopy of the stack differs from its golden image"
+    );
 }
