@@ -720,7 +720,7 @@ impl AssetCache {
             .step_by(2)
             .map(|p| Point3::from(to_lps * p.coords))
             .collect();
-        Ok(SceneAssets {
+        let assets = SceneAssets {
             target_path_lps,
             spec: spec.clone(),
             anatomy,
@@ -735,7 +735,11 @@ impl AssetCache {
             goal_along_m,
             carm,
             network,
-        })
+        };
+        // The scripted operator's plan (its exchange's branch on the route, its device) is
+        // checked now, not when someone first runs it.
+        assets.two_hand_plan()?;
+        Ok(assets)
     }
 }
 

@@ -901,6 +901,27 @@ fn an_exchange_withdraws_the_wire_through_the_catheter_then_replaces_it_and_a_pu
         refused.to_string().contains("fit") || refused.to_string().contains("lumen"),
         "{refused}"
     );
+    // A spare the scene does not have, and a catalogue entry that does not exist, are named.
+    let missing = world
+        .apply(1, &Command::ExchangeSpare { index: 1, spare: 5 })
+        .unwrap_err();
+    assert!(
+        missing.to_string().contains("spare 5 does not exist"),
+        "{missing}"
+    );
+    let missing = world
+        .apply(
+            1,
+            &Command::Exchange {
+                index: 1,
+                catalogue: 9999,
+            },
+        )
+        .unwrap_err();
+    assert!(
+        missing.to_string().contains("catalogue entry 9999"),
+        "{missing}"
+    );
     // The wire is 20 mm out of the catheter: the exchange draws it back through it first.
     world
         .apply(
@@ -998,4 +1019,44 @@ fn an_exchange_withdraws_the_wire_through_the_catheter_then_replaces_it_and_a_pu
         "{:.3} m",
         wire.inserted_m
     );
+}
+
+#[test]
+fn a_stack_scene_names_bad_spares_autopilot_and_target_instrument() {
+    let rva = std::fs::read_to_string(scenes().join("arch_to_cow_rva_coaxial.toml")).unwrap();
+    let cases = [
+        (
+            rva.replace("bend_length_mm = 10.0 }", "bend_length_mm = -3.0 }"),
+            "spares[0].custom.bend_length_mm",
+        ),
+        (
+            rva.replace("[[spares]]\ncustom = { preset = \"guidewire_035_shaped\", bend_deg = 90.0, bend_length_mm = 10.0 }", "[[spares]]\ndevice = \"guidewire-9000\""),
+            "spares[0]",
+        ),
+        (rva.replace("lookahead_mm = 50.0", "lookahead_mm = 0.0"), "autopilot.lookahead_mm"),
+        (
+            rva.replace("catheter_lag_mm = 50.0", "catheter_lag_mm = nan"),
+            "autopilot.catheter_lag_mm",
+        ),
+        (rva.replace("spare = 0", "spare = 3"), "autopilot.exchange.spare"),
+        (rva.replace("into_mm = 45.0", "into_mm = 45.0\nspeed = 2"), "autopilot.exchange"),
+        (rva.replace("instrument = 0", "instrument = 2"), "target.instrument"),
+        (
+            rva.replace("branch = \"arch_to_RCCA+RVA\"", "branch = \"nowhere\""),
+            "autopilot.exchange.branch",
+        ),
+    ];
+    for (text, path) in cases {
+        assert_ne!(text, rva, "{path}: the case changed the scene");
+        let outcome = SceneSpec::parse(&text, SceneFormat::Toml)
+            .and_then(|spec| cache().load(&spec, &scenes()).map(|_| ()));
+        match outcome {
+            Err(EngineError::Scene { path: p, reason }) => {
+                println!("{p}: {reason}");
+                assert!(p.starts_with(path), "{path}: got {p} ({reason})");
+                assert!(!reason.is_empty());
+            }
+            other => panic!("{path}: {other:?}"),
+        }
+    }
 }
