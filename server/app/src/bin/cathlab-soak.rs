@@ -347,16 +347,47 @@ impl Chaos {
             10 => Kind::Dsa(r.random_bool(0.5)),
             _ => Kind::Reset(true),
         };
+        // A speed sometimes names the instrument (the only one of this one-device scene).
+        let mut valid = command(kind);
+        if let Some(c) = valid.as_mut()
+            && matches!(c.kind, Some(Kind::Insertion(_)) | Some(Kind::Twist(_)))
+            && r.random_bool(0.3)
+        {
+            c.instrument = Some(0);
+        }
         self.seq += 1;
         let seq = self.seq;
-        self.send("valid command", command(kind), seq).await;
+        self.send("valid command", valid, seq).await;
         Ok(())
     }
 
     async fn invalid_command(&mut self) -> Result<()> {
         use pb::command::Kind;
         let r = &mut self.rng;
-        let kind = match r.random_range(0..9) {
+        // An instrument the scene does not have, or an exchange it cannot make (a one-device
+        // scene; an unknown catalogue entry or spare).
+        let instrument = r
+            .random_bool(0.15)
+            .then(|| [1, 2, 7, u32::MAX][r.random_range(0..4)]);
+        let kind = match r.random_range(0..11) {
+            9 => Some(Kind::Exchange(pb::Exchange {
+                instrument: r.random_range(0..3),
+                device: Some(pb::exchange::Device::CatalogueId(
+                    [
+                        "no-such-wire",
+                        "",
+                        "guidewire-035-j-3mm",
+                        "../../etc/passwd",
+                    ][r.random_range(0..4)]
+                    .into(),
+                )),
+            })),
+            10 => Some(Kind::Exchange(pb::Exchange {
+                instrument: r.random_range(0..3),
+                device: r
+                    .random_bool(0.5)
+                    .then_some(pb::exchange::Device::Spare(u32::MAX)),
+            })),
             0 => Some(speed(f64::NAN, false)),
             1 => Some(speed(f64::INFINITY, true)),
             2 => Some(speed(1e9, false)),
@@ -383,7 +414,7 @@ impl Chaos {
             "invalid command",
             kind.map(|k| pb::Command {
                 kind: Some(k),
-                instrument: None,
+                instrument,
             }),
             seq,
         )
