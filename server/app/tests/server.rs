@@ -281,6 +281,8 @@ async fn grpc_web_over_http1_and_cors() {
     let length = u32::from_be_bytes(bytes[1..5].try_into().unwrap()) as usize;
     let reply = pb::ListScenesResponse::decode(&bytes[5..5 + length]).unwrap();
     assert!(reply.scenes.iter().any(|s| s.name == "arch_to_cow_lcca"));
+    // The scene a client starts by default: the coaxial approach to the LCCA.
+    assert_eq!(reply.default_scene, "arch_to_cow_lcca_coaxial");
     let trailer = &bytes[5 + length..];
     assert_eq!(trailer[0], 0x80);
     let text = String::from_utf8_lossy(&trailer[5..]);
