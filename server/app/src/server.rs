@@ -107,13 +107,7 @@ pub async fn serve(
         scenes = engine.catalog().scenes().len(),
         "engine ready"
     );
-    let listed: Vec<&str> = engine
-        .catalog()
-        .scenes()
-        .iter()
-        .map(|(s, _)| s.name.as_str())
-        .collect();
-    let default_scene = config.resolve_default_scene(&listed)?;
+    let default_scene = config.resolve_default_scene(&engine.catalog().names())?;
     let service = Arc::new(
         SimulatorService::new(engine.clone(), store.clone(), config.instructor_key.clone())
             .with_default_scene(default_scene)

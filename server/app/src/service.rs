@@ -190,17 +190,9 @@ impl SimulatorService {
             stream_budget: StreamBudget::new(STREAM_BUFFER_BYTES, engine.metrics().clone()),
             stream_stall: STREAM_STALL,
             control_inputs_per_second: CONTROL_INPUTS_PER_SECOND,
-            default_scene: {
-                let names: Vec<&str> = engine
-                    .catalog()
-                    .scenes()
-                    .iter()
-                    .map(|(s, _)| s.name.as_str())
-                    .collect();
-                crate::config::ServerConfig::default()
-                    .resolve_default_scene(&names)
-                    .unwrap_or_default()
-            },
+            default_scene: crate::config::ServerConfig::default()
+                .resolve_default_scene(&engine.catalog().names())
+                .unwrap_or_default(),
             engine,
         }
     }

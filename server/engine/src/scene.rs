@@ -1127,6 +1127,11 @@ impl SceneCatalog {
         &self.scenes
     }
 
+    /// The scenes' names, in the catalogue's order.
+    pub fn names(&self) -> Vec<&str> {
+        self.scenes.iter().map(|(s, _)| s.name.as_str()).collect()
+    }
+
     /// A scene by name, with the directory its relative paths start from.
     pub fn get(&self, name: &str) -> Result<(&SceneSpec, PathBuf)> {
         self.scenes

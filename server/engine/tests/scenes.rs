@@ -93,25 +93,13 @@ fn golden(name: &str, assets: &SceneAssets, snapshot: &Snapshot) {
         .unwrap_or_else(|e| panic!("{}: {e} (bless with CATHLAB_BLESS=1)", path.display()))
         .to_luma8();
     assert_eq!(reference.dimensions(), (w, h), "{name}: golden image size");
-    let reference = reference.into_raw();
-    let mean = grey
-        .iter()
-        .zip(&reference)
-        .map(|(a, b)| f64::from(a.abs_diff(*b)))
-        .sum::<f64>()
-        / grey.len() as f64;
-    let far = grey
-        .iter()
-        .zip(&reference)
-        .filter(|(a, b)| a.abs_diff(**b) > 2)
-        .count() as f64
-        / grey.len() as f64;
+    let (mean, far) = cathlab_xray::golden::difference(&grey, &reference.into_raw());
     println!(
         "  golden {name}: mean |Δ| {mean:.3} grey levels, {:.3} % beyond 2",
         far * 100.0
     );
     assert!(
-        mean <= 0.5 && far <= 1e-3,
+        cathlab_xray::golden::within_tolerance((mean, far)),
         "{name}: the fluoroscopy of the stack differs from its golden image"
     );
 }

@@ -10,6 +10,7 @@ pub mod dose;
 pub mod error;
 pub mod fluoroscope;
 pub mod geometry;
+pub mod golden;
 pub mod gpu;
 pub mod layers;
 pub mod phantom;

@@ -27,18 +27,6 @@ fn golden_path(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("tests/golden/{name}.png"))
 }
 
-/// Mean absolute difference and the fraction of pixels more than 2 levels apart.
-fn compare(a: &[u8], b: &[u8]) -> (f64, f64) {
-    let mean = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| f64::from(x.abs_diff(*y)))
-        .sum::<f64>()
-        / a.len() as f64;
-    let far = a.iter().zip(b).filter(|(x, y)| x.abs_diff(**y) > 2).count() as f64 / a.len() as f64;
-    (mean, far)
-}
-
 #[test]
 fn renders_match_the_golden_images() {
     let bless = std::env::var_os("CATHLAB_BLESS").is_some();
@@ -71,13 +59,13 @@ fn renders_match_the_golden_images() {
                 })
                 .to_luma8()
                 .into_raw();
-            let (mean, far) = compare(&grey, &reference);
+            let (mean, far) = cathlab_xray::golden::difference(&grey, &reference);
             println!(
                 "{name} on {label}: mean |Δ| {mean:.3} grey levels, {:.3} % beyond 2",
                 far * 100.0
             );
             assert!(
-                mean <= 0.5 && far <= 1e-3,
+                cathlab_xray::golden::within_tolerance((mean, far)),
                 "{name} on {label}: {mean}, {far}"
             );
         }
