@@ -502,10 +502,21 @@ try {
     await hands.bringToFront();
     await hold(hands, "ArrowUp", 700);
     await hold(hands, "w", 700);
-    const seen = [await row(hands, 0), await row(hands, 1)];
+    // Both pages' figures once they have settled (a loaded machine delays states).
+    const settled = async (page) => {
+      let last = "";
+      for (let i = 0; i < 20; i++) {
+        const now = [await row(page, 0), await row(page, 1)];
+        const key = JSON.stringify(now.map((r) => r.inserted));
+        if (key === last) return now;
+        last = key;
+        await page.waitForTimeout(300);
+      }
+      throw new Error(`the figures never settled: ${last}`);
+    };
+    const seen = await settled(hands);
     await watcher.bringToFront();
-    await watcher.waitForTimeout(600);
-    const watched = [await row(watcher, 0), await row(watcher, 1)];
+    const watched = await settled(watcher);
     console.log(`  trainee ${seen.map((r) => r.inserted).join(" / ")} mm; observer ${watched.map((r) => r.inserted).join(" / ")} mm`);
     for (const i of [0, 1]) {
       assert(Math.abs(seen[i].inserted - watched[i].inserted) < 1, `observer's instrument ${i}: ${watched[i].inserted} vs ${seen[i].inserted}`);

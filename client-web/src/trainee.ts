@@ -309,7 +309,7 @@ function showStack(state: DeviceState) {
 function controls(client: SimulatorClient, sessionId: string, instruments: number) {
   let seq = 0n;
   /** Sends one command; says why when the server refuses it. Resolves to whether it applied. */
-  const send = async (command: Command): Promise<boolean> => {
+  const sendNow = async (command: Command): Promise<boolean> => {
     seq += 1n;
     try {
       await client.sendCommand({ sessionId, seq, command });
@@ -320,6 +320,14 @@ function controls(client: SimulatorClient, sessionId: string, instruments: numbe
       else say(`Command failed: ${describe(e)}`);
       return false;
     }
+  };
+  // One at a time, in order: concurrent calls can arrive out of order, and a held speed's
+  // repeat landing after the stop that followed it would set the instrument moving again.
+  let queue: Promise<unknown> = Promise.resolve();
+  const send = (command: Command): Promise<boolean> => {
+    const sent = queue.then(() => sendNow(command));
+    queue = sent;
+    return sent;
   };
   const command = (kind: MessageInitShape<typeof CommandSchema>["kind"]) => send(create(CommandSchema, { kind }));
 
