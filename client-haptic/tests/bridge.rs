@@ -10,6 +10,7 @@ use common::{Rig, Server, device, mean_force};
 
 #[test]
 fn a_virtual_device_feels_the_wall_through_loss_and_a_server_restart() {
+    let _alone = common::one_at_a_time();
     let dir = std::env::temp_dir().join(format!("cathlab-haptic-{}", std::process::id()));
     let database = dir.join("haptic.sqlite");
     let Rig {
@@ -96,6 +97,7 @@ fn a_virtual_device_feels_the_wall_through_loss_and_a_server_restart() {
 /// same bridge and scene drives the innermost instrument, as before.
 #[test]
 fn a_two_hand_device_feels_the_wire_apart_from_the_catheter() {
+    let _alone = common::one_at_a_time();
     let dir = std::env::temp_dir().join(format!("cathlab-haptic-two-{}", std::process::id()));
     let database = dir.join("haptic.sqlite");
     let Rig {

@@ -11,6 +11,14 @@ use std::time::{Duration, Instant};
 use cathlab_app::config::{InlineScenes, RendererChoice, ServerConfig};
 use serde_json::Value;
 
+/// Held by each end-to-end test for its whole run: each starts a server, a bridge and devices
+/// at 1 kHz, and two at once on two cores starve each other's loops.
+pub fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 pub fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
