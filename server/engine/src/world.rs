@@ -871,12 +871,13 @@ impl World {
             self.exchanging = None;
             return Ok(false);
         };
-        if stack
-            .exchange(pending.index, pending.device.clone())
-            .is_err()
-        {
-            return Ok(false); // not withdrawn yet
+        // Asked each step of the withdrawal, without cloning the device or re-checking its fit.
+        if stack.still_inserted(pending.index).is_some() {
+            return Ok(false);
         }
+        stack
+            .exchange(pending.index, pending.device.clone())
+            .map_err(|e| EngineError::FailedPrecondition(e.to_string()))?;
         let PendingExchange {
             index,
             device,

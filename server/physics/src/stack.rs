@@ -815,24 +815,34 @@ impl<W: Wall> Stack<W> {
         Ok(())
     }
 
+    /// The first instrument from `index` inward still inserted beyond the hub of the one
+    /// around it, and by how much (m); `None` when all are withdrawn (an exchange may go on).
+    pub fn still_inserted(&self, index: usize) -> Option<(usize, f64)> {
+        self.instruments
+            .iter()
+            .enumerate()
+            .skip(index)
+            .find_map(|(k, instrument)| {
+                let (lo, _) = inserted_range(
+                    around(&self.instruments, k),
+                    instrument.length_m,
+                    self.settings.tip_element_m,
+                );
+                (instrument.inserted_m > lo + 1e-12).then_some((k, instrument.inserted_m - lo))
+            })
+    }
+
     /// Replaces instrument `index` (not the outermost) by `device`, as an operator exchanges a
     /// wire: allowed only while it, and everything inside it, is withdrawn to the hub of the
     /// instrument around it. The new device starts there, untwisted.
     pub fn exchange(&mut self, index: usize, device: Device) -> Result<()> {
         self.check_exchange(index, &device)?;
-        for (k, instrument) in self.instruments.iter().enumerate().skip(index) {
-            let (lo, _) = inserted_range(
-                around(&self.instruments, k),
-                instrument.length_m,
-                self.settings.tip_element_m,
-            );
-            if instrument.inserted_m > lo + 1e-12 {
-                return Err(PhysicsError::Stack(format!(
-                    "instrument {k} \"{}\" is still inserted {:.1} mm beyond the hub of the one around it; withdraw it before exchanging",
-                    instrument.device.name,
-                    (instrument.inserted_m - lo) * 1e3
-                )));
-            }
+        if let Some((k, beyond_m)) = self.still_inserted(index) {
+            return Err(PhysicsError::Stack(format!(
+                "instrument {k} \"{}\" is still inserted {:.1} mm beyond the hub of the one around it; withdraw it before exchanging",
+                self.instruments[k].device.name,
+                beyond_m * 1e3
+            )));
         }
         let (lo, _) = inserted_range(
             around(&self.instruments, index),
