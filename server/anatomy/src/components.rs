@@ -1,16 +1,16 @@
 //! Connected components of a graph given as index pairs (union–find with path halving).
 
 /// Disjoint sets over the indices `0..count`.
-pub(crate) struct UnionFind(Vec<usize>);
+pub struct UnionFind(Vec<usize>);
 
 impl UnionFind {
     /// Every index in its own set.
-    pub(crate) fn new(count: usize) -> Self {
+    pub fn new(count: usize) -> Self {
         Self((0..count).collect())
     }
 
     /// The representative of `i`'s set.
-    pub(crate) fn find(&mut self, mut i: usize) -> usize {
+    pub fn find(&mut self, mut i: usize) -> usize {
         while self.0[i] != i {
             self.0[i] = self.0[self.0[i]];
             i = self.0[i];
@@ -19,7 +19,7 @@ impl UnionFind {
     }
 
     /// Joins the sets of `a` and `b`.
-    pub(crate) fn union(&mut self, a: usize, b: usize) {
+    pub fn union(&mut self, a: usize, b: usize) {
         let (ra, rb) = (self.find(a), self.find(b));
         if ra != rb {
             self.0[ra] = rb;

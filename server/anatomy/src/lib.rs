@@ -6,7 +6,7 @@
 //! import.
 
 pub mod centerline;
-mod components;
+pub mod components;
 pub mod error;
 pub mod glam_conv;
 pub mod graph;
@@ -16,12 +16,9 @@ pub mod lumen;
 pub mod mesh;
 pub mod phantom;
 pub mod real;
-pub mod segment;
 pub mod surface;
-pub mod volume;
 
 pub use error::{AnatomyError, Result};
 pub use graph::{Branch, BranchSpec, GraphLocation, Side, VesselGraph, VesselKind, VesselPath};
 pub use lumen::{Lumen, WallQuery};
 pub use mesh::{MeshTopology, TriangleMesh};
-pub use volume::ScalarVolume;

@@ -49,6 +49,7 @@ pub fn status_of(error: &EngineError) -> Status {
         }
         EngineError::Io { .. }
         | EngineError::Anatomy(_)
+        | EngineError::Imaging(_)
         | EngineError::Physics(_)
         | EngineError::Hemo(_)
         | EngineError::Xray(_)

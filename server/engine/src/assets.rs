@@ -524,9 +524,9 @@ impl AssetCache {
                 Anatomy { graph, lumen }
             }
             AnatomySpec::CtSegmentation { seed_voxel, .. } => {
-                use cathlab_anatomy::segment::{Seed, SegmentSettings, segment};
+                use cathlab_imaging::segment::{Seed, SegmentSettings, segment};
                 let path = file.unwrap_or_default();
-                let ct = cathlab_anatomy::ScalarVolume::load(&path)
+                let ct = cathlab_imaging::ScalarVolume::load(&path)
                     .map_err(|e| unreadable("anatomy.volume", &path, e))?;
                 let result = segment(&ct, &Seed::Voxel(*seed_voxel), &SegmentSettings::default())
                     .map_err(|e| scene_error("anatomy.seed_voxel", e))?;

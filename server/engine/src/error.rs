@@ -52,6 +52,9 @@ pub enum EngineError {
     /// Loading the scene's anatomy failed.
     #[error("anatomy: {0}")]
     Anatomy(#[from] cathlab_anatomy::AnatomyError),
+    /// Reading or segmenting an image failed.
+    #[error("imaging: {0}")]
+    Imaging(#[from] cathlab_imaging::ImagingError),
     /// The physics refused something.
     #[error("physics: {0}")]
     Physics(#[from] cathlab_physics::PhysicsError),

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use cathlab_anatomy::ScalarVolume;
+use cathlab_imaging::ScalarVolume;
 
 use nalgebra::{Matrix3, Point3, Vector3};
 
@@ -39,7 +39,7 @@ impl Volume {
         direction: Matrix3<f64>,
         hu: Vec<i16>,
     ) -> Result<Self> {
-        cathlab_anatomy::volume::check_grid(dims, &spacing_m, &origin_m, &direction, hu.len())
+        cathlab_imaging::volume::check_grid(dims, &spacing_m, &origin_m, &direction, hu.len())
             .map_err(XrayError::InvalidVolume)?;
         Ok(Self {
             dims,
@@ -367,9 +367,9 @@ fn to_hu(value: f64) -> i16 {
         .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
 }
 
-/// The X-ray error for a volume the anatomy readers rejected (same file, same words).
-fn from_anatomy(e: cathlab_anatomy::AnatomyError) -> XrayError {
-    use cathlab_anatomy::AnatomyError as A;
+/// The X-ray error for a volume the imaging readers rejected (same file, same words).
+fn from_imaging(e: cathlab_imaging::ImagingError) -> XrayError {
+    use cathlab_imaging::ImagingError as A;
     match e {
         A::Io { file, source } => XrayError::Io { file, source },
         A::BadVolume { file, reason } => XrayError::BadVolume { file, reason },
@@ -406,13 +406,13 @@ impl Volume {
 }
 
 /// Reads a MetaImage volume (`.mha` with the data inline, or `.mhd` with a separate data
-/// file), raw or zlib-compressed, in mm, converted to m (see [`cathlab_anatomy::volume`]).
+/// file), raw or zlib-compressed, in mm, converted to m (see [`cathlab_imaging::volume`]).
 pub fn read_metaimage(path: &Path) -> Result<Volume> {
-    Volume::from_scalar(cathlab_anatomy::volume::read_metaimage(path).map_err(from_anatomy)?)
+    Volume::from_scalar(cathlab_imaging::volume::read_metaimage(path).map_err(from_imaging)?)
 }
 
 /// Reads a NIfTI-1 volume (`.nii`, or gzip-compressed `.nii.gz`), RAS+ turned into LPS
-/// (see [`cathlab_anatomy::volume`]).
+/// (see [`cathlab_imaging::volume`]).
 pub fn read_nifti(path: &Path) -> Result<Volume> {
-    Volume::from_scalar(cathlab_anatomy::volume::read_nifti(path).map_err(from_anatomy)?)
+    Volume::from_scalar(cathlab_imaging::volume::read_nifti(path).map_err(from_imaging)?)
 }

@@ -7,10 +7,10 @@ use std::path::{Path, PathBuf};
 use image::{Rgb, RgbImage};
 
 use super::Segmentation;
-use crate::error::{AnatomyError, Result};
-use crate::io::LengthUnit;
-use crate::io::slicer::Centerline;
+use crate::error::{ImagingError, Result};
 use crate::volume::ScalarVolume;
+use cathlab_anatomy::io::LengthUnit;
+use cathlab_anatomy::io::slicer::Centerline;
 
 /// The files [`write_all`] writes, by name.
 pub const OUTPUT_FILES: [&str; 8] = [
@@ -25,7 +25,7 @@ pub const OUTPUT_FILES: [&str; 8] = [
 ];
 
 fn write(path: PathBuf, bytes: &[u8]) -> Result<()> {
-    std::fs::write(&path, bytes).map_err(|source| AnatomyError::Io { file: path, source })
+    std::fs::write(&path, bytes).map_err(|source| ImagingError::Io { file: path, source })
 }
 
 /// The centerlines as polylines with radii, one per branch.
@@ -45,7 +45,7 @@ pub fn centerlines(segmentation: &Segmentation) -> Vec<Centerline> {
 /// Writes every file of [`OUTPUT_FILES`] into `dir` (created if missing); coordinates in mm
 /// in the exchange formats, m in `graph.json` (the anatomy crate's own form).
 pub fn write_all(segmentation: &Segmentation, volume: &ScalarVolume, dir: &Path) -> Result<()> {
-    std::fs::create_dir_all(dir).map_err(|source| AnatomyError::Io {
+    std::fs::create_dir_all(dir).map_err(|source| ImagingError::Io {
         file: dir.to_owned(),
         source,
     })?;
@@ -54,19 +54,19 @@ pub fn write_all(segmentation: &Segmentation, volume: &ScalarVolume, dir: &Path)
     let lines = centerlines(s);
     write(
         dir.join("centerlines.vtp"),
-        crate::io::vtp::to_string(None, &lines, LengthUnit::Mm).as_bytes(),
+        cathlab_anatomy::io::vtp::to_string(None, &lines, LengthUnit::Mm).as_bytes(),
     )?;
     write(
         dir.join("surface.vtp"),
-        crate::io::vtp::to_string(Some(&s.surface), &[], LengthUnit::Mm).as_bytes(),
+        cathlab_anatomy::io::vtp::to_string(Some(&s.surface), &[], LengthUnit::Mm).as_bytes(),
     )?;
     write(
         dir.join("surface.obj"),
-        crate::io::obj::to_string(&s.surface, LengthUnit::Mm).as_bytes(),
+        cathlab_anatomy::io::obj::to_string(&s.surface, LengthUnit::Mm).as_bytes(),
     )?;
     write(
         dir.join("surface.stl"),
-        &crate::io::stl::to_binary(&s.surface, LengthUnit::Mm),
+        &cathlab_anatomy::io::stl::to_binary(&s.surface, LengthUnit::Mm),
     )?;
     s.mask.write_metaimage(&dir.join("mask.mha"))?;
     write(
@@ -76,7 +76,7 @@ pub fn write_all(segmentation: &Segmentation, volume: &ScalarVolume, dir: &Path)
             .as_bytes(),
     )?;
     let path = dir.join("figure.png");
-    figure(s, volume).save(&path).map_err(|e| AnatomyError::Io {
+    figure(s, volume).save(&path).map_err(|e| ImagingError::Io {
         file: path,
         source: std::io::Error::other(e),
     })

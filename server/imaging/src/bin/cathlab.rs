@@ -1,16 +1,16 @@
-//! `cathlab`: command-line tools of the anatomy library. `cathlab segment` builds a vessel
+//! `cathlab`: command-line tools for patient images and vessel surfaces. `cathlab segment` builds a vessel
 //! graph, centerlines with radii and a lumen surface from a CT angiography volume.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use cathlab_anatomy::ScalarVolume;
-use cathlab_anatomy::segment::{Seed, SegmentSettings, export, segment};
+use cathlab_imaging::ScalarVolume;
+use cathlab_imaging::segment::{Seed, SegmentSettings, export, segment};
 use clap::{Parser, Subcommand};
 use nalgebra::Point3;
 
 #[derive(Parser)]
-#[command(name = "cathlab", about = "cathlab anatomy tools")]
+#[command(name = "cathlab", about = "cathlab image and anatomy tools")]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -96,7 +96,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let run = || -> cathlab_anatomy::Result<()> {
+    let run = || -> cathlab_imaging::Result<()> {
         let input = ScalarVolume::load(&volume)?;
         let settings = SegmentSettings {
             threshold,

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix3, Point3, Vector3};
 
-use crate::error::{AnatomyError, Result};
+use crate::error::{ImagingError, Result};
 
 /// A scalar volume. Voxel (i, j, k) is at `origin + direction · (i·sx, j·sy, k·sz)`;
 /// `values` run with i fastest.
@@ -36,7 +36,7 @@ impl ScalarVolume {
         values: Vec<f32>,
     ) -> Result<Self> {
         check_grid(dims, &spacing_m, &origin_m, &direction, values.len())
-            .map_err(AnatomyError::InvalidVolume)?;
+            .map_err(ImagingError::InvalidVolume)?;
         Ok(Self {
             dims,
             spacing_m,
@@ -54,7 +54,7 @@ impl ScalarVolume {
         } else if name.ends_with(".nii") || name.ends_with(".nii.gz") {
             read_nifti(path)
         } else {
-            Err(AnatomyError::UnsupportedVolume {
+            Err(ImagingError::UnsupportedVolume {
                 file: path.to_owned(),
                 what: "volume format (expected .mha, .mhd, .nii or .nii.gz)".into(),
             })
@@ -177,7 +177,7 @@ impl ScalarVolume {
             self.dims[2],
         );
         let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::fast());
-        let io = |source| AnatomyError::Io {
+        let io = |source| ImagingError::Io {
             file: path.to_owned(),
             source,
         };
@@ -230,15 +230,15 @@ pub fn check_grid(
     Ok(())
 }
 
-fn bad(file: &Path, reason: impl Into<String>) -> AnatomyError {
-    AnatomyError::BadVolume {
+fn bad(file: &Path, reason: impl Into<String>) -> ImagingError {
+    ImagingError::BadVolume {
         file: file.to_owned(),
         reason: reason.into(),
     }
 }
 
 fn read_file(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).map_err(|source| AnatomyError::Io {
+    std::fs::read(path).map_err(|source| ImagingError::Io {
         file: path.to_owned(),
         source,
     })
@@ -370,7 +370,7 @@ pub fn read_metaimage(path: &Path) -> Result<ScalarVolume> {
         Ok(v)
     };
     if get("NDims") != Some("3") {
-        return Err(AnatomyError::UnsupportedVolume {
+        return Err(ImagingError::UnsupportedVolume {
             file: path.to_owned(),
             what: format!(
                 "NDims {:?} (only 3-D volumes)",
@@ -417,14 +417,14 @@ pub fn read_metaimage(path: &Path) -> Result<ScalarVolume> {
         Some("MET_FLOAT") => Element::F32,
         Some("MET_DOUBLE") => Element::F64,
         other => {
-            return Err(AnatomyError::UnsupportedVolume {
+            return Err(ImagingError::UnsupportedVolume {
                 file: path.to_owned(),
                 what: format!("ElementType {}", other.unwrap_or("(missing)")),
             });
         }
     };
     if get("ElementNumberOfChannels").is_some_and(|c| c != "1") {
-        return Err(AnatomyError::UnsupportedVolume {
+        return Err(ImagingError::UnsupportedVolume {
             file: path.to_owned(),
             what: "multi-channel voxels".into(),
         });
@@ -510,14 +510,14 @@ pub fn read_nifti(path: &Path) -> Result<ScalarVolume> {
     };
     let magic = &bytes[344..348];
     if magic != b"n+1\0" {
-        return Err(AnatomyError::UnsupportedVolume {
+        return Err(ImagingError::UnsupportedVolume {
             file: path.to_owned(),
             what: "NIfTI magic (only single-file n+1 is read)".into(),
         });
     }
     let ndim = i16_at(40);
     if !(3..=4).contains(&ndim) || (ndim == 4 && i16_at(48) > 1) {
-        return Err(AnatomyError::UnsupportedVolume {
+        return Err(ImagingError::UnsupportedVolume {
             file: path.to_owned(),
             what: format!("dimensionality {ndim} (only 3-D volumes)"),
         });
@@ -540,7 +540,7 @@ pub fn read_nifti(path: &Path) -> Result<ScalarVolume> {
         512 => Element::U16,
         768 => Element::U32,
         other => {
-            return Err(AnatomyError::UnsupportedVolume {
+            return Err(ImagingError::UnsupportedVolume {
                 file: path.to_owned(),
                 what: format!("datatype code {other}"),
             });

@@ -19,11 +19,11 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::error::{AnatomyError, Result};
-use crate::graph::VesselGraph;
-use crate::mesh::TriangleMesh;
-use crate::surface::{SurfaceSettings, lumen_surface};
+use crate::error::{ImagingError, Result};
 use crate::volume::ScalarVolume;
+use cathlab_anatomy::graph::VesselGraph;
+use cathlab_anatomy::mesh::TriangleMesh;
+use cathlab_anatomy::surface::{SurfaceSettings, lumen_surface};
 use centerline::CenterlineSettings;
 use skeleton::SkeletonSettings;
 
@@ -178,7 +178,7 @@ pub fn seed_voxel(volume: &ScalarVolume, seed: &Seed) -> Result<[usize; 3]> {
     };
     let inside = (0..3).all(|a| index[a] >= 0.0 && index[a] <= (volume.dims[a] - 1) as f64);
     if !inside {
-        return Err(AnatomyError::Segmentation(format!(
+        return Err(ImagingError::Segmentation(format!(
             "the seed (voxel {:.0}, {:.0}, {:.0}) is outside the volume of {}×{}×{} voxels",
             index[0], index[1], index[2], volume.dims[0], volume.dims[1], volume.dims[2]
         )));
@@ -215,7 +215,7 @@ pub fn segment(
         .filter(|v| v.is_finite())
         .fold(f32::INFINITY, |a, &b| a.min(b));
     if !lowest.is_finite() {
-        return Err(AnatomyError::Segmentation(
+        return Err(ImagingError::Segmentation(
             "the volume holds no finite value".into(),
         ));
     }
@@ -276,12 +276,12 @@ pub fn segment(
         None => {
             let half = [0, 1, 2].map(|a| (settings.threshold_window_m / spacing[a]) as usize);
             mask::otsu_threshold(&around(seed_ijk, half)).ok_or_else(|| {
-                AnatomyError::Segmentation("the volume is uniform near the seed".into())
+                ImagingError::Segmentation("the volume is uniform near the seed".into())
             })?
         }
     };
     if seed_value < first || seed_value > upper {
-        return Err(AnatomyError::Segmentation(format!(
+        return Err(ImagingError::Segmentation(format!(
             "the seed's value {seed_value:.1} is outside the lumen range \
              [{first:.1}, {upper:.1}]: is the seed inside a contrast-filled vessel?"
         )));
@@ -351,7 +351,7 @@ pub fn segment(
     }
     let lumen_voxels = lumen.iter().filter(|&&m| m).count();
     if lumen_voxels < 8 {
-        return Err(AnatomyError::Segmentation(format!(
+        return Err(ImagingError::Segmentation(format!(
             "only {lumen_voxels} lumen voxels around the seed at threshold {first:.1}"
         )));
     }

@@ -10,10 +10,10 @@ use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
 
 use super::skeleton::{Adjacency, branches};
-use crate::components::UnionFind;
-use crate::error::{AnatomyError, Result};
-use crate::graph::{BranchSpec, Side, VesselGraph, VesselKind};
+use crate::error::{ImagingError, Result};
 use crate::volume::ScalarVolume;
+use cathlab_anatomy::components::UnionFind;
+use cathlab_anatomy::graph::{BranchSpec, Side, VesselGraph, VesselKind};
 
 /// Rays per cross-section.
 const RAYS: usize = 24;
@@ -182,7 +182,7 @@ pub fn vessel_graph(
 ) -> Result<VesselGraph> {
     let voxel_branches = branches(adjacency);
     if voxel_branches.iter().all(|b| b.voxels.len() < 2) {
-        return Err(AnatomyError::Segmentation(
+        return Err(ImagingError::Segmentation(
             "the skeleton has no branch longer than a voxel".into(),
         ));
     }

@@ -8,8 +8,8 @@ use rayon::prelude::*;
 
 use super::filter::gaussian_blur;
 use crate::error::Result;
-use crate::graph::{BranchSpec, Side, VesselGraph, VesselKind};
 use crate::volume::ScalarVolume;
+use cathlab_anatomy::graph::{BranchSpec, Side, VesselGraph, VesselKind};
 
 /// How the synthetic CT looks.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -6,10 +6,11 @@
 
 use std::path::{Path, PathBuf};
 
+use cathlab_anatomy::VesselGraph;
 use cathlab_anatomy::io::{LengthUnit, obj, stl, vtp};
-use cathlab_anatomy::segment::phantom::{SyntheticCt, reference_tree, synthetic_cta};
-use cathlab_anatomy::segment::{Seed, SegmentSettings, Segmentation, segment};
-use cathlab_anatomy::{AnatomyError, ScalarVolume, VesselGraph};
+use cathlab_imaging::segment::phantom::{SyntheticCt, reference_tree, synthetic_cta};
+use cathlab_imaging::segment::{Seed, SegmentSettings, Segmentation, segment};
+use cathlab_imaging::{ImagingError, ScalarVolume};
 use nalgebra::{Point3, Vector3};
 
 const MM: f64 = 1e-3;
@@ -287,7 +288,7 @@ fn bad_volumes_and_bad_seeds_give_named_errors() {
     );
     let tissue = segment(&ct, &Seed::Voxel([5, 5, 60]), &phantom_settings()).unwrap_err();
     assert!(
-        matches!(tissue, AnatomyError::Segmentation(_)) && tissue.to_string().contains("seed"),
+        matches!(tissue, ImagingError::Segmentation(_)) && tissue.to_string().contains("seed"),
         "{tissue}"
     );
 }

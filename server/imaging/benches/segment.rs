@@ -1,4 +1,4 @@
-//! Time and peak memory of the whole segmentation pipeline (`cargo bench -p cathlab-anatomy
+//! Time and peak memory of the whole segmentation pipeline (`cargo bench -p cathlab-imaging
 //! --bench segment`): the real `data/ct/aorta.mha` from the README's seed, and a 256³
 //! synthetic CT of the reference tree (0.5 mm voxels, noise and blur). Each case runs in a
 //! fresh child process so that its peak resident memory (VmHWM) is its own.
@@ -6,9 +6,9 @@
 use std::path::Path;
 use std::time::Instant;
 
-use cathlab_anatomy::ScalarVolume;
-use cathlab_anatomy::segment::phantom::{SyntheticCt, reference_tree, synthetic_cta};
-use cathlab_anatomy::segment::{Seed, SegmentSettings, segment};
+use cathlab_imaging::ScalarVolume;
+use cathlab_imaging::segment::phantom::{SyntheticCt, reference_tree, synthetic_cta};
+use cathlab_imaging::segment::{Seed, SegmentSettings, segment};
 use nalgebra::{Point3, Vector3};
 
 const CASE_VARIABLE: &str = "CATHLAB_SEGMENT_BENCH_CASE";

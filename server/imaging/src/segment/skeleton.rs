@@ -10,7 +10,7 @@ use std::collections::BinaryHeap;
 
 use rustc_hash::FxHashMap;
 
-use crate::error::{AnatomyError, Result};
+use crate::error::{ImagingError, Result};
 
 /// Skeleton voxels (linear indices) and their neighbours on the skeleton.
 pub type Adjacency = FxHashMap<usize, Vec<usize>>;
@@ -211,7 +211,7 @@ pub fn teasar(
         .compact
         .get(seed)
         .filter(|&&c| c != u32::MAX)
-        .ok_or_else(|| AnatomyError::Segmentation("the seed is not in the lumen mask".into()))?;
+        .ok_or_else(|| ImagingError::Segmentation("the seed is not in the lumen mask".into()))?;
     // The root is the voxel farthest from the seed along the lumen: an end of a vessel.
     let (_, from_seed) = grid.shortest_paths(seed_c, |_, _, len| len);
     let root = (0..from_seed.len())

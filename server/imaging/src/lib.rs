@@ -1,0 +1,13 @@
+//! Medical images for cathlab: scalar volumes and their readers (MetaImage, NIfTI, DICOM
+//! series), filters, and the segmentation of CT angiography into the vessel graph and lumen
+//! surface that `cathlab-anatomy` defines.
+//!
+//! Units: metres throughout; coordinates in the patient LPS frame (x to the patient's left,
+//! y posterior, z superior), as DICOM uses.
+
+pub mod error;
+pub mod segment;
+pub mod volume;
+
+pub use error::{ImagingError, Result};
+pub use volume::ScalarVolume;
