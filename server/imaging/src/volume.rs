@@ -46,17 +46,21 @@ impl ScalarVolume {
         })
     }
 
-    /// Reads a volume, choosing the format by extension: `.mha`, `.mhd`, `.nii`, `.nii.gz`.
+    /// Reads a volume, choosing the format by extension: `.mha`, `.mhd`, `.nii`, `.nii.gz`;
+    /// a folder (or a `.dcm` file) is read as one DICOM series (see [`crate::dicom`]).
     pub fn load(path: &Path) -> Result<Self> {
         let name = path.to_string_lossy().to_ascii_lowercase();
-        if name.ends_with(".mha") || name.ends_with(".mhd") {
+        if path.is_dir() || name.ends_with(".dcm") {
+            crate::dicom::read_series(path, None)
+        } else if name.ends_with(".mha") || name.ends_with(".mhd") {
             read_metaimage(path)
         } else if name.ends_with(".nii") || name.ends_with(".nii.gz") {
             read_nifti(path)
         } else {
             Err(ImagingError::UnsupportedVolume {
                 file: path.to_owned(),
-                what: "volume format (expected .mha, .mhd, .nii or .nii.gz)".into(),
+                what: "volume format (expected .mha, .mhd, .nii, .nii.gz, .dcm or a DICOM folder)"
+                    .into(),
             })
         }
     }
