@@ -253,3 +253,76 @@ proptest! {
         }
     }
 }
+
+fn vtk_fixture(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/vtk")
+        .join(name)
+}
+
+/// Files VTK 9 itself wrote (`tests/data/vtk/make_fixtures.py`) in every encoding it and
+/// ParaView write read to the same geometry as its ASCII file.
+#[test]
+fn vtp_written_by_vtk_reads_the_same_in_every_encoding_including_zlib() {
+    let variants = [
+        "binary_zlib",
+        "binary_zlib_uint64",
+        "binary_raw",
+        "appended_base64_zlib",
+        "appended_raw_zlib",
+        "appended_raw_uint64",
+    ];
+    let tube = vtp::load(&vtk_fixture("tube_ascii.vtp"), LengthUnit::Mm).unwrap();
+    let surface = tube.surface.as_ref().unwrap();
+    assert_eq!(surface.triangles.len(), 736);
+    let line = vtp::load(&vtk_fixture("centerline_ascii.vtp"), LengthUnit::Mm).unwrap();
+    assert_eq!(line.lines.len(), 1);
+    assert_eq!(line.lines[0].radii.len(), 24);
+    assert!((line.lines[0].radii[0] - 3e-3).abs() < 1e-12);
+    for variant in variants {
+        let other = vtp::load(&vtk_fixture(&format!("tube_{variant}.vtp")), LengthUnit::Mm)
+            .unwrap_or_else(|e| panic!("{variant}: {e}"));
+        let o = other.surface.as_ref().unwrap();
+        assert_eq!(o.triangles, surface.triangles, "{variant}");
+        for (a, b) in o.vertices.iter().zip(&surface.vertices) {
+            assert!((a - b).norm() < 1e-8, "{variant}: {a} vs {b}");
+        }
+        let other = vtp::load(
+            &vtk_fixture(&format!("centerline_{variant}.vtp")),
+            LengthUnit::Mm,
+        )
+        .unwrap_or_else(|e| panic!("{variant}: {e}"));
+        assert_eq!(other.lines.len(), 1, "{variant}");
+        for (a, b) in other.lines[0].points.iter().zip(&line.lines[0].points) {
+            assert!((a - b).norm() < 1e-8, "{variant}");
+        }
+        for (a, b) in other.lines[0].radii.iter().zip(&line.lines[0].radii) {
+            assert!((a - b).abs() < 1e-12, "{variant}");
+        }
+    }
+}
+
+#[test]
+fn damaged_compressed_vtp_is_named() {
+    let good = std::fs::read(vtk_fixture("tube_binary_zlib.vtp")).unwrap();
+    let text = String::from_utf8(good.clone()).unwrap();
+    // An unknown compressor.
+    let lz4 = text.replace("vtkZLibDataCompressor", "vtkLZ4DataCompressor");
+    let err = vtp::parse(lz4.as_bytes(), LengthUnit::Mm, "lz4.vtp").unwrap_err();
+    expect(err, "lz4.vtp", "vtkLZ4DataCompressor is not supported");
+    // A raw appended file cut short.
+    let raw = std::fs::read(vtk_fixture("tube_appended_raw_zlib.vtp")).unwrap();
+    let cut = &raw[..raw.len() - 3000];
+    let err = vtp::parse(cut, LengthUnit::Mm, "cut.vtp").unwrap_err();
+    println!("{err}");
+    assert!(err.to_string().starts_with("cut.vtp"), "{err}");
+    // Flipped bits inside a zlib stream.
+    let mut bad = raw.clone();
+    let n = bad.len();
+    for b in &mut bad[n - 2000..n - 1900] {
+        *b ^= 0x5a;
+    }
+    let err = vtp::parse(&bad, LengthUnit::Mm, "flipped.vtp").unwrap_err();
+    println!("{err}");
+    assert!(err.to_string().starts_with("flipped.vtp"), "{err}");
+}

@@ -1,7 +1,8 @@
 //! VTK XML PolyData (`.vtp`): points, polygons (fan-triangulated) and lines (centerlines
-//! with an optional per-point radius array, as VMTK writes them). Data arrays in `ascii` or
-//! inline `binary` (base64, UInt32 or UInt64 headers) format; compressed and appended data are
-//! reported as unsupported.
+//! with an optional per-point radius array, as VMTK writes them). Data arrays in `ascii`,
+//! inline `binary` (base64) or `appended` (raw or base64) format, UInt32 or UInt64 headers,
+//! uncompressed or zlib-compressed (VTK's and ParaView's defaults); LZ4 and LZMA are refused
+//! by name.
 
 use std::path::Path;
 
@@ -25,104 +26,264 @@ pub struct PolyData {
     pub lines: Vec<Centerline>,
 }
 
-/// Reads one `<DataArray>` as f64 values.
-fn read_array(node: roxmltree::Node<'_, '_>, header_u64: bool, file: &str) -> Result<Vec<f64>> {
-    let name = node.attribute("Name").unwrap_or("(unnamed)");
-    let kind = node.attribute("type").unwrap_or("Float32");
-    let format = node.attribute("format").unwrap_or("ascii");
-    let text = node.text().unwrap_or("");
-    match format {
-        "ascii" => text
-            .split_whitespace()
-            .map(|t| {
-                t.parse::<f64>()
-                    .ok()
-                    .filter(|v| v.is_finite())
-                    .ok_or_else(|| {
-                        parse_error(file, format!("array {name}: {t:?} is not a finite number"))
-                    })
-            })
-            .collect(),
-        "binary" => {
-            let compact: String = text.chars().filter(|c| !c.is_whitespace()).collect();
-            let bytes = base64::engine::general_purpose::STANDARD
-                .decode(compact.as_bytes())
+/// Most bytes one data array may inflate to (a guard against compression bombs).
+pub const MAX_ARRAY_BYTES: usize = 1 << 30;
+
+/// How a file's binary arrays are stored: header word width, compression, appended data.
+#[derive(Clone, Copy)]
+struct Encoding<'a> {
+    /// Header words are UInt64 (else UInt32).
+    header_u64: bool,
+    /// Blocks are zlib-compressed (`compressor="vtkZLibDataCompressor"`).
+    zlib: bool,
+    /// The `<AppendedData>` section: its bytes after the `_` marker, and whether they are
+    /// base64 text (else raw).
+    appended: Option<(&'a [u8], bool)>,
+}
+
+/// Decodes base64 four characters at a time, so that separately padded blocks (VTK encodes a
+/// header and its data apart) decode as one stream; whitespace is skipped.
+fn base64_groups(text: &[u8], name: &str, file: &str) -> Result<Vec<u8>> {
+    let mut out = Vec::with_capacity(text.len() / 4 * 3);
+    let mut group = Vec::with_capacity(4);
+    for &c in text.iter().filter(|c| !c.is_ascii_whitespace()) {
+        group.push(c);
+        if group.len() == 4 {
+            let decoded = base64::engine::general_purpose::STANDARD
+                .decode(&group)
                 .map_err(|e| parse_error(file, format!("array {name}: bad base64: {e}")))?;
-            let header = if header_u64 { 8 } else { 4 };
-            if bytes.len() < header {
-                return Err(parse_error(
-                    file,
-                    format!("array {name}: truncated binary header"),
-                ));
-            }
-            let declared = if header_u64 {
-                u64::from_le_bytes(bytes[..8].try_into().unwrap_or([0; 8])) as usize
-            } else {
-                u32::from_le_bytes(bytes[..4].try_into().unwrap_or([0; 4])) as usize
-            };
-            let body = &bytes[header..];
-            if declared > body.len() {
-                return Err(parse_error(
+            out.extend_from_slice(&decoded);
+            group.clear();
+        }
+    }
+    if !group.is_empty() {
+        return Err(parse_error(
+            file,
+            format!("array {name}: base64 text ends mid-group"),
+        ));
+    }
+    Ok(out)
+}
+
+/// The data bytes of one binary block (VTK's layout: a header of UInt32 or UInt64 words, then
+/// the data, raw or as zlib-compressed blocks) at the start of `bytes`.
+fn block_data(bytes: &[u8], enc: &Encoding<'_>, name: &str, file: &str) -> Result<Vec<u8>> {
+    let width = if enc.header_u64 { 8 } else { 4 };
+    let truncated = || parse_error(file, format!("array {name}: truncated binary block"));
+    let word = |i: usize| -> Result<usize> {
+        let w = bytes
+            .get(i * width..(i + 1) * width)
+            .ok_or_else(truncated)?;
+        let value = if enc.header_u64 {
+            u64::from_le_bytes(w.try_into().unwrap_or([0; 8]))
+        } else {
+            u64::from(u32::from_le_bytes(w.try_into().unwrap_or([0; 4])))
+        };
+        usize::try_from(value).map_err(|_| truncated())
+    };
+    if !enc.zlib {
+        let declared = word(0)?;
+        if declared > MAX_ARRAY_BYTES {
+            return Err(parse_error(
+                file,
+                format!("array {name}: {declared} bytes is more than {MAX_ARRAY_BYTES}"),
+            ));
+        }
+        return bytes
+            .get(width..width + declared)
+            .map(<[u8]>::to_vec)
+            .ok_or_else(|| {
+                parse_error(
                     file,
                     format!(
                         "array {name}: truncated ({declared} bytes declared, {} present)",
-                        body.len()
+                        bytes.len().saturating_sub(width)
                     ),
-                ));
-            }
-            let body = &body[..declared];
-            let width = match kind {
-                "Float32" | "Int32" | "UInt32" => 4,
-                "Float64" | "Int64" | "UInt64" => 8,
-                "Int8" | "UInt8" => 1,
-                "Int16" | "UInt16" => 2,
-                other => {
-                    return Err(parse_error(
-                        file,
-                        format!("array {name}: unsupported type {other}"),
-                    ));
-                }
-            };
-            if body.len() % width != 0 {
-                return Err(parse_error(
-                    file,
-                    format!(
-                        "array {name}: {} bytes is not a whole number of {kind}",
-                        body.len()
-                    ),
-                ));
-            }
-            body.chunks_exact(width)
-                .map(|c| {
-                    let v = match kind {
-                        "Float32" => f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
-                        "Int32" => f64::from(i32::from_le_bytes([c[0], c[1], c[2], c[3]])),
-                        "UInt32" => f64::from(u32::from_le_bytes([c[0], c[1], c[2], c[3]])),
-                        "Float64" => f64::from_le_bytes(c.try_into().unwrap_or([0; 8])),
-                        "Int64" => i64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f64,
-                        "UInt64" => u64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f64,
-                        "Int8" => f64::from(c[0] as i8),
-                        "UInt8" => f64::from(c[0]),
-                        "Int16" => f64::from(i16::from_le_bytes([c[0], c[1]])),
-                        _ => f64::from(u16::from_le_bytes([c[0], c[1]])),
-                    };
-                    if v.is_finite() {
-                        Ok(v)
-                    } else {
-                        Err(parse_error(file, format!("array {name}: non-finite value")))
-                    }
-                })
-                .collect()
-        }
-        "appended" => Err(parse_error(
-            file,
-            format!("array {name}: appended data is not supported; save as ascii or inline binary"),
-        )),
-        other => Err(parse_error(
-            file,
-            format!("array {name}: unknown format {other:?}"),
-        )),
+                )
+            });
     }
+    let blocks = word(0)?;
+    let block_size = word(1)?;
+    let last_size = word(2)?;
+    let full = if blocks == 0 {
+        0
+    } else {
+        (blocks - 1)
+            .checked_mul(block_size)
+            .and_then(|n| {
+                n.checked_add(if last_size == 0 {
+                    block_size
+                } else {
+                    last_size
+                })
+            })
+            .filter(|&n| n <= MAX_ARRAY_BYTES)
+            .ok_or_else(|| {
+                parse_error(
+                    file,
+                    format!("array {name}: {blocks} blocks of {block_size} bytes is too large"),
+                )
+            })?
+    };
+    let mut at = width.checked_mul(3 + blocks).ok_or_else(truncated)?;
+    let mut out = Vec::with_capacity(full);
+    for b in 0..blocks {
+        let size = word(3 + b)?;
+        let compressed = bytes.get(at..at + size).ok_or_else(truncated)?;
+        at += size;
+        let expected = if b + 1 == blocks && last_size != 0 {
+            last_size
+        } else {
+            block_size
+        };
+        let before = out.len();
+        use std::io::Read as _;
+        flate2::read::ZlibDecoder::new(compressed)
+            .take(expected as u64 + 1)
+            .read_to_end(&mut out)
+            .map_err(|e| parse_error(file, format!("array {name}: block {b}: zlib: {e}")))?;
+        if out.len() - before != expected {
+            return Err(parse_error(
+                file,
+                format!(
+                    "array {name}: block {b} inflates to {} bytes, the header says {expected}",
+                    out.len() - before
+                ),
+            ));
+        }
+    }
+    Ok(out)
+}
+
+/// Reads one `<DataArray>` as f64 values.
+fn read_array(node: roxmltree::Node<'_, '_>, enc: &Encoding<'_>, file: &str) -> Result<Vec<f64>> {
+    let name = node.attribute("Name").unwrap_or("(unnamed)");
+    let kind = node.attribute("type").unwrap_or("Float32");
+    let format = node.attribute("format").unwrap_or("ascii");
+    // The array's own text, around child elements such as VTK's <InformationKey>.
+    let text: String = node
+        .children()
+        .filter(|c| c.is_text())
+        .filter_map(|c| c.text())
+        .collect();
+    let body = match format {
+        "ascii" => {
+            return text
+                .split_whitespace()
+                .map(|t| {
+                    t.parse::<f64>()
+                        .ok()
+                        .filter(|v| v.is_finite())
+                        .ok_or_else(|| {
+                            parse_error(file, format!("array {name}: {t:?} is not a finite number"))
+                        })
+                })
+                .collect();
+        }
+        "binary" => block_data(
+            &base64_groups(text.as_bytes(), name, file)?,
+            enc,
+            name,
+            file,
+        )?,
+        "appended" => {
+            let (data, base64) = enc.appended.ok_or_else(|| {
+                parse_error(
+                    file,
+                    format!("array {name}: appended, but no <AppendedData>"),
+                )
+            })?;
+            let offset: usize = node
+                .attribute("offset")
+                .and_then(|o| o.trim().parse().ok())
+                .filter(|&o| o <= data.len())
+                .ok_or_else(|| parse_error(file, format!("array {name}: missing or bad offset")))?;
+            if base64 {
+                block_data(
+                    &base64_groups(&data[offset..], name, file)?,
+                    enc,
+                    name,
+                    file,
+                )?
+            } else {
+                block_data(&data[offset..], enc, name, file)?
+            }
+        }
+        other => {
+            return Err(parse_error(
+                file,
+                format!("array {name}: unknown format {other:?}"),
+            ));
+        }
+    };
+    let width = match kind {
+        "Float32" | "Int32" | "UInt32" => 4,
+        "Float64" | "Int64" | "UInt64" => 8,
+        "Int8" | "UInt8" => 1,
+        "Int16" | "UInt16" => 2,
+        other => {
+            return Err(parse_error(
+                file,
+                format!("array {name}: unsupported type {other}"),
+            ));
+        }
+    };
+    if body.len() % width != 0 {
+        return Err(parse_error(
+            file,
+            format!(
+                "array {name}: {} bytes is not a whole number of {kind}",
+                body.len()
+            ),
+        ));
+    }
+    body.chunks_exact(width)
+        .map(|c| {
+            let v = match kind {
+                "Float32" => f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+                "Int32" => f64::from(i32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+                "UInt32" => f64::from(u32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+                "Float64" => f64::from_le_bytes(c.try_into().unwrap_or([0; 8])),
+                "Int64" => i64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f64,
+                "UInt64" => u64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f64,
+                "Int8" => f64::from(c[0] as i8),
+                "UInt8" => f64::from(c[0]),
+                "Int16" => f64::from(i16::from_le_bytes([c[0], c[1]])),
+                _ => f64::from(u16::from_le_bytes([c[0], c[1]])),
+            };
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(parse_error(file, format!("array {name}: non-finite value")))
+            }
+        })
+        .collect()
+}
+
+/// Splits a file at its `<AppendedData>` section (whose raw bytes need not be text): the XML
+/// before it, closed again, and the section's bytes after the `_` marker with whether they
+/// are base64.
+fn split_appended<'a>(bytes: &'a [u8], file: &str) -> Result<(Vec<u8>, Option<(&'a [u8], bool)>)> {
+    let find = |hay: &[u8], needle: &[u8]| hay.windows(needle.len()).position(|w| w == needle);
+    let Some(start) = find(bytes, b"<AppendedData") else {
+        return Ok((bytes.to_vec(), None));
+    };
+    let tag_end = start
+        + find(&bytes[start..], b">")
+            .ok_or_else(|| parse_error(file, "<AppendedData> tag is not closed"))?;
+    let tag = String::from_utf8_lossy(&bytes[start..tag_end]);
+    let base64 = !tag.contains("\"raw\"");
+    let marker = tag_end
+        + find(&bytes[tag_end..], b"_")
+            .ok_or_else(|| parse_error(file, "<AppendedData> has no '_' marker"))?;
+    let end = bytes
+        .windows(b"</AppendedData>".len())
+        .rposition(|w| w == b"</AppendedData>")
+        .filter(|&e| e > marker)
+        .unwrap_or(bytes.len());
+    let mut xml = bytes[..start].to_vec();
+    xml.extend_from_slice(b"</VTKFile>");
+    Ok((xml, Some((&bytes[marker + 1..end], base64))))
 }
 
 fn child<'a, 'i>(node: roxmltree::Node<'a, 'i>, tag: &str) -> Option<roxmltree::Node<'a, 'i>> {
@@ -140,7 +301,7 @@ fn named_array<'a, 'i>(
 /// Splits a VTK cell array (connectivity + offsets) into cells with valid point indices.
 fn cells(
     section: roxmltree::Node<'_, '_>,
-    header_u64: bool,
+    enc: &Encoding<'_>,
     points: usize,
     what: &str,
     file: &str,
@@ -149,8 +310,8 @@ fn cells(
         .ok_or_else(|| parse_error(file, format!("{what}: no connectivity array")))?;
     let offsets = named_array(section, "offsets")
         .ok_or_else(|| parse_error(file, format!("{what}: no offsets array")))?;
-    let connectivity = read_array(connectivity, header_u64, file)?;
-    let offsets = read_array(offsets, header_u64, file)?;
+    let connectivity = read_array(connectivity, enc, file)?;
+    let offsets = read_array(offsets, enc, file)?;
     let mut out = Vec::with_capacity(offsets.len());
     let mut begin = 0usize;
     for (c, &end) in offsets.iter().enumerate() {
@@ -179,7 +340,8 @@ fn cells(
 
 /// Parses a PolyData document whose coordinates are in `unit`.
 pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
-    let text = utf8(bytes, file)?;
+    let (xml, appended) = split_appended(bytes, file)?;
+    let text = utf8(&xml, file)?;
     let doc = roxmltree::Document::parse(text).map_err(|e| AnatomyError::Parse {
         file: file.to_owned(),
         line: Some(e.pos().row as usize),
@@ -189,20 +351,31 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
     if !root.has_tag_name("VTKFile") || root.attribute("type") != Some("PolyData") {
         return Err(parse_error(file, "not a VTKFile of type PolyData"));
     }
-    if let Some(c) = root.attribute("compressor") {
-        return Err(parse_error(
-            file,
-            format!("compressed data ({c}) is not supported; save uncompressed"),
-        ));
-    }
-    let header_u64 = root.attribute("header_type") == Some("UInt64");
+    let zlib = match root.attribute("compressor") {
+        None => false,
+        Some("vtkZLibDataCompressor") => true,
+        Some(c) => {
+            return Err(parse_error(
+                file,
+                format!(
+                    "compressor {c} is not supported; save uncompressed or with zlib \
+                     (vtkZLibDataCompressor)"
+                ),
+            ));
+        }
+    };
+    let enc = Encoding {
+        header_u64: root.attribute("header_type") == Some("UInt64"),
+        zlib,
+        appended,
+    };
     let piece = child(root, "PolyData")
         .and_then(|p| child(p, "Piece"))
         .ok_or_else(|| parse_error(file, "no PolyData/Piece element"))?;
     let points_node = child(piece, "Points")
         .and_then(|p| child(p, "DataArray"))
         .ok_or_else(|| parse_error(file, "no Points/DataArray"))?;
-    let flat = read_array(points_node, header_u64, file)?;
+    let flat = read_array(points_node, &enc, file)?;
     if flat.len() % 3 != 0 || flat.is_empty() {
         return Err(AnatomyError::Empty {
             file: file.to_owned(),
@@ -223,7 +396,7 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
     let mut data = PolyData::default();
     if let Some(polys) = child(piece, "Polys") {
         let mut triangles = Vec::new();
-        for (c, cell) in cells(polys, header_u64, points.len(), "Polys", file)?
+        for (c, cell) in cells(polys, &enc, points.len(), "Polys", file)?
             .iter()
             .enumerate()
         {
@@ -249,7 +422,7 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
         });
         let radius = match radius {
             Some(node) => {
-                let values = read_array(node, header_u64, file)?;
+                let values = read_array(node, &enc, file)?;
                 if values.len() != points.len() {
                     return Err(parse_error(
                         file,
@@ -267,7 +440,7 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
             }
             None => Vec::new(),
         };
-        for (c, cell) in cells(lines, header_u64, points.len(), "Lines", file)?
+        for (c, cell) in cells(lines, &enc, points.len(), "Lines", file)?
             .iter()
             .enumerate()
         {
