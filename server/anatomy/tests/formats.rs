@@ -326,3 +326,24 @@ fn damaged_compressed_vtp_is_named() {
     println!("{err}");
     assert!(err.to_string().starts_with("flipped.vtp"), "{err}");
 }
+
+#[test]
+fn ply_written_by_vtk_reads_like_its_vtp_in_ascii_and_binary() {
+    let vtp = vtp::load(&vtk_fixture("tube_binary_zlib.vtp"), LengthUnit::Mm).unwrap();
+    let surface = vtp.surface.unwrap();
+    for name in ["tube_ascii.ply", "tube_binary.ply"] {
+        let ply = cathlab_anatomy::io::load_surface(&vtk_fixture(name), LengthUnit::Mm).unwrap();
+        assert_eq!(ply.triangles, surface.triangles, "{name}");
+        for (a, b) in ply.vertices.iter().zip(&surface.vertices) {
+            assert!((a - b).norm() < 1e-8, "{name}");
+        }
+    }
+    let bytes = std::fs::read(vtk_fixture("tube_binary.ply")).unwrap();
+    let err =
+        cathlab_anatomy::io::ply::parse(&bytes[..bytes.len() / 2], LengthUnit::Mm, "half.ply")
+            .unwrap_err();
+    expect(err, "half.ply", "PLY body ends early");
+    let err = cathlab_anatomy::io::load_surface(std::path::Path::new("x.3ds"), LengthUnit::Mm)
+        .unwrap_err();
+    assert!(err.to_string().contains("unknown surface format"), "{err}");
+}

@@ -1,7 +1,8 @@
-//! Anatomy file formats: surfaces (OBJ, STL, VTK PolyData), centerlines (3D Slicer markups,
+//! Anatomy file formats: surfaces (OBJ, STL, PLY, VTK PolyData), centerlines (3D Slicer markups,
 //! SWC) and the JSON vessel graph; units, and loading by file extension.
 
 pub mod obj;
+pub mod ply;
 pub mod slicer;
 pub mod stl;
 pub mod swc;
@@ -68,6 +69,33 @@ pub fn check_plausible_extent(file: &str, unit: LengthUnit, extent_m: f64) -> Re
              {lo} m to {hi} m, so the declared or assumed unit is wrong"
         ),
     })
+}
+
+/// Loads a surface, choosing the format by extension: `.obj`, `.stl`, `.ply`, `.vtp` (its
+/// polygons).
+pub fn load_surface(path: &Path, unit: LengthUnit) -> Result<crate::mesh::TriangleMesh> {
+    let name = path.to_string_lossy().to_ascii_lowercase();
+    let shown = path.display().to_string();
+    if name.ends_with(".obj") {
+        obj::load(path, unit)
+    } else if name.ends_with(".stl") {
+        stl::load(path, unit)
+    } else if name.ends_with(".ply") {
+        ply::load(path, unit)
+    } else if name.ends_with(".vtp") {
+        vtp::load(path, unit)?
+            .surface
+            .ok_or_else(|| AnatomyError::Empty {
+                file: shown,
+                message: "no polygons (a surface is needed, not only lines)".into(),
+            })
+    } else {
+        Err(AnatomyError::Parse {
+            file: shown,
+            line: None,
+            message: "unknown surface format (expected .obj, .stl, .ply or .vtp)".into(),
+        })
+    }
 }
 
 /// Reads a whole file, mapping failure to [`AnatomyError::Io`].

@@ -68,3 +68,14 @@ for data, stem in [(surface, "tube"), (centerline, "centerline")]:
     write(data, f"{stem}_appended_raw_zlib.vtp", "appended", True, encode=False)
     write(data, f"{stem}_appended_raw_uint64.vtp", "appended", False, header64=True, encode=False)
 print(vtk.vtkVersion.GetVTKVersion())
+
+for binary, name in [(False, "tube_ascii.ply"), (True, "tube_binary.ply")]:
+    w = vtk.vtkPLYWriter()
+    w.SetInputData(surface)
+    w.SetFileName(name)
+    if binary:
+        w.SetFileTypeToBinary()
+        w.SetDataByteOrderToLittleEndian()
+    else:
+        w.SetFileTypeToASCII()
+    assert w.Write() == 1
