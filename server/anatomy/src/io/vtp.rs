@@ -38,8 +38,11 @@ struct Encoding<'a> {
     zlib: bool,
     /// The `<AppendedData>` section: its bytes after the `_` marker, and whether they are
     /// base64 text (else raw).
-    appended: Option<(&'a [u8], bool)>,
+    appended: Appended<'a>,
 }
+
+/// The bytes of an `<AppendedData>` section after its `_` marker, and whether they are base64.
+type Appended<'a> = Option<(&'a [u8], bool)>;
 
 /// Decodes base64 four characters at a time, so that separately padded blocks (VTK encodes a
 /// header and its data apart) decode as one stream; whitespace is skipped.
@@ -263,7 +266,7 @@ fn read_array(node: roxmltree::Node<'_, '_>, enc: &Encoding<'_>, file: &str) -> 
 /// Splits a file at its `<AppendedData>` section (whose raw bytes need not be text): the XML
 /// before it, closed again, and the section's bytes after the `_` marker with whether they
 /// are base64.
-fn split_appended<'a>(bytes: &'a [u8], file: &str) -> Result<(Vec<u8>, Option<(&'a [u8], bool)>)> {
+fn split_appended<'a>(bytes: &'a [u8], file: &str) -> Result<(Vec<u8>, Appended<'a>)> {
     let find = |hay: &[u8], needle: &[u8]| hay.windows(needle.len()).position(|w| w == needle);
     let Some(start) = find(bytes, b"<AppendedData") else {
         return Ok((bytes.to_vec(), None));
