@@ -5,6 +5,7 @@
 //! y posterior, z superior), as 3D Slicer and DICOM use. Files in millimetres are converted on
 //! import.
 
+pub mod capping;
 pub mod centerline;
 pub mod components;
 pub mod error;
