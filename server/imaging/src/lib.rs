@@ -8,6 +8,7 @@
 pub mod dicom;
 pub mod error;
 pub mod segment;
+pub mod surface_centerlines;
 pub mod volume;
 
 pub use error::{ImagingError, Result};

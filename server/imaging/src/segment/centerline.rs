@@ -30,10 +30,28 @@ pub struct CenterlineSettings {
     pub refinement_passes: usize,
 }
 
+/// What cross-sections are cast in: an image, or the exact wall of a surface.
+pub trait Intensity: Sync {
+    /// The value at `p` (m): bright in the lumen, dark outside.
+    fn value(&self, p: &Point3<f64>) -> f64;
+    /// Distance between samples along a ray (m); crossings are interpolated linearly.
+    fn ray_step(&self) -> f64;
+}
+
+impl Intensity for ScalarVolume {
+    fn value(&self, p: &Point3<f64>) -> f64 {
+        self.sample(p)
+    }
+
+    fn ray_step(&self) -> f64 {
+        0.25 * self.spacing_m.min()
+    }
+}
+
 /// One cross-section: where its middle is and its equal-area radius.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CrossSection {
-    /// The middle of the wall points (m); `None` when rays ran into another vessel or out of
+    /// The area centroid of the wall points' polygon (m); `None` when rays ran into another vessel or out of
     /// the lumen, so that the middle cannot be trusted.
     pub centre: Option<Point3<f64>>,
     /// Radius (m): of the circle with the section's area when every ray found the wall,
@@ -42,11 +60,11 @@ pub struct CrossSection {
 }
 
 /// Casts [`RAYS`] rays from `p` in the plane normal to `tangent` and finds where the image
-/// falls half-way from its value at `p` to `background_value` (linear between samples a
-/// quarter of the finest spacing apart), up to `max_length` (m). `None` if the centre is not
+/// falls half-way from its value at `p` to `background_value` (linear between samples
+/// [`Intensity::ray_step`] apart), up to `max_length` (m). `None` if the centre is not
 /// brighter than the background or fewer than three quarters of the rays find the wall.
 pub fn cross_section(
-    image: &ScalarVolume,
+    image: &dyn Intensity,
     p: &Point3<f64>,
     tangent: &Vector3<f64>,
     background_value: f64,
@@ -60,8 +78,8 @@ pub fn cross_section(
     };
     let u = t.cross(&helper).normalize();
     let v = t.cross(&u);
-    let step = 0.25 * image.spacing_m.min();
-    let centre_value = image.sample(p);
+    let step = image.ray_step();
+    let centre_value = image.value(p);
     if centre_value <= background_value {
         return None;
     }
@@ -73,7 +91,7 @@ pub fn cross_section(
         let (mut previous, mut s) = (centre_value, 0.0);
         while s < max_length {
             let next_s = s + step;
-            let value = image.sample(&(p + d * next_s));
+            let value = image.value(&(p + d * next_s));
             if value < wall_value {
                 *length = s + step * (previous - wall_value) / (previous - value);
                 break;
@@ -95,16 +113,23 @@ pub fn cross_section(
             radius: median,
         });
     }
+    // The section is the polygon of the wall points, a fan of triangles around `p`: its
+    // area gives the radius and its area centroid the middle (the plain mean of the wall
+    // points would move an off-centre `p` only half-way to the middle).
     let sector = (std::f64::consts::TAU / RAYS as f64).sin();
-    let mut area = 0.0;
-    let mut middle = Vector3::zeros();
-    for r in 0..RAYS {
-        area += 0.5 * lengths[r] * lengths[(r + 1) % RAYS] * sector;
+    let wall = |r: usize| {
         let angle = std::f64::consts::TAU * r as f64 / RAYS as f64;
-        middle += (u * angle.cos() + v * angle.sin()) * lengths[r];
+        (u * angle.cos() + v * angle.sin()) * lengths[r % RAYS]
+    };
+    let mut area = 0.0;
+    let mut moment = Vector3::zeros();
+    for r in 0..RAYS {
+        let a = 0.5 * lengths[r] * lengths[(r + 1) % RAYS] * sector;
+        area += a;
+        moment += (wall(r) + wall(r + 1)) * (a / 3.0);
     }
     Some(CrossSection {
-        centre: Some(p + middle / RAYS as f64),
+        centre: Some(p + moment / area),
         radius: (area / std::f64::consts::PI).sqrt(),
     })
 }
@@ -169,12 +194,13 @@ fn median_filter(values: &[f64], half: usize) -> Vec<f64> {
         .collect()
 }
 
-/// Builds the vessel graph of a pruned skeleton. `image` is the (filtered) image the
-/// cross-sections are cast in, `dbf` the wall distance per voxel (m), `root` the access
-/// end's voxel. Branches are named `vessel_00`, `vessel_01`, … in breadth-first order from
+/// Builds the vessel graph of a pruned skeleton. `image` is the voxel grid of the skeleton,
+/// `walls` what the cross-sections are cast in (the filtered image itself, or a surface),
+/// `dbf` the wall distance per voxel (m), `root` the access end's voxel. Branches are named `vessel_00`, `vessel_01`, … in breadth-first order from
 /// the access end, which is the landmark `access`.
 pub fn vessel_graph(
     image: &ScalarVolume,
+    walls: &dyn Intensity,
     adjacency: &Adjacency,
     dbf: &[f32],
     root: usize,
@@ -302,9 +328,16 @@ pub fn vessel_graph(
                 points.reverse();
                 radii.reverse();
             }
+            // The skeleton may end on the rim of a flat end (a cap, the volume's edge), where
+            // the wall distance is small: trim by the largest radius met so far, and half
+            // as much again.
             let tip = points[0];
             let mut cut = 0;
-            while cut + 2 < points.len() && (points[cut] - tip).norm() < radii[cut] {
+            let mut radius: f64 = 0.0;
+            while cut + 2 < points.len() && {
+                radius = radius.max(radii[cut]);
+                (points[cut] - tip).norm() < 1.5 * radius
+            } {
                 cut += 1;
             }
             points.drain(..cut);
@@ -324,7 +357,7 @@ pub fn vessel_graph(
             for i in 0..points.len() {
                 let max_length = 2.0 * wall_distance[i] + 3.0 * h;
                 sections[i] = cross_section(
-                    image,
+                    walls,
                     &points[i],
                     &tangent[i],
                     settings.background_value,
@@ -343,6 +376,24 @@ pub fn vessel_graph(
             }
             smooth_points(&mut points, 1);
         }
+        // At a free end the last cross-sections may meet the end itself (a flat cap, the
+        // volume's edge) and leave the points off-centre: such a tail is dropped.
+        let uncentred = |i: usize| sections[i].is_none_or(|s: CrossSection| s.centre.is_none());
+        let mut first = 0;
+        let mut last = points.len();
+        if free_end {
+            while last > first + 2 && uncentred(last - 1) {
+                last -= 1;
+            }
+        }
+        if free_start {
+            while first + 2 < last && uncentred(first) {
+                first += 1;
+            }
+        }
+        let points: Vec<Point3<f64>> = points[first..last].to_vec();
+        let sections: Vec<Option<CrossSection>> = sections[first..last].to_vec();
+        let wall_distance: Vec<f64> = wall_distance[first..last].to_vec();
         let raw_radii: Vec<f64> = (0..points.len())
             .map(|i| sections[i].map_or((wall_distance[i] - 0.5 * h).max(0.5 * h), |s| s.radius))
             .collect();

@@ -373,6 +373,7 @@ pub fn segment(
     stages.lap("skeleton");
     let graph = centerline::vessel_graph(
         &filtered,
+        &filtered,
         &skeleton.adjacency,
         &dbf,
         skeleton.root,

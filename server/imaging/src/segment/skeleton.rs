@@ -218,6 +218,31 @@ pub fn teasar(
         .filter(|&c| from_seed[c].is_finite())
         .max_by(|&a, &b| from_seed[a].total_cmp(&from_seed[b]))
         .unwrap_or(seed_c as usize) as u32;
+    grow(&grid, dbf, root, settings)
+}
+
+/// Grows the TEASAR skeleton of the connected lumen `mask` from a given `root` voxel (linear
+/// index, an end of a vessel: the access): `dbf` is the distance to the wall (m) per voxel.
+pub fn teasar_from_root(
+    mask: &[bool],
+    dbf: &[f32],
+    dims: [usize; 3],
+    spacing: [f64; 3],
+    root: usize,
+    settings: &SkeletonSettings,
+) -> Result<Skeleton> {
+    let grid = Grid::new(mask, dims, spacing);
+    let root_c = *grid
+        .compact
+        .get(root)
+        .filter(|&&c| c != u32::MAX)
+        .ok_or_else(|| ImagingError::Segmentation("the root is not in the lumen mask".into()))?;
+    grow(&grid, dbf, root_c, settings)
+}
+
+/// TEASAR from the compact voxel `root`.
+fn grow(grid: &Grid, dbf: &[f32], root: u32, settings: &SkeletonSettings) -> Result<Skeleton> {
+    let spacing = grid.spacing;
     // Steps are priced by (h/r)⁴: a path off the middle by δ pays about 4δ/r more per unit
     // length, the same pull towards the centre in vessels of every size.
     let h = spacing.iter().cloned().fold(f64::INFINITY, f64::min);
