@@ -346,6 +346,14 @@ impl AssetCache {
             AnatomySpec::CtSegmentation { volume, .. } => {
                 self.resolve(base, volume, "anatomy.volume")?;
             }
+            AnatomySpec::Surface {
+                file, centerlines, ..
+            } => {
+                self.resolve(base, file, "anatomy.file")?;
+                if let Some(c) = centerlines {
+                    self.resolve(base, c, "anatomy.centerlines")?;
+                }
+            }
             AnatomySpec::NeuroPhantom { .. } => {}
         }
         if let CtSpec::File { path, .. } = &spec.ct {
@@ -470,7 +478,15 @@ impl AssetCache {
             AnatomySpec::CtSegmentation { volume, .. } => {
                 Some(self.resolve(base, volume, "anatomy.volume")?)
             }
+            AnatomySpec::Surface { file, .. } => Some(self.resolve(base, file, "anatomy.file")?),
             AnatomySpec::NeuroPhantom { .. } => None,
+        };
+        let surface_centerlines = match spec {
+            AnatomySpec::Surface {
+                centerlines: Some(c),
+                ..
+            } => Some(self.resolve(base, c, "anatomy.centerlines")?),
+            _ => None,
         };
         let shown = file.as_deref().unwrap_or(Path::new("")).display();
         let (key, to_lps) = match spec {
@@ -483,6 +499,20 @@ impl AssetCache {
             }
             AnatomySpec::CtSegmentation { seed_voxel, .. } => (
                 format!("segmentation:{shown}:{seed_voxel:?}"),
+                Matrix3::identity(),
+            ),
+            AnatomySpec::Surface {
+                unit,
+                placement,
+                access,
+                names,
+                voxel_mm,
+                ..
+            } => (
+                format!(
+                    "surface:{shown}:{:?}:{unit:?}:{placement:?}:{access:?}:{names:?}:{voxel_mm:?}",
+                    surface_centerlines.as_deref().map(Path::display)
+                ),
                 Matrix3::identity(),
             ),
         };
@@ -522,6 +552,43 @@ impl AssetCache {
                     },
                 )?;
                 Anatomy { graph, lumen }
+            }
+            AnatomySpec::Surface {
+                unit,
+                placement,
+                access,
+                names,
+                voxel_mm,
+                ..
+            } => {
+                use cathlab_imaging::case::{SurfaceCase, load_surface_case};
+                let path = file.unwrap_or_default();
+                let case = SurfaceCase {
+                    surface: path.clone(),
+                    unit: *unit,
+                    placement: *placement,
+                    centerlines: surface_centerlines,
+                    access: *access,
+                    names: names.clone(),
+                    voxel_m: voxel_mm.map(|v| v * 1e-3),
+                };
+                let loaded = load_surface_case(&case).map_err(|e| match e {
+                    cathlab_imaging::ImagingError::Case { field, reason } => scene_error(
+                        &format!("anatomy.{}", field.trim_start_matches("anatomy.")),
+                        reason,
+                    ),
+                    other => unreadable("anatomy.file", &path, other),
+                })?;
+                for end in &loaded.open_ends {
+                    tracing::info!(
+                        file = %path.display(),
+                        end = end.index,
+                        centre_mm = ?(end.centre.coords * 1e3).as_slice(),
+                        radius_mm = end.radius_m * 1e3,
+                        "open end capped"
+                    );
+                }
+                loaded.anatomy
             }
             AnatomySpec::CtSegmentation { seed_voxel, .. } => {
                 use cathlab_imaging::segment::{Seed, SegmentSettings, segment};
@@ -602,6 +669,15 @@ impl AssetCache {
     fn build(&self, spec: &SceneSpec, base: &Path, staged: &mut Staged) -> Result<SceneAssets> {
         let (anatomy, to_lps) = self.anatomy(&spec.anatomy, base, staged)?;
         let graph = &anatomy.graph;
+        // A target given by a point near a vessel's end becomes that branch's name.
+        let mut resolved = spec.clone();
+        if let (true, Some(p)) = (spec.target.branch.is_empty(), spec.target.end_near_mm) {
+            let lps = nalgebra::Vector3::from(p) * 1e-3;
+            let local = Point3::from(to_lps.transpose() * lps);
+            resolved.target.branch = cathlab_imaging::case::branch_at_end(graph, &local)
+                .ok_or_else(|| scene_error("target.end_near_mm", "the vessels have no free end"))?;
+        }
+        let spec = &resolved;
         let target_branch = graph
             .branch_id(&spec.target.branch)
             .map_err(|e| scene_error("target.branch", e))?;
@@ -613,6 +689,18 @@ impl AssetCache {
         let route = graph
             .path_to(&access, &spec.target.branch)
             .map_err(|e| scene_error("target.branch", e))?;
+        let target_length = graph.branches[target_branch].length();
+        if spec.target.reach_mm * 1e-3 > target_length {
+            return Err(scene_error(
+                "target.reach_mm",
+                format!(
+                    "{} mm is beyond the end of {} ({:.1} mm long)",
+                    spec.target.reach_mm,
+                    spec.target.branch,
+                    target_length * 1e3
+                ),
+            ));
+        }
         let along = spec.start.along_route_mm * 1e-3;
         if along >= route.length {
             return Err(scene_error(

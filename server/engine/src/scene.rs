@@ -208,6 +208,34 @@ pub enum AnatomySpec {
         /// A voxel (i, j, k) inside a contrast-filled vessel.
         seed_voxel: [usize; 3],
     },
+    /// Any vessel surface (OBJ, STL, PLY, VTP; open ends are capped at load) with optional
+    /// centerlines (else computed from the surface), its unit, its placement into patient
+    /// LPS, the access end, and branch names. `cathlab case` writes such scenes.
+    Surface {
+        /// The surface file (relative to the scene file).
+        file: PathBuf,
+        /// Its length unit: "mm" (default), "cm", "m" or "um".
+        #[serde(default = "default_unit")]
+        unit: cathlab_anatomy::io::LengthUnit,
+        /// Rotation then translation into LPS; absent: the file is in LPS already.
+        #[serde(default)]
+        placement: cathlab_imaging::case::Placement,
+        /// Centerlines: a graph `.json` (as `cathlab case` writes), `.vtp` lines with a
+        /// radius array, Slicer `.mrk.json` curves, or `.swc`; absent: computed at load.
+        #[serde(default)]
+        centerlines: Option<PathBuf>,
+        /// Where the devices enter: `{ end = 0 }` (open ends by radius, largest first) or
+        /// `{ near_mm = [x, y, z] }` (the open end nearest an LPS point).
+        #[serde(default)]
+        access: cathlab_imaging::case::AccessChoice,
+        /// New branch names: `{ vessel_03 = "left_ica" }`.
+        #[serde(default)]
+        names: std::collections::BTreeMap<String, String>,
+        /// Voxel size for centerlines computed at load (mm), 0.1–5; chosen from the size
+        /// of the surface when absent.
+        #[serde(default)]
+        voxel_mm: Option<f64>,
+    },
     /// The seeded neuro phantom (aortic arch to circle of Willis), meshed into a lumen
     /// surface at load.
     NeuroPhantom {
@@ -218,6 +246,10 @@ pub enum AnatomySpec {
         #[serde(default = "default_tortuosity")]
         tortuosity: f64,
     },
+}
+
+fn default_unit() -> cathlab_anatomy::io::LengthUnit {
+    cathlab_anatomy::io::LengthUnit::Mm
 }
 
 fn default_tortuosity() -> f64 {
@@ -595,8 +627,13 @@ fn default_agent() -> f64 {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TargetSpec {
-    /// Target branch name.
+    /// Target branch name; or empty, with `end_near_mm`.
+    #[serde(default)]
     pub branch: String,
+    /// The target is the branch whose free end is nearest this LPS point (mm), when
+    /// `branch` is empty.
+    #[serde(default)]
+    pub end_near_mm: Option<[f64; 3]>,
     /// Reached when the tip is this far along the branch (mm).
     #[serde(default = "default_reach_mm")]
     pub reach_mm: f64,
@@ -802,6 +839,56 @@ impl SceneSpec {
         }
         if let AnatomySpec::NeuroPhantom { tortuosity, .. } = &self.anatomy {
             range("anatomy.tortuosity", *tortuosity, 0.0, 1.0)?;
+        }
+        if let AnatomySpec::Surface {
+            placement,
+            voxel_mm,
+            names,
+            ..
+        } = &self.anatomy
+        {
+            if let Some(v) = voxel_mm {
+                range("anatomy.voxel_mm", *v, 0.1, 5.0)?;
+            }
+            for (a, r) in placement.rotation_deg.iter().enumerate() {
+                range(
+                    &format!("anatomy.placement.rotation_deg[{a}]"),
+                    *r,
+                    -360.0,
+                    360.0,
+                )?;
+            }
+            for (a, t) in placement.translation_mm.iter().enumerate() {
+                range(
+                    &format!("anatomy.placement.translation_mm[{a}]"),
+                    *t,
+                    -5000.0,
+                    5000.0,
+                )?;
+            }
+            if names.len() > 1000 {
+                return Err(scene_error("anatomy.names", "more than 1000 names"));
+            }
+        }
+        match (self.target.branch.is_empty(), &self.target.end_near_mm) {
+            (true, None) => {
+                return Err(scene_error(
+                    "target",
+                    "name a `branch`, or give `end_near_mm` (an LPS point near a vessel's end)",
+                ));
+            }
+            (false, Some(_)) => {
+                return Err(scene_error(
+                    "target",
+                    "names a `branch` and gives `end_near_mm`; give one",
+                ));
+            }
+            (true, Some(p)) => {
+                for (a, c) in p.iter().enumerate() {
+                    range(&format!("target.end_near_mm[{a}]"), *c, -5000.0, 5000.0)?;
+                }
+            }
+            (false, None) => {}
         }
         match &self.ct {
             CtSpec::Phantom { spacing_mm } => range("ct.spacing_mm", *spacing_mm, 0.5, 5.0)?,

@@ -49,6 +49,14 @@ pub enum ImagingError {
     /// was segmented, the skeleton is empty.
     #[error("segmentation: {0}")]
     Segmentation(String),
+    /// A case (a surface or volume made into a scene) is inconsistent: the field and why.
+    #[error("{field}: {reason}")]
+    Case {
+        /// The field, e.g. `access.end`.
+        field: String,
+        /// What is wrong.
+        reason: String,
+    },
     /// The vessel geometry built from the image is invalid.
     #[error(transparent)]
     Anatomy(#[from] AnatomyError),

@@ -5,6 +5,7 @@
 //! Units: metres throughout; coordinates in the patient LPS frame (x to the patient's left,
 //! y posterior, z superior), as DICOM uses.
 
+pub mod case;
 pub mod dicom;
 pub mod error;
 pub mod segment;

@@ -31,7 +31,7 @@ impl Default for SurfaceCenterlineSettings {
     fn default() -> Self {
         Self {
             voxel_m: None,
-            max_voxels: 24_000_000,
+            max_voxels: 32_000_000,
             skeleton: SkeletonSettings::default(),
             refinement_passes: 2,
         }

@@ -194,3 +194,45 @@ fn centerline_of_an_open_tube_lies_on_the_curve_it_was_swept_along() {
         branch.radii[branch.radii.len() - 1] * 1e3
     );
 }
+
+/// Prints the free ends of the arch-to-cow surface's computed centerlines (surface frame,
+/// mm) as JSON: what `data/anatomy/arch-to-cow-open/make_open.py` cuts at.
+#[test]
+#[ignore]
+fn print_free_ends_of_the_arch_to_cow_surface() {
+    let anatomy = load_arch_to_cow(&data_dir()).unwrap();
+    let result = centerlines_from_surface(
+        &anatomy.lumen,
+        &Point3::from(ARCH_TO_COW_ACCESS_M),
+        &SurfaceCenterlineSettings {
+            voxel_m: Some(0.5e-3),
+            max_voxels: 200_000_000,
+            ..SurfaceCenterlineSettings::default()
+        },
+    )
+    .unwrap();
+    let graph = &result.graph;
+    let degree = graph.node_degrees();
+    let mut ends = Vec::new();
+    for b in &graph.branches {
+        let n = b.points.len();
+        for (node, p, q, r) in [
+            (b.start, b.points[0], b.points[2.min(n - 1)], b.radii[0]),
+            (
+                b.end,
+                b.points[n - 1],
+                b.points[n.saturating_sub(3)],
+                b.radii[n - 1],
+            ),
+        ] {
+            if degree[node] == 1 {
+                let t = (p - q).normalize();
+                ends.push(format!(
+                    "{{\"branch\": \"{}\", \"length_mm\": {:.1}, \"point\": [{:.2}, {:.2}, {:.2}], \"tangent\": [{:.3}, {:.3}, {:.3}], \"radius_mm\": {:.2}}}",
+                    b.name, b.length() * 1e3, p.x * 1e3, p.y * 1e3, p.z * 1e3, t.x, t.y, t.z, r * 1e3
+                ));
+            }
+        }
+    }
+    println!("[\n{}\n]", ends.join(",\n"));
+}

@@ -300,7 +300,8 @@ pub fn vessel_graph(
     let h = image.spacing_m.min();
     let mut graph = VesselGraph::new();
     let mut access = None;
-    for (index, &(b, forward)) in order.iter().enumerate() {
+    let mut index = 0;
+    for &(b, forward) in &order {
         let mut chain = kept[b].voxels.clone();
         let (mut start, mut end) = ends[b];
         if !forward {
@@ -419,6 +420,13 @@ pub fn vessel_graph(
         if keep_p.len() < 2 {
             continue;
         }
+        // A leaf that, trimmed, does not leave its parent's lumen is a corner of a rough
+        // end, not a vessel.
+        let kept_length: f64 = keep_p.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+        let leaf = free_end && !free_start && index > 0;
+        if leaf && kept_length < keep_r[0] {
+            continue;
+        }
         if index == 0 {
             access = Some(keep_p[0]);
         }
@@ -429,6 +437,7 @@ pub fn vessel_graph(
             points: keep_p,
             radii: keep_r,
         })?;
+        index += 1;
     }
     if let Some(a) = access {
         graph.landmarks.insert("access".into(), a);
