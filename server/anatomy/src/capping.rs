@@ -20,7 +20,8 @@ pub struct OpenEnd {
     pub index: usize,
     /// Centroid of the loop's vertices (m, the surface's frame).
     pub centre: Point3<f64>,
-    /// Unit normal of the loop's best-fit plane, pointing out of the vessel.
+    /// Unit normal of the loop's plane, pointing out of the vessel (whichever way the
+    /// surface's faces are oriented).
     pub normal: Vector3<f64>,
     /// Mean distance of the loop's vertices from its centre (m).
     pub radius_m: f64,
@@ -109,6 +110,29 @@ pub fn open_ends(mesh: &TriangleMesh, source: &str) -> Result<Vec<OpenEnd>> {
                      tree with clipped ends"
                 ),
             });
+        }
+    }
+    // The normals follow the faces' orientation; for a surface whose faces point into the
+    // lumen (its volume, caps included, negative) they are turned to point out of it.
+    let mut volume = 0.0;
+    let mut add = |a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>| {
+        volume += a.coords.dot(&b.coords.cross(&c.coords)) / 6.0;
+    };
+    for t in &mesh.triangles {
+        let [a, b, c] = mesh.corners(t);
+        add(&a, &b, &c);
+    }
+    for end in &ends {
+        let n = end.loop_vertices.len();
+        for k in 0..n {
+            let a = mesh.vertices[end.loop_vertices[k] as usize];
+            let b = mesh.vertices[end.loop_vertices[(k + 1) % n] as usize];
+            add(&b, &a, &end.centre);
+        }
+    }
+    if volume < 0.0 {
+        for end in &mut ends {
+            end.normal = -end.normal;
         }
     }
     ends.sort_by(|a, b| b.radius_m.total_cmp(&a.radius_m));

@@ -57,6 +57,11 @@ fn an_open_tube_has_two_ends_where_its_centerline_ends_and_caps_into_a_closed_lu
     println!("capped tube volume / frustums = {:.4}", volume / exact);
     assert!((volume / exact - 1.0).abs() < 0.03, "{}", volume / exact);
     Lumen::new(capped, "capped tube").unwrap();
+    // Faces pointing into the lumen: the same ends, the normals still pointing out.
+    let mut inward = tube.clone();
+    inward.flip();
+    let flipped = open_ends(&inward, "inward tube").unwrap();
+    assert!(flipped[0].normal.dot(&t0) < -0.99 && flipped[1].normal.dot(&t1) > 0.99);
 }
 
 #[test]

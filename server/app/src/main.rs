@@ -1,4 +1,5 @@
-//! `cathlab-server`: runs the simulation server (default), or replays a recorded session.
+//! `cathlab-server`: runs the simulation server (default), replays a recorded session, or
+//! checks a folder of scenes (`--check-scenes DIR`).
 
 use std::path::PathBuf;
 
@@ -106,6 +107,10 @@ struct Options {
     /// when listed, else the first scene).
     #[arg(long, global = true)]
     default_scene: Option<String>,
+    /// Load every scene in DIR (parse, resolve files, build assets, one step), print one
+    /// line per scene (ok, or the error naming the field) and exit: non-zero if any failed.
+    #[arg(long, value_name = "DIR")]
+    check_scenes: Option<PathBuf>,
     /// Shut down gracefully when standard input closes (for supervisors and test harnesses
     /// that hold the server's stdin).
     #[arg(long, global = true)]
@@ -181,6 +186,21 @@ fn main() -> anyhow::Result<()> {
         .init();
     let cli = Cli::parse();
     let config = config(&cli.options)?;
+    if let Some(dir) = &cli.options.check_scenes {
+        let checks = cathlab_engine::check::check_scenes(dir, &config.data_roots)
+            .with_context(|| format!("reading {}", dir.display()))?;
+        for check in &checks {
+            println!("{}", check.line());
+        }
+        let failed = checks.iter().filter(|c| c.outcome.is_err()).count();
+        if checks.is_empty() {
+            anyhow::bail!("{} holds no scene (.toml or .json)", dir.display());
+        }
+        if failed > 0 {
+            anyhow::bail!("{failed} of {} scenes failed", checks.len());
+        }
+        return Ok(());
+    }
     match cli.command.unwrap_or(Action::Serve) {
         Action::Serve => {
             let runtime = tokio::runtime::Runtime::new().context("starting tokio")?;

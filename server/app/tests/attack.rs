@@ -915,3 +915,66 @@ async fn the_smaller_holes_are_closed() {
     assert!(status.message().contains("recording is full"), "{status:?}");
     close(&mut client, &session).await;
 }
+
+#[test]
+fn check_scenes_prints_a_line_per_scene_and_fails_if_one_fails() {
+    let dir = temp_dir("check-scenes");
+    let scenes = dir.join("scenes");
+    std::fs::create_dir_all(&scenes).unwrap();
+    let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../data")
+        .canonicalize()
+        .unwrap();
+    let good = default_scene_text().replace(
+        "dir = \"../data/anatomy/arch-to-cow\"",
+        &format!(
+            "dir = {:?}",
+            data.join("anatomy/arch-to-cow").display().to_string()
+        ),
+    );
+    std::fs::write(scenes.join("good.toml"), &good).unwrap();
+    let config = dir.join("config.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "data_roots = [{:?}, {:?}]\n",
+            data.display().to_string(),
+            scenes.display().to_string()
+        ),
+    )
+    .unwrap();
+    let run = || {
+        std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+            .arg("--config")
+            .arg(&config)
+            .arg("--check-scenes")
+            .arg(&scenes)
+            .env("RUST_LOG", "warn")
+            .output()
+            .unwrap()
+    };
+    let out = run();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    println!("{}", stdout.trim());
+    assert!(out.status.success(), "{stdout}");
+    assert!(stdout.starts_with("ok   good"), "{stdout}");
+    // A second scene with a reach beyond its target branch: named, and the exit fails.
+    std::fs::write(
+        scenes.join("too_far.toml"),
+        good.replace("reach_mm = 50.0", "reach_mm = 400.0"),
+    )
+    .unwrap();
+    let out = run();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    println!("{}\n{}", stdout.trim(), stderr.trim());
+    assert!(!out.status.success());
+    assert!(stdout.contains("ok   good"), "{stdout}");
+    assert!(
+        stdout.contains("FAIL")
+            && stdout.contains("too_far.toml")
+            && stdout.contains("target.reach_mm"),
+        "{stdout}"
+    );
+    assert!(stderr.contains("1 of 2 scenes failed"), "{stderr}");
+}

@@ -571,6 +571,9 @@ impl AssetCache {
                     access: *access,
                     names: names.clone(),
                     voxel_m: voxel_mm.map(|v| v * 1e-3),
+                    max_voxels:
+                        cathlab_imaging::surface_centerlines::SurfaceCenterlineSettings::default()
+                            .max_voxels,
                 };
                 let loaded = load_surface_case(&case).map_err(|e| match e {
                     cathlab_imaging::ImagingError::Case { field, reason } => scene_error(

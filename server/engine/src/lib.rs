@@ -4,6 +4,7 @@
 //! and replay. The only crate that knows both the simulation and the renderer; no networking.
 
 pub mod assets;
+pub mod check;
 pub mod engine;
 pub mod error;
 pub mod imaging;

@@ -29,7 +29,7 @@ fn a_wire_navigates_the_segmented_aorta_past_the_renal_arteries() {
             .is_closed_oriented_manifold()
     );
     // The target is the aorta above the renal arteries: the route passes branch points.
-    let target = graph.branch(&spec.target.branch).unwrap();
+    let target = graph.branch(&assets.spec.target.branch).unwrap();
     let mean_radius = target.radii.iter().sum::<f64>() / target.radii.len() as f64;
     println!(
         "segmented scene: {} branches, route {:.0} mm, target {} {:.0} mm long, mean radius {:.1} mm",

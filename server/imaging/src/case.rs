@@ -86,6 +86,8 @@ pub struct SurfaceCase {
     pub names: BTreeMap<String, String>,
     /// Voxel size for computed centerlines (m); `None` picks one.
     pub voxel_m: Option<f64>,
+    /// Most voxels for computed centerlines (about 20 bytes each).
+    pub max_voxels: usize,
 }
 
 /// A surface made into anatomy, with what was found on the way.
@@ -168,16 +170,19 @@ fn inside_end(access: Point3<f64>, ends: &[OpenEnd]) -> Point3<f64> {
 /// Builds the anatomy of a surface case.
 pub fn load_surface_case(case: &SurfaceCase) -> Result<SurfaceAnatomy> {
     let (mesh, open_ends) = placed_surface(case)?;
-    let access = access_point(&case.access, &open_ends)?;
+    // A graph file brings its own access; otherwise the choice must fit the surface.
+    let chosen = access_point(&case.access, &open_ends);
     let shown = case.surface.display().to_string();
     let mut anatomy = match &case.centerlines {
         None => {
+            let access = chosen?;
             let lumen = Lumen::with_grid_settings(mesh, &shown, contact_grid())?;
             let computed = centerlines_from_surface(
                 &lumen,
                 &inside_end(access, &open_ends),
                 &SurfaceCenterlineSettings {
                     voxel_m: case.voxel_m,
+                    max_voxels: case.max_voxels,
                     ..SurfaceCenterlineSettings::default()
                 },
             )?;
@@ -217,7 +222,7 @@ pub fn load_surface_case(case: &SurfaceCase) -> Result<SurfaceAnatomy> {
                         ));
                     }
                 }
-                let access = inside_end(access, &open_ends);
+                let access = inside_end(chosen?, &open_ends);
                 let assembled = assemble(mesh, curves, access, &shown)?;
                 let lumen = assembled.lumen.with_grid(contact_grid())?;
                 graph_file(assembled.graph, lumen)
@@ -239,10 +244,10 @@ pub fn load_surface_case(case: &SurfaceCase) -> Result<SurfaceAnatomy> {
                         "unknown format (expected .json graph, .vtp lines, .mrk.json curves or .swc)",
                     ));
                 };
-                graph
-                    .landmarks
-                    .entry("access".into())
-                    .or_insert_with(|| inside_end(access, &open_ends));
+                if !graph.landmarks.contains_key("access") {
+                    let access = inside_end(chosen?, &open_ends);
+                    graph.landmarks.insert("access".into(), access);
+                }
                 let lumen = Lumen::with_grid_settings(mesh, &shown, contact_grid())?;
                 graph_file(graph, lumen)
             }
@@ -254,7 +259,7 @@ pub fn load_surface_case(case: &SurfaceCase) -> Result<SurfaceAnatomy> {
         .landmarks
         .get("access")
         .copied()
-        .unwrap_or(access);
+        .ok_or_else(|| field("anatomy.access", "the centerlines have no access end"))?;
     Ok(SurfaceAnatomy {
         anatomy,
         open_ends,
@@ -353,4 +358,317 @@ pub fn resolve(base: &Path, path: &Path) -> PathBuf {
     } else {
         base.join(path)
     }
+}
+
+/// What `cathlab case` is asked to do besides reading its input.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaseOptions {
+    /// The surface's length unit (volumes carry their own).
+    pub unit: Option<LengthUnit>,
+    /// The surface's placement into LPS.
+    pub placement: Placement,
+    /// Where devices enter a surface.
+    pub access: AccessChoice,
+    /// The target: the vessel whose free end is nearest this LPS point (mm); by default the
+    /// free end farthest along the vessels from the access.
+    pub target_near_mm: Option<[f64; 3]>,
+    /// A volume's seed inside a contrast-filled vessel.
+    pub seed: Option<crate::segment::Seed>,
+    /// A DICOM folder's series (SeriesInstanceUID) when it holds several.
+    pub series: Option<String>,
+    /// Voxel size for centerlines computed from a surface (m).
+    pub voxel_m: Option<f64>,
+    /// Most voxels for centerlines computed from a surface (about 20 bytes each).
+    pub max_voxels: usize,
+    /// The scene's name (default: the output folder's name).
+    pub name: Option<String>,
+}
+
+impl Default for CaseOptions {
+    fn default() -> Self {
+        Self {
+            unit: None,
+            placement: Placement::default(),
+            access: AccessChoice::default(),
+            target_near_mm: None,
+            seed: None,
+            series: None,
+            voxel_m: None,
+            max_voxels: SurfaceCenterlineSettings::default().max_voxels,
+            name: None,
+        }
+    }
+}
+
+/// One open end as the report lists it (mm).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EndReport {
+    /// Its index (`access = { end = i }`).
+    pub index: usize,
+    /// Centre (mm, LPS).
+    pub centre_mm: [f64; 3],
+    /// Mean radius (mm).
+    pub radius_mm: f64,
+}
+
+/// One branch as the report lists it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BranchReport {
+    /// Its name (`target.branch`, `anatomy.names`).
+    pub name: String,
+    /// Centerline length (mm).
+    pub length_mm: f64,
+    /// Median radius (mm).
+    pub radius_mm: f64,
+}
+
+/// What `cathlab case` wrote.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CaseReport {
+    /// The scene's name (its file is `<name>.toml`).
+    pub name: String,
+    /// "surface" or "volume".
+    pub input_kind: String,
+    /// Open ends found and capped.
+    pub open_ends: Vec<EndReport>,
+    /// The branches.
+    pub branches: Vec<BranchReport>,
+    /// The access point (mm, LPS).
+    pub access_mm: [f64; 3],
+    /// The target branch.
+    pub target: String,
+    /// The route from the access to the target's start (mm).
+    pub route_mm: f64,
+}
+
+const SURFACE_EXTENSIONS: [&str; 4] = ["obj", "stl", "ply", "vtp"];
+
+fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    std::fs::write(path, bytes).map_err(|source| ImagingError::Io {
+        file: path.to_owned(),
+        source,
+    })
+}
+
+/// Turns `input` (a surface file, a volume file or a DICOM folder) into a scene in the
+/// scenes folder `out`, which `cathlab-server --scenes out` serves unchanged: `<name>.toml`,
+/// and in `<name>/` the surface, `graph.json` (the centerlines the scene loads),
+/// `centerlines.vtp`, `preview.png`, `report.json`, and for a volume `ct.mha` (HU). The
+/// name is the input's (sanitized) unless given.
+pub fn write_case(input: &Path, options: &CaseOptions, out: &Path) -> Result<CaseReport> {
+    let name = options.name.clone().unwrap_or_else(|| {
+        let stem = input
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let stem = stem.split('.').next().unwrap_or_default();
+        let clean: String = stem
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || c == '-' {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .take(64)
+            .collect();
+        if clean.is_empty() {
+            "case".into()
+        } else {
+            clean
+        }
+    });
+    if name.is_empty()
+        || name.len() > 64
+        || !name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+    {
+        return Err(field(
+            "name",
+            format!("{name:?}: a scene name is 1–64 letters, digits, '_' or '-'"),
+        ));
+    }
+    let files = out.join(&name);
+    std::fs::create_dir_all(&files).map_err(|source| ImagingError::Io {
+        file: files.clone(),
+        source,
+    })?;
+    let extension = input
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let is_surface = SURFACE_EXTENSIONS.contains(&extension.as_str());
+    let (surface_file, unit, placement, mesh, ends, graph, ct) = if is_surface {
+        let unit = options.unit.unwrap_or(LengthUnit::Mm);
+        let file = format!("{name}/surface.{extension}");
+        std::fs::copy(input, out.join(&file)).map_err(|source| ImagingError::Io {
+            file: input.to_owned(),
+            source,
+        })?;
+        let loaded = load_surface_case(&SurfaceCase {
+            surface: input.to_owned(),
+            unit,
+            placement: options.placement,
+            centerlines: None,
+            access: options.access,
+            names: BTreeMap::new(),
+            voxel_m: options.voxel_m,
+            max_voxels: options.max_voxels,
+        })?;
+        let mesh = loaded.anatomy.lumen.mesh().clone();
+        (
+            file,
+            unit,
+            options.placement,
+            mesh,
+            loaded.open_ends,
+            loaded.anatomy.graph,
+            None,
+        )
+    } else {
+        let volume = if input.is_dir() {
+            crate::dicom::read_series(input, options.series.as_deref())?
+        } else {
+            crate::ScalarVolume::load(input)?
+        };
+        let seed = options.seed.ok_or_else(|| {
+            field(
+                "seed",
+                "a volume needs a seed inside a contrast-filled vessel (--seed-voxel i,j,k or --seed x,y,z)",
+            )
+        })?;
+        let segmentation =
+            crate::segment::segment(&volume, &seed, &crate::segment::SegmentSettings::default())?;
+        volume.write_metaimage(&files.join("ct.mha"))?;
+        write_file(
+            &files.join("surface.stl"),
+            &io::stl::to_binary(&segmentation.surface, LengthUnit::Mm),
+        )?;
+        (
+            format!("{name}/surface.stl"),
+            LengthUnit::Mm,
+            Placement::default(),
+            segmentation.surface,
+            Vec::new(),
+            segmentation.graph,
+            Some(format!("{name}/ct.mha")),
+        )
+    };
+    let access = graph
+        .landmarks
+        .get("access")
+        .copied()
+        .ok_or_else(|| field("access", "the centerlines have no access end"))?;
+    let target = match options.target_near_mm {
+        Some(p) => branch_at_end(&graph, &Point3::from(Vector3::from(p) * 1e-3)),
+        None => farthest_end(&graph).map(|(name, _)| name),
+    }
+    .ok_or_else(|| field("target", "the vessels have no free end to aim at"))?;
+    let route = graph
+        .path_to(&access, &target)
+        .map_err(|e| field("target", e.to_string()))?;
+    let target_length = graph.branch(&target)?.length() * 1e3;
+    write_file(&files.join("graph.json"), graph.to_json().as_bytes())?;
+    let lines: Vec<slicer::Centerline> = graph
+        .branches
+        .iter()
+        .map(|b| slicer::Centerline {
+            name: b.name.clone(),
+            points: b.points.clone(),
+            radii: b.radii.clone(),
+        })
+        .collect();
+    write_file(
+        &files.join("centerlines.vtp"),
+        vtp::to_string(None, &lines, LengthUnit::Mm).as_bytes(),
+    )?;
+    let picture = crate::preview::preview(&mesh, &graph, &ends, &access, Some(&target));
+    let png = files.join("preview.png");
+    picture.save(&png).map_err(|e| ImagingError::Io {
+        file: png,
+        source: std::io::Error::other(e),
+    })?;
+    // The scripted operator's distances fit the target branch: the wire 80 % of the way
+    // in, the catheter tracked half-way between the target depth and the wire's tip.
+    let reach = (0.25 * target_length).clamp(1.0, 20.0);
+    let wire_reach = (0.8 * target_length).clamp(reach + 2.0, 50.0);
+    let track = (0.5 * (wire_reach - reach)).clamp(1.0, 15.0);
+    let unit_name = match unit {
+        LengthUnit::M => "m",
+        LengthUnit::Cm => "cm",
+        LengthUnit::Mm => "mm",
+        LengthUnit::Um => "um",
+    };
+    let ct_section = match ct {
+        Some(path) => format!("kind = \"file\"\npath = \"{path}\""),
+        None => "kind = \"phantom\"\nspacing_mm = 2.0".to_owned(),
+    };
+    let input_name = input
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+        .replace(['"', '\\', '\n'], "_");
+    let scene = format!(
+        "# Written by `cathlab case` from {input_name}: {branches} branches, {ends} open ends \
+         capped.\n# {name}/preview.png shows the branch names; rename branches under [anatomy.names] \
+         (vessel_03 = \"left_ica\")\n# and choose another target with [target] branch or \
+         end_near_mm.\ndescription = \"{name}: a case from {input_name}\"\n\n[anatomy]\n\
+         kind = \"surface\"\nfile = \"{surface_file}\"\nunit = \"{unit_name}\"\n\
+         placement = {{ rotation_deg = [{r0:?}, {r1:?}, {r2:?}], translation_mm = [{t0:?}, \
+         {t1:?}, {t2:?}] }}\ncenterlines = \"{name}/graph.json\"\n\n[anatomy.names]\n\n[ct]\n\
+         {ct_section}\n\n# Outermost first: a 5 F catheter in the left hand, a shaped 0.035\" \
+         wire in the right.\n[[stack]]\ndevice = \"catheter-5f-vertebral\"\ninserted_mm = \
+         10.0\n\n[[stack]]\ncustom = {{ preset = \"guidewire_035_shaped\", bend_deg = 90.0, \
+         bend_length_mm = 30.0 }}\ninserted_mm = 30.0\n\n[target]\nbranch = \"{target}\"\n\
+         reach_mm = {reach:.1}\ninstrument = 0\n\n[autopilot]\nlookahead_mm = 20.0\n\
+         wire_reach_mm = {wire_reach:.1}\ncatheter_lag_mm = 50.0\ncatheter_track_mm = \
+         {track:.1}\n\n[fidelity]\nstep_rate_hz = 500\nframe_px = 512\n",
+        branches = graph.branches.len(),
+        ends = ends.len(),
+        r0 = placement.rotation_deg[0],
+        r1 = placement.rotation_deg[1],
+        r2 = placement.rotation_deg[2],
+        t0 = placement.translation_mm[0],
+        t1 = placement.translation_mm[1],
+        t2 = placement.translation_mm[2],
+    );
+    write_file(&out.join(format!("{name}.toml")), scene.as_bytes())?;
+    let mm = |p: &Point3<f64>| [p.x * 1e3, p.y * 1e3, p.z * 1e3];
+    let report = CaseReport {
+        name,
+        input_kind: if is_surface { "surface" } else { "volume" }.into(),
+        open_ends: ends
+            .iter()
+            .map(|e| EndReport {
+                index: e.index,
+                centre_mm: mm(&e.centre),
+                radius_mm: e.radius_m * 1e3,
+            })
+            .collect(),
+        branches: graph
+            .branches
+            .iter()
+            .map(|b| {
+                let mut r = b.radii.clone();
+                r.sort_by(f64::total_cmp);
+                BranchReport {
+                    name: b.name.clone(),
+                    length_mm: b.length() * 1e3,
+                    radius_mm: r[r.len() / 2] * 1e3,
+                }
+            })
+            .collect(),
+        access_mm: mm(&access),
+        target,
+        route_mm: route.length * 1e3,
+    };
+    write_file(
+        &files.join("report.json"),
+        serde_json::to_string_pretty(&report)
+            .unwrap_or_default()
+            .as_bytes(),
+    )?;
+    Ok(report)
 }

@@ -8,6 +8,7 @@
 pub mod case;
 pub mod dicom;
 pub mod error;
+pub mod preview;
 pub mod segment;
 pub mod surface_centerlines;
 pub mod volume;

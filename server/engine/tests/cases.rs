@@ -1,0 +1,197 @@
+//! `cathlab case` output is a scene folder the server serves unchanged: a surface with open
+//! ends and a CT angiography volume each become a scene that `check_scenes` (what
+//! `cathlab-server --check-scenes` runs) loads; careless cases are refused naming the field.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use cathlab_anatomy::io::LengthUnit;
+use cathlab_engine::check::check_scenes;
+use cathlab_engine::*;
+use cathlab_imaging::ImagingError;
+use cathlab_imaging::case::{
+    AccessChoice, CaseOptions, Placement, SurfaceCase, load_surface_case, write_case,
+};
+use cathlab_imaging::segment::Seed;
+
+fn data(path: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../data")
+        .join(path)
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("cathlab-case-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+#[test]
+fn an_open_surface_becomes_a_served_scene_and_its_autopilot_reaches_the_named_target() {
+    let out = scratch("surface");
+    let report = write_case(
+        &data("anatomy/arch-to-cow-open/vessels_open.vtp"),
+        &CaseOptions {
+            placement: Placement {
+                rotation_deg: [90.0, 90.0, 0.0],
+                translation_mm: [0.0; 3],
+            },
+            target_near_mm: Some([41.9, 37.2, 551.1]),
+            voxel_m: Some(0.9e-3),
+            name: Some("open_arch".into()),
+            ..CaseOptions::default()
+        },
+        &out,
+    )
+    .unwrap();
+    println!(
+        "case: {} open ends (radii {:?} mm), {} branches, target {} {:.0} mm away",
+        report.open_ends.len(),
+        report
+            .open_ends
+            .iter()
+            .map(|e| (e.radius_mm * 10.0).round() / 10.0)
+            .collect::<Vec<_>>(),
+        report.branches.len(),
+        report.target,
+        report.route_mm
+    );
+    assert_eq!(report.open_ends.len(), 3);
+    for file in [
+        "open_arch.toml",
+        "open_arch/surface.vtp",
+        "open_arch/graph.json",
+        "open_arch/centerlines.vtp",
+        "open_arch/preview.png",
+        "open_arch/report.json",
+    ] {
+        assert!(out.join(file).is_file(), "{file} written");
+    }
+    // The user names the target branch in the scene, as the preview invites.
+    let scene_file = out.join("open_arch.toml");
+    let text = std::fs::read_to_string(&scene_file).unwrap();
+    let text = text
+        .replace(
+            "[anatomy.names]\n",
+            &format!("[anatomy.names]\n{} = \"neck_vessel\"\n", report.target),
+        )
+        .replace(
+            &format!("branch = \"{}\"", report.target),
+            "branch = \"neck_vessel\"",
+        );
+    std::fs::write(&scene_file, text).unwrap();
+    let checks = check_scenes(&out, &[]).unwrap();
+    assert_eq!(checks.len(), 1);
+    println!("{}", checks[0].line());
+    assert!(checks[0].outcome.is_ok(), "{}", checks[0].line());
+    // The scripted operator takes the catheter to the named target.
+    let spec = SceneSpec::read(&scene_file).unwrap();
+    let assets = AssetCache::default().load(&spec, &out).unwrap();
+    assert_eq!(assets.spec.target.branch, "neck_vessel");
+    let mut world = World::new(assets).unwrap();
+    let reached = world.follow_two_hands(40_000, 1).unwrap();
+    println!("reached at step {reached:?}");
+    assert!(reached.is_some());
+    assert_eq!(world.metrics().divergence_resets, 0);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn a_cta_volume_becomes_a_served_scene_with_its_ct() {
+    let out = scratch("volume");
+    let report = write_case(
+        &data("ct/aorta.mha"),
+        &CaseOptions {
+            seed: Some(Seed::Voxel([72, 300, 17])),
+            ..CaseOptions::default()
+        },
+        &out,
+    )
+    .unwrap();
+    assert_eq!(report.name, "aorta");
+    assert!(out.join("aorta/ct.mha").is_file());
+    let checks = check_scenes(&out, &[]).unwrap();
+    println!("{}", checks[0].line());
+    assert!(checks[0].outcome.is_ok(), "{}", checks[0].line());
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+fn case_error(result: std::result::Result<impl std::fmt::Debug, ImagingError>) -> (String, String) {
+    match result {
+        Err(ImagingError::Case { field, reason }) => (field, reason),
+        other => panic!("expected a case error, got {other:?}"),
+    }
+}
+
+#[test]
+fn careless_cases_are_refused_naming_the_field() {
+    let open = SurfaceCase {
+        surface: data("anatomy/arch-to-cow-open/vessels_open.vtp"),
+        unit: LengthUnit::Mm,
+        placement: Placement::default(),
+        centerlines: None,
+        access: AccessChoice::End(7),
+        names: BTreeMap::new(),
+        voxel_m: Some(0.9e-3),
+        max_voxels: 32_000_000,
+    };
+    let (field, reason) = case_error(load_surface_case(&open));
+    assert_eq!(field, "access.end");
+    assert!(reason.contains("3 open ends"), "{reason}");
+    let closed = SurfaceCase {
+        surface: data("anatomy/arch-to-cow/vessels.obj"),
+        access: AccessChoice::End(0),
+        ..open.clone()
+    };
+    let (field, reason) = case_error(load_surface_case(&closed));
+    assert_eq!(field, "access.end");
+    assert!(reason.contains("closed"), "{reason}");
+    let unknown = SurfaceCase {
+        centerlines: Some(data("anatomy/arch-to-cow/LICENSE")),
+        access: AccessChoice::End(0),
+        ..open.clone()
+    };
+    let (field, _) = case_error(load_surface_case(&unknown));
+    assert_eq!(field, "anatomy.centerlines");
+    let renamed = SurfaceCase {
+        access: AccessChoice::End(0),
+        names: BTreeMap::from([("vessel_999".to_owned(), "x".to_owned())]),
+        ..open.clone()
+    };
+    let (field, _) = case_error(load_surface_case(&renamed));
+    assert_eq!(field, "anatomy.names.vessel_999");
+    // A volume without a seed.
+    let (field, _) = case_error(write_case(
+        &data("ct/aorta.mha"),
+        &CaseOptions::default(),
+        &scratch("noseed"),
+    ));
+    assert_eq!(field, "seed");
+}
+
+#[test]
+fn check_scenes_names_the_failing_scene_and_field() {
+    let dir = scratch("check");
+    std::fs::create_dir_all(&dir).unwrap();
+    let anatomy = data("anatomy/arch-to-cow");
+    std::fs::write(
+        dir.join("bad.toml"),
+        format!(
+            "[anatomy]\nkind = \"arch_to_cow\"\ndir = {:?}\n[ct]\nkind = \"phantom\"\nspacing_mm = 3.0\n[[devices]]\npreset = \"guidewire_035\"\n[target]\nbranch = \"no_such_vessel\"\n",
+            anatomy.display().to_string()
+        ),
+    )
+    .unwrap();
+    std::fs::write(dir.join("broken.toml"), "this is not toml = = =").unwrap();
+    let checks = check_scenes(&dir, &[data(""), dir.clone()]).unwrap();
+    let lines: Vec<String> = checks.iter().map(|c| c.line()).collect();
+    println!("{lines:#?}");
+    assert_eq!(checks.len(), 2);
+    assert!(
+        lines[0].starts_with("FAIL")
+            && lines[0].contains("target.branch")
+            && lines[0].contains("no_such_vessel")
+    );
+    assert!(lines[1].starts_with("FAIL") && lines[1].contains("broken.toml"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
