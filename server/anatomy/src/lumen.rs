@@ -9,6 +9,7 @@
 use nalgebra::{Point3, Vector3};
 use parry3d_f64::query::{PointQuery, PointQueryWithLocation};
 use parry3d_f64::shape::{TriMesh, TriMeshFlags};
+use rayon::prelude::*;
 
 use crate::error::{AnatomyError, Result};
 use crate::glam_conv::{to_glam, to_point};
@@ -87,6 +88,9 @@ pub enum Proximity {
 }
 
 const BLOCK: usize = 8;
+
+/// Most cells the default cell size allows near the wall (each a few µs to build).
+const CELL_BUDGET: f64 = 400_000.0;
 const NO_BLOCK: u32 = u32::MAX;
 
 #[derive(Debug, Clone, Copy, Default)]
@@ -278,7 +282,21 @@ impl Lumen {
                     })
                     .collect();
                 edges.sort_by(f64::total_cmp);
-                (0.25 * edges[edges.len() / 2]).clamp(1e-4, 2e-3)
+                // A quarter of the median edge, but no finer than keeps the cells within
+                // the band of the wall (about area · 2 · (band + a block) / cell³) under
+                // the budget: a finely meshed surface does not need a finer grid, only
+                // longer candidate lists.
+                let area = self.mesh.surface_area();
+                let mut by_budget = 1e-4_f64;
+                while by_budget < 2e-3
+                    && area * 2.0 * (band + BLOCK as f64 * by_budget) / by_budget.powi(3)
+                        > CELL_BUDGET
+                {
+                    by_budget *= 1.05;
+                }
+                (0.25 * edges[edges.len() / 2])
+                    .max(by_budget)
+                    .clamp(1e-4, 2e-3)
             }
         };
         let (lo, hi) = self.mesh.bounding_box();
@@ -321,64 +339,98 @@ impl Lumen {
             }
         }
         let per_block = BLOCK * BLOCK * BLOCK;
-        let mut cells = vec![CellEntry::default(); allocated as usize * per_block];
-        let mut candidates = Vec::new();
-        let mut candidate_bounds = Vec::new();
         let half_diagonal = 0.5 * cell * 3f64.sqrt();
-        for bk in 0..blocks[2] {
-            for bj in 0..blocks[1] {
-                for bi in 0..blocks[0] {
-                    let block = block_of[(bk * blocks[1] + bj) * blocks[0] + bi];
-                    if block == NO_BLOCK {
-                        continue;
-                    }
-                    for local in 0..per_block {
-                        let (i, j, k) = (
-                            local % BLOCK,
-                            (local / BLOCK) % BLOCK,
-                            local / (BLOCK * BLOCK),
-                        );
-                        let center = origin
-                            + Vector3::new(
-                                (bi * BLOCK + i) as f64 + 0.5,
-                                (bj * BLOCK + j) as f64 + 0.5,
-                                (bk * BLOCK + k) as f64 + 0.5,
-                            ) * cell;
-                        let exact = self.query_bvh(&center);
-                        let d = exact.signed_distance.abs();
-                        let entry = &mut cells[block as usize * per_block + local];
-                        // A lower bound on the wall distance anywhere in the cell, rounded down.
-                        entry.far_bound = (((d - half_diagonal).max(0.0) * (1.0 - 1e-6)) as f32)
-                            * if exact.inside() { -1.0 } else { 1.0 };
-                        if d > band {
-                            continue;
-                        }
-                        let reach = d + 2.0 * half_diagonal;
-                        let g = to_glam(&center);
-                        entry.start = candidates.len() as u32;
-                        // Nearest first, so that the query's plane test culls the rest early.
-                        let mut near: Vec<(f64, u32)> = self
-                            .trimesh
-                            .bvh()
-                            .leaves(|node| node.aabb().distance_to_local_point(g, true) <= reach)
-                            .filter_map(|leaf| {
-                                let [a, b, c] = self.corners[leaf as usize];
-                                let (q, _) = closest_on_triangle(&center, &a, &b, &c);
-                                let d = (center - q).norm();
-                                (d <= reach).then_some((d, leaf))
-                            })
-                            .collect();
-                        near.sort_by(|x, y| x.0.total_cmp(&y.0));
-                        candidates.extend(near.iter().map(|&(_, leaf)| leaf));
-                        // Rounded down, so that it stays a lower bound in f32.
-                        candidate_bounds.extend(
-                            near.iter().map(|&(d, _)| {
-                                ((d - half_diagonal).max(0.0) * (1.0 - 1e-6)) as f32
-                            }),
-                        );
-                        entry.count = candidates.len() as u32 - entry.start;
-                    }
+        // The allocated blocks in slot order, each built on its own (in parallel).
+        let mut slots = vec![0usize; allocated as usize];
+        for (linear, &slot) in block_of.iter().enumerate() {
+            if slot != NO_BLOCK {
+                slots[slot as usize] = linear;
+            }
+        }
+        // Blocks are built in parallel a chunk at a time and appended in slot order, so that
+        // only one chunk's lists are held twice and the lists grow to their exact size.
+        let build_block = |&linear: &usize| {
+            let (bi, bj, bk) = (
+                linear % blocks[0],
+                (linear / blocks[0]) % blocks[1],
+                linear / (blocks[0] * blocks[1]),
+            );
+            let mut cells = vec![CellEntry::default(); per_block];
+            let mut candidates = Vec::new();
+            let mut candidate_bounds = Vec::new();
+            for (local, entry) in cells.iter_mut().enumerate() {
+                let (i, j, k) = (
+                    local % BLOCK,
+                    (local / BLOCK) % BLOCK,
+                    local / (BLOCK * BLOCK),
+                );
+                let center = origin
+                    + Vector3::new(
+                        (bi * BLOCK + i) as f64 + 0.5,
+                        (bj * BLOCK + j) as f64 + 0.5,
+                        (bk * BLOCK + k) as f64 + 0.5,
+                    ) * cell;
+                let exact = self.query_bvh(&center);
+                let d = exact.signed_distance.abs();
+                // A lower bound on the wall distance anywhere in the cell, rounded down.
+                entry.far_bound = (((d - half_diagonal).max(0.0) * (1.0 - 1e-6)) as f32)
+                    * if exact.inside() { -1.0 } else { 1.0 };
+                if d > band {
+                    continue;
                 }
+                let reach = d + 2.0 * half_diagonal;
+                let g = to_glam(&center);
+                // Block-local start; made global when the blocks are joined.
+                entry.start = candidates.len() as u32;
+                // Nearest first, so that the query's plane test culls the rest early.
+                let mut near: Vec<(f64, u32)> = self
+                    .trimesh
+                    .bvh()
+                    .leaves(|node| node.aabb().distance_to_local_point(g, true) <= reach)
+                    .filter_map(|leaf| {
+                        let [a, b, c] = self.corners[leaf as usize];
+                        let (q, _) = closest_on_triangle(&center, &a, &b, &c);
+                        let d = (center - q).norm();
+                        (d <= reach).then_some((d, leaf))
+                    })
+                    .collect();
+                near.sort_by(|x, y| x.0.total_cmp(&y.0));
+                candidates.extend(near.iter().map(|&(_, leaf)| leaf));
+                // Rounded down, so that it stays a lower bound in f32.
+                candidate_bounds.extend(
+                    near.iter()
+                        .map(|&(d, _)| ((d - half_diagonal).max(0.0) * (1.0 - 1e-6)) as f32),
+                );
+                entry.count = candidates.len() as u32 - entry.start;
+            }
+            (cells, candidates, candidate_bounds)
+        };
+        let mut cells = Vec::with_capacity(allocated as usize * per_block);
+        let mut candidates: Vec<u32> = Vec::new();
+        let mut candidate_bounds: Vec<f32> = Vec::new();
+        for chunk in slots.chunks(64) {
+            let built: Vec<(Vec<CellEntry>, Vec<u32>, Vec<f32>)> =
+                chunk.par_iter().map(build_block).collect();
+            let more: usize = built.iter().map(|b| b.1.len()).sum();
+            candidates.reserve_exact(more);
+            candidate_bounds.reserve_exact(more);
+            for (block_cells, block_candidates, block_bounds) in built {
+                if candidates.len() + block_candidates.len() > u32::MAX as usize {
+                    return Err(AnatomyError::InvalidParameter {
+                        name: "cell_size",
+                        value: cell,
+                        requirement: "large enough that the grid holds at most 2^32 candidates",
+                    });
+                }
+                let offset = candidates.len() as u32;
+                cells.extend(block_cells.into_iter().map(|mut e| {
+                    if e.count > 0 {
+                        e.start += offset;
+                    }
+                    e
+                }));
+                candidates.extend(block_candidates);
+                candidate_bounds.extend(block_bounds);
             }
         }
         Ok(CellGrid {
@@ -406,6 +458,19 @@ impl Lumen {
         self.grid.block_of.len() * 4
             + self.grid.cells.len() * std::mem::size_of::<CellEntry>()
             + self.grid.candidates.len() * 8
+    }
+
+    /// The grid in words: cell size, cells, cells with candidates, candidates.
+    pub fn grid_summary(&self) -> String {
+        let listed = self.grid.cells.iter().filter(|c| c.count > 0).count();
+        format!(
+            "cell {:.3} mm, {} cells ({} with candidates), {} candidates ({:.1} per listed cell)",
+            1e3 / self.grid.inverse_cell,
+            self.grid.cells.len(),
+            listed,
+            self.grid.candidates.len(),
+            self.grid.candidates.len() as f64 / listed.max(1) as f64
+        )
     }
 
     /// Exact wall query for a point: the grid's candidate triangles near the wall, the BVH

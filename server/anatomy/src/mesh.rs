@@ -103,6 +103,35 @@ impl TriangleMesh {
         })
     }
 
+    /// The same surface with every triangle split into four at its edges' midpoints (the
+    /// shape is unchanged; for tests and benchmarks of finely meshed surfaces).
+    pub fn subdivided(&self) -> TriangleMesh {
+        let mut vertices = self.vertices.clone();
+        let mut midpoint: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut mid = |a: u32, b: u32, vertices: &mut Vec<Point3<f64>>| -> u32 {
+            *midpoint.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                vertices.push(Point3::from(
+                    (vertices[a as usize].coords + vertices[b as usize].coords) * 0.5,
+                ));
+                (vertices.len() - 1) as u32
+            })
+        };
+        let mut triangles = Vec::with_capacity(self.triangles.len() * 4);
+        for &[a, b, c] in &self.triangles {
+            let (ab, bc, ca) = (
+                mid(a, b, &mut vertices),
+                mid(b, c, &mut vertices),
+                mid(c, a, &mut vertices),
+            );
+            triangles.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+        }
+        TriangleMesh {
+            vertices,
+            triangles,
+            normals: Vec::new(),
+        }
+    }
+
     /// Edge, orientation, vertex-fan and component analysis.
     pub fn topology(&self) -> MeshTopology {
         // Undirected edge -> (uses, uses in the a<b direction).

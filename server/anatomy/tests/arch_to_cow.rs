@@ -104,3 +104,35 @@ proptest! {
         }
     }
 }
+
+/// The same surface meshed 16 times finer (57k triangles), built with the default grid:
+/// queries stay exact.
+fn fine_lumen() -> &'static cathlab_anatomy::Lumen {
+    static LUMEN: OnceLock<cathlab_anatomy::Lumen> = OnceLock::new();
+    LUMEN.get_or_init(|| {
+        let mesh = obj::load(&data_dir().join("vessels.obj"), LengthUnit::Mm)
+            .unwrap()
+            .subdivided()
+            .subdivided();
+        cathlab_anatomy::Lumen::new(mesh, "vessels.obj ×16").unwrap()
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(1000))]
+    #[test]
+    fn grid_queries_on_a_finely_meshed_surface_equal_bvh_queries(vertex in 0usize..28000, dx in -4e-3f64..4e-3, dy in -4e-3f64..4e-3, dz in -4e-3f64..4e-3) {
+        let lumen = fine_lumen();
+        let p = lumen.mesh().vertices[vertex % lumen.mesh().vertices.len()] + Vector3::new(dx, dy, dz);
+        let fast = lumen.query(&p);
+        let reference = lumen.query_bvh(&p);
+        prop_assert!((fast.signed_distance - reference.signed_distance).abs() < 1e-12);
+        match lumen.proximity(&p, 2e-3) {
+            Proximity::Near(q) => prop_assert!((q.signed_distance - reference.signed_distance).abs() < 1e-12),
+            Proximity::Far { inside } => {
+                prop_assert!(reference.signed_distance.abs() > 2e-3);
+                prop_assert_eq!(inside, reference.inside());
+            }
+        }
+    }
+}
