@@ -802,7 +802,11 @@ pub(crate) fn push_element_samples(
 ) {
     let count = (length_m / spacing_m).ceil().max(1.0) as usize;
     let last = if e + 1 == elements { count } else { count - 1 };
-    for j in 0..=last {
+    // The base node is driven (held by the sheath or the hand): no contact force can move
+    // it, so a contact there has no compliance and Gauss–Seidel cannot resolve it (it stalled
+    // every sweep where the entry touched a segmented lumen's end).
+    let first = usize::from(e == 0);
+    for j in first..=last {
         samples.push(Sample {
             element: e,
             t: j as f64 / count as f64,
