@@ -65,8 +65,10 @@ fn main() {
         let started = Instant::now();
         world.step().expect("step");
         times.push(started.elapsed().as_secs_f64() * 1e3);
-        if let (Some(c), Ok(dump)) = (world.strand().last_contacts(), std::env::var("CATHLAB_ILIAC_DUMP"))
-            && dump.parse::<usize>().ok() == Some(step)
+        if let (Some(c), Ok(dump)) = (
+            world.strand().last_contacts(),
+            std::env::var("CATHLAB_ILIAC_DUMP"),
+        ) && dump.parse::<usize>().ok() == Some(step)
         {
             for (contact, force) in c.contacts.iter().zip(&c.response.local) {
                 println!("  {contact:?} force {force:?}");
@@ -110,5 +112,8 @@ fn main() {
     );
     // Regression: a contact at the driven base node (the entry, touching the segmented
     // lumen's end) has no compliance; Gauss–Seidel ran out of sweeps on every step.
-    assert_eq!(unconverged, 0, "Gauss–Seidel did not converge on {unconverged} steps");
+    assert_eq!(
+        unconverged, 0,
+        "Gauss–Seidel did not converge on {unconverged} steps"
+    );
 }
