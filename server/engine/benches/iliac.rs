@@ -27,6 +27,9 @@ fn main() {
         .expect("segmented scene");
     let mut spec = SceneSpec::parse(&text, SceneFormat::Toml).expect("scene");
     spec.start.along_route_mm = 0.0; // the iliac end
+    if std::env::var("CATHLAB_ILIAC_NO_FLOW").is_ok() {
+        spec.flow = None;
+    }
     let assets = AssetCache::default().load(&spec, &scenes).expect("assets");
     let mut world = World::new(assets.clone()).expect("world");
     let mut pilot = Autopilot::new(
@@ -104,9 +107,10 @@ fn main() {
     );
     let n = times.len().max(1) as f64;
     println!(
-        "  per step: {:.1} contacts, {:.1} Gauss–Seidel sweeps; {:.0} % of steps unconverged, {:.0} % polished",
+        "  per step: {:.1} contacts, {:.1} Gauss–Seidel sweeps; {} steps ({:.2} %) ran out of sweeps with friction (normal forces finished with friction frozen), {:.0} % polished",
         contacts as f64 / n,
         sweeps as f64 / n,
+        unconverged,
         100.0 * unconverged as f64 / n,
         100.0 * polished as f64 / n
     );
