@@ -58,29 +58,6 @@ pub enum AnatomyError {
         /// The valid range, in words.
         requirement: &'static str,
     },
-    /// A volume file is malformed: a missing or bad header field, or too little data.
-    #[error("{file}: {reason}")]
-    BadVolume {
-        /// The file.
-        file: PathBuf,
-        /// What is wrong, e.g. `ElementSpacing: axis 1 is 0 (must be > 0)`.
-        reason: String,
-    },
-    /// A volume file uses a feature the readers do not support.
-    #[error("{file}: unsupported {what}")]
-    UnsupportedVolume {
-        /// The file.
-        file: PathBuf,
-        /// What, e.g. `ElementType MET_LONG`.
-        what: String,
-    },
-    /// A volume built in memory is inconsistent (zero size or spacing, wrong value count).
-    #[error("invalid volume: {0}")]
-    InvalidVolume(String),
-    /// Segmentation could not proceed: the seed is outside the volume or the lumen, nothing
-    /// was segmented, the skeleton is empty.
-    #[error("segmentation: {0}")]
-    Segmentation(String),
     /// A vessel graph is malformed (too few points, dangling junction, mismatched radii, ...).
     #[error("invalid vessel graph: {0}")]
     InvalidGraph(String),
