@@ -546,10 +546,7 @@ impl AssetCache {
                 let lumen = Lumen::with_grid_settings(
                     mesh,
                     "neuro phantom",
-                    cathlab_anatomy::lumen::GridSettings {
-                        cell_size: Some(1e-3),
-                        band: 3e-3,
-                    },
+                    cathlab_imaging::case::contact_grid(),
                 )?;
                 Anatomy { graph, lumen }
             }
@@ -605,10 +602,7 @@ impl AssetCache {
                 let lumen = Lumen::with_grid_settings(
                     result.surface,
                     &path.display().to_string(),
-                    cathlab_anatomy::lumen::GridSettings {
-                        cell_size: Some(1e-3),
-                        band: 3e-3,
-                    },
+                    cathlab_imaging::case::contact_grid(),
                 )?;
                 Anatomy {
                     graph: result.graph,

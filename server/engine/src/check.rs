@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::assets::AssetCache;
-use crate::error::{EngineError, Result};
-use crate::scene::SceneSpec;
+use crate::error::Result;
+use crate::scene::{SceneSpec, scene_files};
 use crate::world::World;
 
 /// One scene file's outcome.
@@ -61,15 +61,7 @@ fn check_one(file: &Path, roots: &[PathBuf]) -> Result<String> {
 /// Checks every `.toml` and `.json` scene in `dir` (sorted by name); `roots` confine the
 /// files they name (empty: [`default_roots`]).
 pub fn check_scenes(dir: &Path, roots: &[PathBuf]) -> Result<Vec<SceneCheck>> {
-    let entries = std::fs::read_dir(dir).map_err(|source| EngineError::Io {
-        file: dir.to_owned(),
-        source,
-    })?;
-    let mut files: Vec<PathBuf> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "toml" || e == "json"))
-        .collect();
-    files.sort();
+    let files = scene_files(dir)?;
     let roots = if roots.is_empty() {
         default_roots(dir)
     } else {

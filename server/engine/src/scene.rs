@@ -1189,20 +1189,25 @@ pub struct SceneCatalog {
     scenes: Vec<(SceneSpec, PathBuf)>,
 }
 
+/// The scene files of `dir`: its `.toml` and `.json` files, sorted by name.
+pub fn scene_files(dir: &Path) -> Result<Vec<PathBuf>> {
+    let entries = std::fs::read_dir(dir).map_err(|source| EngineError::Io {
+        file: dir.to_owned(),
+        source,
+    })?;
+    let mut files: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "toml" || e == "json"))
+        .collect();
+    files.sort();
+    Ok(files)
+}
+
 impl SceneCatalog {
     /// Reads every `.toml` and `.json` scene in `dir` (sorted by name); a scene that does not
     /// parse is an error naming its file.
     pub fn read_dir(dir: &Path) -> Result<Self> {
-        let entries = std::fs::read_dir(dir).map_err(|source| EngineError::Io {
-            file: dir.to_owned(),
-            source,
-        })?;
-        let mut files: Vec<PathBuf> = entries
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|e| e == "toml" || e == "json"))
-            .collect();
-        files.sort();
-        let scenes = files
+        let scenes = scene_files(dir)?
             .into_iter()
             .map(|f| SceneSpec::read(&f).map(|s| (s, f)))
             .collect::<Result<Vec<_>>>()?;

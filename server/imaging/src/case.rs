@@ -193,7 +193,6 @@ pub fn load_surface_case(case: &SurfaceCase) -> Result<SurfaceAnatomy> {
         }
         Some(path) => {
             let name = path.to_string_lossy().to_ascii_lowercase();
-            let graph_file = |graph: VesselGraph, lumen: Lumen| Anatomy { graph, lumen };
             if name.ends_with(".mrk.json") || name.ends_with(".vtp") {
                 let mut curves = if name.ends_with(".vtp") {
                     vtp::load(path, case.unit)?.lines
@@ -225,7 +224,10 @@ pub fn load_surface_case(case: &SurfaceCase) -> Result<SurfaceAnatomy> {
                 let access = inside_end(chosen?, &open_ends);
                 let assembled = assemble(mesh, curves, access, &shown)?;
                 let lumen = assembled.lumen.with_grid(contact_grid())?;
-                graph_file(assembled.graph, lumen)
+                Anatomy {
+                    graph: assembled.graph,
+                    lumen,
+                }
             } else {
                 let mut graph = if name.ends_with(".swc") {
                     let mut g = swc::load(path, case.unit)?;
@@ -249,7 +251,7 @@ pub fn load_surface_case(case: &SurfaceCase) -> Result<SurfaceAnatomy> {
                     graph.landmarks.insert("access".into(), access);
                 }
                 let lumen = Lumen::with_grid_settings(mesh, &shown, contact_grid())?;
-                graph_file(graph, lumen)
+                Anatomy { graph, lumen }
             }
         }
     };
@@ -349,15 +351,6 @@ pub fn branch_at_end(graph: &VesselGraph, p: &Point3<f64>) -> Option<String> {
         })
         .min_by(|a, b| a.1.total_cmp(&b.1))
         .map(|(name, _)| name)
-}
-
-/// The path a scene gives, resolved against its folder.
-pub fn resolve(base: &Path, path: &Path) -> PathBuf {
-    if path.is_absolute() {
-        path.to_owned()
-    } else {
-        base.join(path)
-    }
 }
 
 /// What `cathlab case` is asked to do besides reading its input.
