@@ -120,9 +120,16 @@ pub fn voxelize(lumen: &Lumen, h: f64) -> Result<ScalarVolume> {
 /// The exact wall of a surface as an image for cross-sections: 1 deeper than one ray step
 /// inside, 0 as far outside, linear between, so that a crossing interpolated between two
 /// samples is the wall itself.
-struct SurfaceWalls<'a> {
+pub struct SurfaceWalls<'a> {
     lumen: &'a Lumen,
     step: f64,
+}
+
+impl<'a> SurfaceWalls<'a> {
+    /// The walls of `lumen`, sampled every `step` (m) along a ray.
+    pub fn new(lumen: &'a Lumen, step: f64) -> Self {
+        Self { lumen, step }
+    }
 }
 
 impl Intensity for SurfaceWalls<'_> {
@@ -240,6 +247,8 @@ pub fn centerlines_from_surface(
             background_value: 0.0,
             point_spacing_m: h,
             refinement_passes: settings.refinement_passes,
+            // The surface is the wall itself: nothing blurred it.
+            correct_blur: false,
         },
     )?;
     Ok(SurfaceCenterlines {

@@ -1,6 +1,7 @@
 //! CTA segmentation against known truth and real data: synthetic CTs of a branching vessel
-//! phantom (partial volume, blur, noise) give centerlines within half a voxel, radii within
-//! 10 %, every branch and no spurs; the real aorta CT gives a plausible tree and a
+//! phantom (partial volume, blur, noise) at six contrast, noise and blur levels give
+//! centerlines within half a voxel, radii and lumen volume within 5 %, every branch and no
+//! spurs; the real aorta CT gives a plausible tree and a
 //! watertight surface; bad volumes and bad seeds give named errors; the CLI writes files
 //! that read back.
 
@@ -8,8 +9,8 @@ use std::path::{Path, PathBuf};
 
 use cathlab_anatomy::VesselGraph;
 use cathlab_anatomy::io::{LengthUnit, obj, stl, vtp};
-use cathlab_imaging::segment::phantom::{SyntheticCt, reference_tree, synthetic_cta};
-use cathlab_imaging::segment::{Seed, SegmentSettings, Segmentation, segment};
+use cathlab_imaging::segment::phantom::{SyntheticCt, occupancy, reference_tree, synthetic_cta};
+use cathlab_imaging::segment::{Seed, SegmentSettings, segment};
 use cathlab_imaging::{ImagingError, ScalarVolume};
 use nalgebra::{Point3, Vector3};
 
@@ -26,6 +27,7 @@ struct Accuracy {
     mean_distance_voxels: f64,
     max_distance_voxels: f64,
     mean_radius_error: f64,
+    mean_signed_radius_error: f64,
     worst_coverage: f64,
     longest_spurious_over_radius: f64,
 }
@@ -74,6 +76,7 @@ fn accuracy(truth: &VesselGraph, found: &VesselGraph) -> Accuracy {
     };
     let mut distances = Vec::new();
     let mut radius_errors = Vec::new();
+    let mut signed_radius_errors = Vec::new();
     // A found branch follows the truth if its median distance to it is below a voxel; any
     // other is spurious, measured by its length over its mean radius.
     let mut longest_spurious: f64 = 0.0;
@@ -85,6 +88,7 @@ fn accuracy(truth: &VesselGraph, found: &VesselGraph) -> Accuracy {
             own.push(d);
             if regular(p, rt) {
                 radius_errors.push((r - rt).abs() / rt);
+                signed_radius_errors.push((r - rt) / rt);
             }
         }
         own.sort_by(f64::total_cmp);
@@ -116,6 +120,8 @@ fn accuracy(truth: &VesselGraph, found: &VesselGraph) -> Accuracy {
         mean_distance_voxels: distances.iter().sum::<f64>() / distances.len() as f64,
         max_distance_voxels: distances.iter().cloned().fold(0.0, f64::max),
         mean_radius_error: radius_errors.iter().sum::<f64>() / radius_errors.len() as f64,
+        mean_signed_radius_error: signed_radius_errors.iter().sum::<f64>()
+            / signed_radius_errors.len() as f64,
         worst_coverage,
         longest_spurious_over_radius: longest_spurious,
     }
@@ -135,48 +141,103 @@ fn phantom_settings() -> SegmentSettings {
     }
 }
 
-fn check_phantom(look: SyntheticCt) -> Segmentation {
+/// Lumen volume (m³) inside the box of voxels `margin` voxels in from the phantom cube's
+/// faces (where every vessel is whole: the medial axis stops a radius short of a face): of
+/// the truth (the phantom's occupancy) and of a closed surface (its signed distance sampled
+/// at the same voxel centres, with the same one-voxel linear ramp).
+fn volumes_in_box(surface: &cathlab_anatomy::mesh::TriangleMesh, margin: usize) -> (f64, f64) {
+    use cathlab_anatomy::lumen::Proximity;
+    use rayon::prelude::*;
+    let truth_occupancy = occupancy(&truth(), Vector3::zeros(), [CUBE; 3], SPACING);
+    let lumen = cathlab_anatomy::Lumen::new(surface.clone(), "segmented").unwrap();
+    let voxel = SPACING.powi(3);
+    (margin..CUBE - margin)
+        .into_par_iter()
+        .map(|k| {
+            let mut sums = (0.0, 0.0);
+            for j in margin..CUBE - margin {
+                for i in margin..CUBE - margin {
+                    sums.0 += f64::from(truth_occupancy[i + CUBE * (j + CUBE * k)]) * voxel;
+                    let p = Point3::new(i as f64, j as f64, k as f64) * SPACING;
+                    let found = match lumen.proximity(&p, SPACING) {
+                        Proximity::Near(q) => (0.5 - q.signed_distance / SPACING).clamp(0.0, 1.0),
+                        Proximity::Far { inside } => f64::from(u8::from(inside)),
+                    };
+                    sums.1 += found * voxel;
+                }
+            }
+            sums
+        })
+        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
+}
+
+/// Segmentation size on the phantom at several contrast levels, blurs and noise levels: the
+/// mean radius error and the lumen volume (of the surface the scene uses, in the box where
+/// every vessel is whole) within 5 % of the truth; centerlines within half a voxel, every
+/// branch, no spurs. Without the blur correction the half-maximum radii are biased low at
+/// every level (the cause: the blurred wall's curvature, see `segment::blur`).
+#[test]
+fn segmentation_size_is_within_five_percent_at_every_contrast_level() {
     let truth = truth();
-    let ct = phantom_ct(&look);
     let seed = Seed::Position(Point3::new(31.5 * MM, 29.5 * MM, 8.0 * MM));
-    let s = segment(&ct, &seed, &phantom_settings()).unwrap();
-    let a = accuracy(&truth, &s.graph);
     println!(
-        "phantom (noise σ {} HU, blur σ {} voxel): {} branches; centerline distance mean {:.3} \
-         voxel (max {:.2}); radius error mean {:.1} %; worst branch coverage {:.1} %; longest \
-         spurious branch {:.2} radii; {:?}",
-        look.noise,
-        look.blur_voxels,
-        s.graph.branches.len(),
-        a.mean_distance_voxels,
-        a.max_distance_voxels,
-        a.mean_radius_error * 100.0,
-        a.worst_coverage * 100.0,
-        a.longest_spurious_over_radius,
-        s.report.stage_seconds
+        "| lumen − tissue (HU) | noise σ (HU) | blur σ (voxel) | radius bias, uncorrected | \
+         radius bias | mean radius error | lumen volume error | centerline distance, mean (max) |"
     );
-    assert!(a.mean_distance_voxels < 0.5, "mean centerline distance");
-    assert!(a.mean_radius_error < 0.10, "radius error");
-    assert!(a.worst_coverage > 0.95, "a branch was missed");
-    assert_eq!(s.graph.branches.len(), truth.branches.len(), "branch count");
-    assert!(a.longest_spurious_over_radius < 1.0, "a spurious branch");
-    assert!(s.report.surface_watertight);
-    s
-}
-
-#[test]
-fn a_noisy_blurred_phantom_is_recovered_within_half_a_voxel_and_ten_percent() {
-    check_phantom(SyntheticCt::default());
-}
-
-#[test]
-fn a_noisier_blurrier_phantom_is_recovered_too() {
-    check_phantom(SyntheticCt {
-        noise: 45.0,
-        blur_voxels: 1.0,
-        seed: 7,
-        ..SyntheticCt::default()
-    });
+    println!("|---|---|---|---|---|---|---|---|");
+    for (lumen, noise, blur, noise_seed) in [
+        (150.0, 20.0, 0.7, 1),
+        (250.0, 20.0, 0.7, 1),
+        (400.0, 20.0, 0.7, 1),
+        (700.0, 20.0, 0.7, 1),
+        (400.0, 45.0, 1.0, 7),
+        (250.0, 20.0, 1.5, 1),
+    ] {
+        let look = SyntheticCt {
+            lumen,
+            noise,
+            blur_voxels: blur,
+            seed: noise_seed,
+            ..SyntheticCt::default()
+        };
+        let ct = phantom_ct(&look);
+        let uncorrected = segment(
+            &ct,
+            &seed,
+            &SegmentSettings {
+                correct_blur: false,
+                ..phantom_settings()
+            },
+        )
+        .unwrap();
+        let bias_before = accuracy(&truth, &uncorrected.graph).mean_signed_radius_error;
+        let s = segment(&ct, &seed, &phantom_settings()).unwrap();
+        let a = accuracy(&truth, &s.graph);
+        let (truth_volume, found_volume) = volumes_in_box(&s.surface, 10);
+        let volume_error = (found_volume - truth_volume) / truth_volume;
+        println!(
+            "| {:.0} | {noise:.0} | {blur} | {:+.1} % | {:+.1} % | {:.1} % | {:+.1} % | {:.2} ({:.1}) voxel |",
+            lumen - look.tissue,
+            bias_before * 100.0,
+            a.mean_signed_radius_error * 100.0,
+            a.mean_radius_error * 100.0,
+            volume_error * 100.0,
+            a.mean_distance_voxels,
+            a.max_distance_voxels
+        );
+        let what = format!("lumen {lumen} HU, noise {noise} HU, blur {blur} voxel");
+        assert!(bias_before < -0.01, "{what}: no blur bias to correct?");
+        assert!(a.mean_radius_error < 0.05, "{what}: radius error");
+        assert!(volume_error.abs() < 0.05, "{what}: volume error");
+        assert!(a.mean_distance_voxels < 0.5, "{what}: centerline distance");
+        assert!(a.worst_coverage > 0.95, "{what}: a branch was missed");
+        assert_eq!(s.graph.branches.len(), truth.branches.len(), "{what}");
+        assert!(
+            a.longest_spurious_over_radius < 1.0,
+            "{what}: a spurious branch"
+        );
+        assert!(s.report.surface_watertight, "{what}");
+    }
 }
 
 fn aorta_path() -> PathBuf {
@@ -365,4 +426,108 @@ fn image_dimensions(path: &Path) -> (u32, u32) {
         u32::from_be_bytes(bytes[16..20].try_into().unwrap()),
         u32::from_be_bytes(bytes[20..24].try_into().unwrap()),
     )
+}
+
+/// The real aorta's radii against VMTK's own segmentation of the same CT
+/// (`data/ct/aorta-vmtk-surface.vtp`, a level-set surface from vmtk-test-data): the
+/// equal-area radius of the same cross-section cast in both, at every centerline point
+/// away from branch points and ends where VMTK's surface has a whole section.
+#[test]
+fn the_real_aorta_radii_match_vmtks_reference_segmentation() {
+    use cathlab_anatomy::capping::cap_open_ends;
+    use cathlab_imaging::segment::centerline::cross_section;
+    use cathlab_imaging::surface_centerlines::SurfaceWalls;
+    let reference = vtp::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/ct/aorta-vmtk-surface.vtp"),
+        LengthUnit::Mm,
+    )
+    .unwrap()
+    .surface
+    .unwrap();
+    // VMTK wrote it in RAS (x and y negated from the CT's LPS patient frame).
+    let mut reference = reference;
+    for v in &mut reference.vertices {
+        v.x = -v.x;
+        v.y = -v.y;
+    }
+    let (capped, ends) = cap_open_ends(&reference, "aorta-vmtk-surface.vtp").unwrap();
+    println!(
+        "reference: {} triangles, {} open ends",
+        reference.triangles.len(),
+        ends.len()
+    );
+    let lumen = cathlab_anatomy::Lumen::new(capped, "aorta-vmtk-surface.vtp").unwrap();
+    let walls = SurfaceWalls::new(&lumen, 0.05 * MM);
+    let ct = ScalarVolume::load(&aorta_path()).unwrap();
+    let mut medians = Vec::new();
+    for correct_blur in [false, true] {
+        let s = segment(
+            &ct,
+            &Seed::Voxel(AORTA_SEED_VOXEL),
+            &SegmentSettings {
+                correct_blur,
+                ..SegmentSettings::default()
+            },
+        )
+        .unwrap();
+        let g = &s.graph;
+        let degree = g.node_degrees();
+        let junctions: Vec<Point3<f64>> = (0..g.nodes.len())
+            .filter(|&n| degree[n] >= 3)
+            .map(|n| g.nodes[n])
+            .collect();
+        let mut diffs = Vec::new();
+        for b in &g.branches {
+            for k in 1..b.points.len() - 1 {
+                let p = b.points[k];
+                let r = b.radii[k];
+                if junctions
+                    .iter()
+                    .any(|j| (p - j).norm() < 2.0 * r + 2.0 * MM)
+                {
+                    continue;
+                }
+                if (p - b.points[0]).norm() < 2.0 * r
+                    || (p - b.points[b.points.len() - 1]).norm() < 2.0 * r
+                {
+                    continue;
+                }
+                let tangent = b.points[k + 1] - b.points[k - 1];
+                if let Some(sec) = cross_section(&walls, &p, &tangent, 0.0, 40.0 * MM)
+                    && sec.centre.is_some()
+                {
+                    diffs.push((r - sec.radius) / sec.radius);
+                }
+            }
+        }
+        assert!(
+            diffs.len() >= 30,
+            "only {} sections to compare",
+            diffs.len()
+        );
+        diffs.sort_by(f64::total_cmp);
+        let mean = diffs.iter().sum::<f64>() / diffs.len() as f64;
+        medians.push(diffs[diffs.len() / 2]);
+        println!(
+            "blur corrected: {correct_blur}: {} sections, radius − VMTK's: mean {:+.1} %, median \
+             {:+.1} %, quartiles {:+.1} / {:+.1} %",
+            diffs.len(),
+            mean * 100.0,
+            diffs[diffs.len() / 2] * 100.0,
+            diffs[diffs.len() / 4] * 100.0,
+            diffs[3 * diffs.len() / 4] * 100.0
+        );
+    }
+    // Our half-maximum wall agrees with VMTK's (a level set drawn to the image's edges,
+    // which the blur biases inwards alike); the blur correction widens ours by σ²/2R.
+    assert!(
+        medians[0].abs() < 0.05,
+        "uncorrected median {:+.3}",
+        medians[0]
+    );
+    assert!(
+        medians[1] > medians[0] && medians[1] < 0.10,
+        "corrected median {:+.3}",
+        medians[1]
+    );
 }

@@ -9,6 +9,7 @@ use std::collections::VecDeque;
 use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
 
+use super::blur::{self, BlurCorrection};
 use super::skeleton::{Adjacency, branches};
 use crate::error::{ImagingError, Result};
 use crate::volume::ScalarVolume;
@@ -28,6 +29,9 @@ pub struct CenterlineSettings {
     pub point_spacing_m: f64,
     /// Cross-section refinement passes.
     pub refinement_passes: usize,
+    /// Undo the blur's shrinking of half-maximum radii ([`BlurCorrection`]) with the
+    /// branch's median edge σ.
+    pub correct_blur: bool,
 }
 
 /// What cross-sections are cast in: an image, or the exact wall of a surface.
@@ -55,8 +59,13 @@ pub struct CrossSection {
     /// the lumen, so that the middle cannot be trusted.
     pub centre: Option<Point3<f64>>,
     /// Radius (m): of the circle with the section's area when every ray found the wall,
-    /// else the median wall distance of the rays that did.
+    /// else the median wall distance of the rays that did. The polygon of [`RAYS`] wall
+    /// points is scaled to the circle through them, so a round section gives its radius.
     pub radius: f64,
+    /// The median over the rays of the wall's blur σ (m), from how far the image falls
+    /// across the voxel either side of the wall ([`blur::edge_sigma`]); `None` where no ray
+    /// could tell (a wall sharper than the samples, or rays too short).
+    pub edge_sigma: Option<f64>,
 }
 
 /// Casts [`RAYS`] rays from `p` in the plane normal to `tangent` and finds where the image
@@ -104,6 +113,24 @@ pub fn cross_section(
     if found.len() * 4 < RAYS * 3 {
         return None;
     }
+    // How far the image falls across a voxel either side of each wall point, as a fraction
+    // of the contrast: the edge's blur.
+    let width = 4.0 * step;
+    let contrast = centre_value - background_value;
+    let mut sigmas: Vec<f64> = (0..RAYS)
+        .filter(|&r| lengths[r].is_finite() && lengths[r] > width)
+        .filter_map(|r| {
+            let angle = std::f64::consts::TAU * r as f64 / RAYS as f64;
+            let d = u * angle.cos() + v * angle.sin();
+            let inner = image.value(&(p + d * (lengths[r] - width)));
+            let outer = image.value(&(p + d * (lengths[r] + width)));
+            blur::edge_sigma((inner - outer) / contrast, width)
+        })
+        .collect();
+    let edge_sigma = (sigmas.len() * 2 >= RAYS).then(|| {
+        let mid = sigmas.len() / 2;
+        *sigmas.select_nth_unstable_by(mid, f64::total_cmp).1
+    });
     found.sort_by(f64::total_cmp);
     let median = found[found.len() / 2];
     let whole = found.len() == RAYS && found[RAYS - 1] < 1.5 * median;
@@ -111,6 +138,7 @@ pub fn cross_section(
         return Some(CrossSection {
             centre: None,
             radius: median,
+            edge_sigma,
         });
     }
     // The section is the polygon of the wall points, a fan of triangles around `p`: its
@@ -128,9 +156,12 @@ pub fn cross_section(
         area += a;
         moment += (wall(r) + wall(r + 1)) * (a / 3.0);
     }
+    // A regular polygon inscribed in a circle of radius R has area R²·n·sin(2π/n)/2.
+    let inscribed = RAYS as f64 * sector / std::f64::consts::TAU;
     Some(CrossSection {
         centre: Some(p + moment / area),
-        radius: (area / std::f64::consts::PI).sqrt(),
+        radius: (area / (std::f64::consts::PI * inscribed)).sqrt(),
+        edge_sigma,
     })
 }
 
@@ -207,6 +238,7 @@ pub fn vessel_graph(
     settings: &CenterlineSettings,
 ) -> Result<VesselGraph> {
     let voxel_branches = branches(adjacency);
+    let correction = BlurCorrection::new();
     if voxel_branches.iter().all(|b| b.voxels.len() < 2) {
         return Err(ImagingError::Segmentation(
             "the skeleton has no branch longer than a voxel".into(),
@@ -395,9 +427,56 @@ pub fn vessel_graph(
         let points: Vec<Point3<f64>> = points[first..last].to_vec();
         let sections: Vec<Option<CrossSection>> = sections[first..last].to_vec();
         let wall_distance: Vec<f64> = wall_distance[first..last].to_vec();
-        let raw_radii: Vec<f64> = (0..points.len())
-            .map(|i| sections[i].map_or((wall_distance[i] - 0.5 * h).max(0.5 * h), |s| s.radius))
+        // The branch's blur: the median of its sections' edge σ.
+        let mut sigmas: Vec<f64> = sections
+            .iter()
+            .flatten()
+            .filter_map(|s| s.edge_sigma)
             .collect();
+        let sigma = if settings.correct_blur && !sigmas.is_empty() {
+            let mid = sigmas.len() / 2;
+            *sigmas.select_nth_unstable_by(mid, f64::total_cmp).1
+        } else {
+            0.0
+        };
+        let mut raw_radii: Vec<f64> = (0..points.len())
+            .map(|i| {
+                sections[i].map_or((wall_distance[i] - 0.5 * h).max(0.5 * h), |s| {
+                    correction.true_radius(s.radius, sigma)
+                })
+            })
+            .collect();
+        // Where a section is not whole (its rays ran into a branch point, a neighbour, the
+        // volume's edge) or lies in a branch point's inscribed sphere, its radius measures
+        // more than this vessel: take it from the whole
+        // sections either side, linearly by arc position, or the nearest one at the ends.
+        // Within a branch point's inscribed sphere a section cuts the other vessels too.
+        let inside_junction = |i: usize| {
+            (!free_start && (points[i] - points[0]).norm() < wall_distance[0])
+                || (!free_end && {
+                    let l = points.len() - 1;
+                    (points[i] - points[l]).norm() < wall_distance[l]
+                })
+        };
+        let whole: Vec<usize> = (0..points.len())
+            .filter(|&i| sections[i].is_some_and(|s| s.centre.is_some()) && !inside_junction(i))
+            .collect();
+        if !whole.is_empty() {
+            let known = raw_radii.clone();
+            for (i, radius) in raw_radii.iter_mut().enumerate() {
+                let k = whole.partition_point(|&w| w < i);
+                *radius = match (k.checked_sub(1).map(|k| whole[k]), whole.get(k)) {
+                    (_, Some(&next)) if next == i => continue,
+                    (Some(before), Some(&after)) => {
+                        let t = (i - before) as f64 / (after - before) as f64;
+                        known[before] + t * (known[after] - known[before])
+                    }
+                    (Some(before), None) => known[before],
+                    (None, Some(&after)) => known[after],
+                    (None, None) => continue,
+                };
+            }
+        }
         let mut radii = median_filter(&raw_radii, 2);
         for _ in 0..2 {
             let copy = radii.clone();

@@ -5,6 +5,7 @@
 //! surface; exports to JSON, VTP, OBJ and STL. `cathlab segment` runs it from the command
 //! line.
 
+pub mod blur;
 pub mod centerline;
 pub mod edt;
 pub mod export;
@@ -59,7 +60,8 @@ pub struct SegmentSettings {
     pub local_window_m: f64,
     /// Where between the tissue (0) and the local lumen value (1) the automatic threshold is.
     pub local_fraction: f64,
-    /// The automatic threshold stays this many noise σ above the tissue value.
+    /// The automatic threshold stays this many noise σ (of the filtered image) above the
+    /// tissue value.
     pub floor_sigmas: f64,
     /// Skeleton growth and pruning.
     pub skeleton: SkeletonSettings,
@@ -67,6 +69,8 @@ pub struct SegmentSettings {
     pub point_spacing_m: Option<f64>,
     /// Cross-section refinement passes.
     pub refinement_passes: usize,
+    /// Undo the scanner's blur in the measured radii ([`blur::BlurCorrection`]).
+    pub correct_blur: bool,
     /// The lumen surface.
     pub surface: SurfaceSettings,
 }
@@ -87,6 +91,7 @@ impl Default for SegmentSettings {
             skeleton: SkeletonSettings::default(),
             point_spacing_m: None,
             refinement_passes: 2,
+            correct_blur: true,
             surface: SurfaceSettings {
                 cells_per_radius: 2.0,
                 min_cell: 2.5e-4,
@@ -313,7 +318,10 @@ pub fn segment(
     // is followed; never closer to the tissue than `floor_sigmas` noise σ.
     let mut threshold_range = [first, first];
     if settings.threshold.is_none() {
-        let floor = background_value + settings.floor_sigmas * noise;
+        // The threshold applies to the filtered image, whose noise is what a false lumen
+        // voxel must stand out of.
+        let filtered_noise = filter::noise_sigma(&filtered);
+        let floor = background_value + settings.floor_sigmas * filtered_noise;
         let threshold_map: Vec<f32> = if settings.local_window_m > 0.0 {
             let clipped: Vec<f32> = filtered
                 .values
@@ -381,6 +389,7 @@ pub fn segment(
             background_value,
             point_spacing_m: settings.point_spacing_m.unwrap_or(h),
             refinement_passes: settings.refinement_passes,
+            correct_blur: settings.correct_blur,
         },
     )?;
     stages.lap("centerlines");

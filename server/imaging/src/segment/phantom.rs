@@ -38,16 +38,18 @@ impl Default for SyntheticCt {
     }
 }
 
-/// Images `graph`'s lumen (round tubes along each branch, radius interpolated between the
-/// points, round caps at the ends) on an axis-aligned grid of `dims` voxels of `spacing_m`
-/// whose voxel (0, 0, 0) is at `origin_m`.
-pub fn synthetic_cta(
+/// The fraction of each voxel of `dims` voxels of `spacing_m` (voxel (0, 0, 0) at
+/// `origin_m`) that `graph`'s lumen occupies (round tubes along each branch, radius
+/// interpolated between the points, round caps at the ends), linear across one voxel at
+/// the wall: the phantom before blur and noise, and the truth its segmentation's volume is
+/// measured against (the sum times the voxel volume is the lumen volume in the grid's box,
+/// to second order in the spacing).
+pub fn occupancy(
     graph: &VesselGraph,
     origin_m: Vector3<f64>,
     dims: [usize; 3],
     spacing_m: f64,
-    look: &SyntheticCt,
-) -> Result<ScalarVolume> {
+) -> Vec<f32> {
     let (nx, ny, nz) = (dims[0], dims[1], dims[2]);
     let plane = nx * ny;
     let h = spacing_m;
@@ -93,14 +95,27 @@ pub fn synthetic_cta(
             }
         });
     // Occupancy of a voxel by the lumen, linear across one voxel at the wall.
-    let mut values: Vec<f32> = signed
+    signed
+        .par_iter_mut()
+        .for_each(|d| *d = (0.5 - f64::from(*d) / h).clamp(0.0, 1.0) as f32);
+    signed
+}
+
+/// Images `graph`'s lumen (round tubes along each branch, radius interpolated between the
+/// points, round caps at the ends) on an axis-aligned grid of `dims` voxels of `spacing_m`
+/// whose voxel (0, 0, 0) is at `origin_m`.
+pub fn synthetic_cta(
+    graph: &VesselGraph,
+    origin_m: Vector3<f64>,
+    dims: [usize; 3],
+    spacing_m: f64,
+    look: &SyntheticCt,
+) -> Result<ScalarVolume> {
+    let plane = dims[0] * dims[1];
+    let mut values: Vec<f32> = occupancy(graph, origin_m, dims, spacing_m)
         .par_iter()
-        .map(|&d| {
-            let occupancy = (0.5 - f64::from(d) / h).clamp(0.0, 1.0);
-            (look.tissue + (look.lumen - look.tissue) * occupancy) as f32
-        })
+        .map(|&o| (look.tissue + (look.lumen - look.tissue) * f64::from(o)) as f32)
         .collect();
-    drop(signed);
     gaussian_blur(&mut values, dims, [look.blur_voxels; 3]);
     if look.noise > 0.0 {
         values
