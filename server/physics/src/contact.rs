@@ -699,6 +699,10 @@ pub(crate) fn relax(
     project_on_cone(&(own + (updated - own) * omega), mu)
 }
 
+/// Sweeps between active-set solves of the normal forces when Gauss–Seidel is slow to
+/// converge (with [`ContactSettings::polish`]).
+pub const POLISH_EVERY: usize = 25;
+
 /// Solves the contact problem by Gauss–Seidel over the contacts in order along the device,
 /// with O(M + N) work per sweep. `free` is the free increment of every unknown node (from the
 /// step's linear solve); `warm_start` (local forces per contact) speeds up repeated solves.
@@ -816,6 +820,23 @@ pub fn gauss_seidel(
         if sweep == budget && !with_friction {
             break;
         }
+        if settings.polish && !frozen && (sweep % POLISH_EVERY == 0 || sweep == budget) {
+            // Slow: contacts a fraction of a millimetre apart on a stiff wire are nearly
+            // redundant, and Gauss–Seidel passes the load between them for hundreds of
+            // sweeps. The active-set solve sets the normal forces exactly for the current
+            // friction; the sweeps go on from there for the friction. After the last sweep
+            // of the budget it is the answer (friction held), instead of a frozen phase.
+            if polish_normals(flexibility, &prepared, &mut local) {
+                loads.iter_mut().for_each(|l| l.fill(0.0));
+                accumulate_loads(&prepared, &local, &mut loads);
+                anderson = Anderson::new(settings.acceleration_depth, 3 * contacts.len());
+                if sweep == budget {
+                    response.polished = true;
+                    break;
+                }
+                continue;
+            }
+        }
         if let Some(before) = before
             && anderson.mix(&before, &mut local)
         {
@@ -826,7 +847,7 @@ pub fn gauss_seidel(
             accumulate_loads(&prepared, &local, &mut loads);
         }
     }
-    if !response.converged && settings.polish {
+    if !response.converged && !response.polished && settings.polish {
         // Gauss–Seidel ran out of sweeps: solve the normal forces of the active set directly.
         if polish_normals(flexibility, &prepared, &mut local) {
             loads.iter_mut().for_each(|l| l.fill(0.0));
