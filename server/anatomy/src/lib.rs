@@ -8,6 +8,7 @@
 pub mod capping;
 pub mod centerline;
 pub mod components;
+pub mod decimate;
 pub mod error;
 pub mod glam_conv;
 pub mod graph;

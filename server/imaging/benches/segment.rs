@@ -58,7 +58,7 @@ fn run(case: &str) {
     let r = &result.report;
     println!(
         "segment/{case}: {}×{}×{} voxels, {:.2} s, peak resident {:.0} MiB (input loaded: {:.0} MiB); \
-         {} branches, {:.0} mm, {} surface triangles; stages: {}",
+         {} branches, {:.0} mm, {} surface triangles (decimated from {}); stages: {}",
         volume.dims[0],
         volume.dims[1],
         volume.dims[2],
@@ -68,6 +68,7 @@ fn run(case: &str) {
         r.branches,
         r.total_length_mm,
         r.surface_triangles,
+        r.polygonised_triangles,
         r.stages_text()
     );
 }

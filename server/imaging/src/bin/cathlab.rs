@@ -294,8 +294,9 @@ fn run_segment(
         r.radius_mm[1]
     );
     println!(
-        "surface {} triangles, watertight {}; stages {}",
+        "surface {} triangles (decimated from {}), watertight {}; stages {}",
         r.surface_triangles,
+        r.polygonised_triangles,
         r.surface_watertight,
         r.stages_text()
     );

@@ -22,6 +22,7 @@ use serde::Serialize;
 
 use crate::error::{ImagingError, Result};
 use crate::volume::ScalarVolume;
+use cathlab_anatomy::decimate::decimate;
 use cathlab_anatomy::graph::VesselGraph;
 use cathlab_anatomy::mesh::TriangleMesh;
 use cathlab_anatomy::surface::{SurfaceSettings, lumen_surface};
@@ -73,6 +74,9 @@ pub struct SegmentSettings {
     pub correct_blur: bool,
     /// The lumen surface.
     pub surface: SurfaceSettings,
+    /// The surface is decimated to stay within this distance of the polygonised one (m);
+    /// `None` keeps every triangle.
+    pub decimate_tolerance_m: Option<f64>,
 }
 
 impl Default for SegmentSettings {
@@ -98,6 +102,7 @@ impl Default for SegmentSettings {
                 max_cell: 2e-3,
                 ..SurfaceSettings::default()
             },
+            decimate_tolerance_m: Some(0.1e-3),
         }
     }
 }
@@ -135,6 +140,8 @@ pub struct SegmentationReport {
     pub surface_vertices: usize,
     /// Lumen surface triangles.
     pub surface_triangles: usize,
+    /// Triangles of the polygonised surface before decimation.
+    pub polygonised_triangles: usize,
     /// Whether the surface is a closed, oriented 2-manifold.
     pub surface_watertight: bool,
     /// Wall-clock seconds per stage, in order.
@@ -394,8 +401,14 @@ pub fn segment(
     )?;
     stages.lap("centerlines");
     let surface = lumen_surface(&graph, &settings.surface)?;
-    let topology = surface.topology();
+    let polygonised_triangles = surface.triangles.len();
     stages.lap("surface");
+    let surface = match settings.decimate_tolerance_m {
+        Some(tolerance) => decimate(&surface, tolerance).0,
+        None => surface,
+    };
+    let topology = surface.topology();
+    stages.lap("decimation");
 
     let degree = graph.node_degrees();
     let mut radii: Vec<f32> = graph
@@ -425,6 +438,7 @@ pub fn segment(
         ],
         surface_vertices: surface.vertices.len(),
         surface_triangles: surface.triangles.len(),
+        polygonised_triangles,
         surface_watertight: topology.is_closed_oriented_manifold(),
         stage_seconds: stages.0,
     };
