@@ -13,7 +13,6 @@ use std::time::Instant;
 
 use cathlab_engine::*;
 use cathlab_physics::autopilot::{Autopilot, AutopilotPhase, AutopilotSettings};
-use cathlab_physics::{Insertion, Twist};
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]
@@ -58,14 +57,7 @@ fn main() {
             reached = Some(step);
             break;
         }
-        let push = match command.insertion {
-            Insertion::Velocity(v) => Command::PushVelocity(v),
-            Insertion::Target(x) => Command::PushTarget(x),
-        };
-        let twist = match command.twist {
-            Twist::Rate(w) => Command::TwistRate(w),
-            Twist::Target(a) => Command::TwistTarget(a),
-        };
+        let [push, twist] = Command::from_operator(&command);
         world.apply(seq, &push).expect("push");
         world.apply(seq + 1, &twist).expect("twist");
         seq += 2;

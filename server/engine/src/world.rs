@@ -91,6 +91,23 @@ pub enum Command {
     Reset,
 }
 
+impl Command {
+    /// The push and the twist of an operator's command (the autopilot's, a scripted one's),
+    /// as the two commands a hand receives.
+    pub fn from_operator(command: &cathlab_physics::Command) -> [Command; 2] {
+        [
+            match command.insertion {
+                Insertion::Velocity(v) => Command::PushVelocity(v),
+                Insertion::Target(x) => Command::PushTarget(x),
+            },
+            match command.twist {
+                Twist::Rate(w) => Command::TwistRate(w),
+                Twist::Target(a) => Command::TwistTarget(a),
+            },
+        ]
+    }
+}
+
 /// What one hand does to its instrument, in SI units.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -1106,14 +1123,7 @@ impl World {
             if pilot.phase() == AutopilotPhase::Reached {
                 return Ok(Some(self.step_index()));
             }
-            let push = match command.insertion {
-                Insertion::Velocity(v) => Command::PushVelocity(v),
-                Insertion::Target(x) => Command::PushTarget(x),
-            };
-            let twist = match command.twist {
-                Twist::Rate(w) => Command::TwistRate(w),
-                Twist::Target(a) => Command::TwistTarget(a),
-            };
+            let [push, twist] = Command::from_operator(&command);
             self.apply(seq, &push)?;
             self.apply(seq + 1, &twist)?;
             seq += 2;
