@@ -1,7 +1,8 @@
 //! Steady Poiseuille flow on a network: nodal analysis (Kirchhoff's current law with R = 8ηL/πr⁴
 //! per vessel), one sparse Cholesky factorization per network, cheap re-solves, catheter
-//! narrowings as a low-rank (Woodbury) update of that factorization, and a catheter-tip
-//! injection as an exact point source of volume inside a vessel.
+//! narrowings as a low-rank (Woodbury) update of that factorization, clots as porous plugs
+//! in the factorized matrix, and a catheter-tip injection as an exact point source of volume
+//! inside a vessel.
 
 use faer::prelude::Solve;
 use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
@@ -9,8 +10,9 @@ use faer::sparse::{SparseColMat, Triplet};
 use faer::{MatMut, Side};
 use nalgebra::{DMatrix, DVector};
 
+use crate::clot::Occlusion;
 use crate::error::{HemoError, Result, require_finite, require_non_negative, require_positive};
-use crate::network::{FlowNetwork, InletCondition};
+use crate::network::{FlowNetwork, InletCondition, Vessel};
 
 /// A catheter lying in part of a vessel: the lumen there is an annulus, which raises the
 /// vessel's resistance.
@@ -102,12 +104,15 @@ pub struct FlowSolver {
     unknown: Vec<Option<usize>>,
     /// Prescribed pressure of each node, where there is one (Pa).
     prescribed: Vec<Option<f64>>,
-    /// Open-lumen conductance of each vessel (m³/(Pa·s)).
+    /// Conductance of each vessel in the factorized matrix: the open lumen with its clots
+    /// (m³/(Pa·s)).
     base_conductance: Vec<f64>,
     /// Conductance with the current narrowings.
     conductance: Vec<f64>,
     /// Narrowings per vessel.
     narrowings: Vec<Vec<Narrowing>>,
+    /// Clots per vessel.
+    occlusions: Vec<Vec<Occlusion>>,
     llt: Llt<usize, f64>,
     unknown_count: usize,
     woodbury: Option<Woodbury>,
@@ -197,6 +202,7 @@ impl FlowSolver {
             outlet_at,
             tree_order,
             narrowings: vec![Vec::new(); network.vessels.len()],
+            occlusions: vec![Vec::new(); network.vessels.len()],
             conductance: base_conductance.clone(),
             network,
             unknown,
@@ -243,10 +249,57 @@ impl FlowSolver {
             per_vessel[n.vessel].push(*n);
         }
         self.narrowings = per_vessel;
+        self.apply_narrowings()
+    }
+
+    /// Replaces the clots (an empty slice removes them all). Clots change the factorized
+    /// matrix itself (they are placed and removed rarely, and a low-rank update of a vessel
+    /// losing nearly all its conductance would cancel digits): the network is refactorized,
+    /// then the narrowings are applied on top.
+    pub fn set_occlusions(&mut self, occlusions: &[Occlusion]) -> Result<()> {
+        let mut per_vessel = vec![Vec::new(); self.network.vessels.len()];
+        for o in occlusions {
+            let vessel = self.network.vessel_at(o.vessel)?;
+            o.validate(&vessel.name, vessel.length())?;
+            per_vessel[o.vessel].push(*o);
+        }
+        let eta = self.network.blood.viscosity;
+        let base: Vec<f64> = self
+            .network
+            .vessels
+            .iter()
+            .zip(&per_vessel)
+            .map(|(v, clots)| 1.0 / part_resistance(v, eta, &[], clots, 0.0, v.length()))
+            .collect();
+        self.llt = factorize(&self.network, &self.unknown, self.unknown_count, &base)?;
+        self.base_conductance = base;
+        self.occlusions = per_vessel;
+        self.apply_narrowings()
+    }
+
+    /// The clots in place, per vessel.
+    pub fn occlusions(&self) -> impl Iterator<Item = &Occlusion> {
+        self.occlusions.iter().flatten()
+    }
+
+    /// Conductances with the narrowings and clots, and the low-rank update for the vessels
+    /// whose conductance differs from the factorized one.
+    fn apply_narrowings(&mut self) -> Result<()> {
         let eta = self.network.blood.viscosity;
         let mut changed = Vec::new();
         for (i, v) in self.network.vessels.iter().enumerate() {
-            let r = part_resistance(v, eta, &self.narrowings[i], 0.0, v.length());
+            if self.narrowings[i].is_empty() {
+                self.conductance[i] = self.base_conductance[i];
+                continue;
+            }
+            let r = part_resistance(
+                v,
+                eta,
+                &self.narrowings[i],
+                &self.occlusions[i],
+                0.0,
+                v.length(),
+            );
             self.conductance[i] = 1.0 / r;
             if self.conductance[i] != self.base_conductance[i] {
                 changed.push(i);
@@ -478,18 +531,22 @@ impl FlowSolver {
         }
         let eta = self.network.blood.viscosity;
         let narrowings = &self.narrowings[inj.vessel];
-        let r1 = part_resistance(vessel, eta, narrowings, 0.0, inj.arc);
-        let r2 = part_resistance(vessel, eta, narrowings, inj.arc, length);
+        let clots = &self.occlusions[inj.vessel];
+        let r1 = part_resistance(vessel, eta, narrowings, clots, 0.0, inj.arc);
+        let r2 = part_resistance(vessel, eta, narrowings, clots, inj.arc, length);
         require_positive(|| "vessel resistance (Pa·s/m³)".into(), r1 + r2)?;
         Ok((*inj, r1, r2))
     }
 }
 
-/// Resistance of `[a, b]` of a vessel with its narrowings (Pa·s/m³).
+/// Resistance of `[a, b]` of a vessel with its narrowings and clots (Pa·s/m³). A clot's
+/// stretch is its Darcy resistance instead of the open lumen's (a catheter through a clot
+/// adds its narrowing on top, negligible beside the clot).
 fn part_resistance(
-    vessel: &crate::network::Vessel,
+    vessel: &Vessel,
     viscosity: f64,
     narrowings: &[Narrowing],
+    clots: &[Occlusion],
     a: f64,
     b: f64,
 ) -> f64 {
@@ -498,6 +555,13 @@ fn part_resistance(
         let (lo, hi) = (n.from_arc.max(a), n.to_arc.min(b));
         if hi > lo {
             r += vessel.annular_resistance_between(viscosity, lo, hi, n.catheter_radius)
+                - vessel.resistance_between(viscosity, lo, hi);
+        }
+    }
+    for c in clots {
+        let (lo, hi) = (c.from_arc.max(a), c.to_arc.min(b));
+        if hi > lo {
+            r += vessel.darcy_resistance_between(viscosity, c.permeability_m2, lo, hi)
                 - vessel.resistance_between(viscosity, lo, hi);
         }
     }

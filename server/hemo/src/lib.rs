@@ -6,6 +6,8 @@
 //! Units: SI (m, Pa, s, m³/s, Pa·s/m³); iodine concentration in mg/mL (= kg/m³), iodine mass
 //! in kg. [`network::MMHG`] and [`network::ML_PER_S`] convert clinical units.
 
+pub mod clot;
+pub mod collaterals;
 pub mod contrast;
 pub mod error;
 pub mod flow;
@@ -14,6 +16,8 @@ pub mod network;
 pub mod openbf;
 pub mod scenarios;
 
+pub use clot::{ClotComposition, Occlusion};
+pub use collaterals::{CollateralStatus, with_pial_collaterals};
 pub use contrast::{Contrast, ContrastSegment, ContrastSettings, Limiter};
 pub use error::{HemoError, Result};
 pub use flow::{FlowSolution, FlowSolver, Injection, Narrowing, VesselFlow};

@@ -151,6 +151,22 @@ impl Vessel {
         })
     }
 
+    /// Darcy resistance of a porous plug (a clot) of hydraulic permeability `permeability`
+    /// (m²) filling the lumen between arc lengths `a` and `b` (Pa·s/m³):
+    /// `η/(π k) ∫ ds / r(s)²`, exact for the piecewise-linear radius.
+    pub fn darcy_resistance_between(
+        &self,
+        viscosity: f64,
+        permeability: f64,
+        a: f64,
+        b: f64,
+    ) -> f64 {
+        self.integrate_pieces(a, b, |r0, r1, len| {
+            // ∫ ds / r² over a linear taper = len / (r0 r1).
+            viscosity / (std::f64::consts::PI * permeability) * len / (r0 * r1)
+        })
+    }
+
     /// Resistance between `a` and `b` (Pa·s/m³) with a catheter of radius `catheter_radius` (m)
     /// lying concentrically in the lumen: the annular Poiseuille law
     /// `Q = π ΔP r⁴ (1 − κ⁴ − (1 − κ²)² / ln(1/κ)) / (8 η L)`, κ = r_c / r, integrated along the
