@@ -8,8 +8,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use cathlab_anatomy::real::{Anatomy, load_arch_to_cow};
-use cathlab_anatomy::{Lumen, VesselPath};
-use cathlab_hemo::{FlowNetwork, GraphFlowSettings, InletCondition, MMHG, network_from_graph};
+use cathlab_anatomy::{Lumen, VesselGraph, VesselPath};
+use cathlab_hemo::{
+    ClotComposition, FlowNetwork, GraphFlowSettings, InletCondition, MMHG, Occlusion,
+    network_from_graph,
+};
 use cathlab_physics::autopilot::{Autopilot, AutopilotSettings};
 use cathlab_physics::{Device, Wall, WallProbe, presets};
 use cathlab_xray::phantom::BodyPhantom;
@@ -65,6 +68,8 @@ pub struct SceneAssets {
     pub carm: CArm,
     /// The flow network (vessel i = graph branch i), when the scene has flow.
     pub network: Option<FlowNetwork>,
+    /// The scene's clots, checked against the graph (vessel i = graph branch i).
+    pub clots: Vec<Occlusion>,
 }
 
 /// Spacing of the route samples (m).
@@ -784,6 +789,7 @@ impl AssetCache {
                 Some(network_from_graph(graph, &settings).map_err(|e| scene_error("flow", e))?)
             }
         };
+        let clots = scene_clots(spec, graph)?;
         let route_samples: Vec<Point3<f64>> = graph
             .sample_path(&route, ROUTE_SPACING_M)
             .into_iter()
@@ -820,6 +826,7 @@ impl AssetCache {
             goal_along_m,
             carm,
             network,
+            clots,
         };
         // The scripted operator's plan (its exchange's branch on the route, its device) is
         // checked now, not when someone first runs it.
@@ -859,4 +866,61 @@ fn metaimage_data_file(header: &Path) -> Option<String> {
         (key.trim() == "ElementDataFile" && value.trim() != "LOCAL")
             .then(|| value.trim().to_owned())
     })
+}
+
+/// The scene's clots as occlusions of the flow network's vessels (branch i = vessel i), each
+/// checked: a known branch, a stretch inside it, a red-cell fraction in [0, 1], and a scene
+/// with flow.
+fn scene_clots(spec: &SceneSpec, graph: &VesselGraph) -> Result<Vec<Occlusion>> {
+    spec.clots
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let field = |name: &str| format!("clots[{i}].{name}");
+            if spec.flow.is_none() {
+                return Err(scene_error(
+                    &field("branch"),
+                    "a clot needs the scene's [flow] (it acts on the blood flow)",
+                ));
+            }
+            let vessel = graph
+                .branch_id(&c.branch)
+                .map_err(|e| scene_error(&field("branch"), e))?;
+            let length = graph.branches[vessel].length();
+            let composition = ClotComposition {
+                red_cell_fraction: c.red_cell_fraction,
+            };
+            composition
+                .validate()
+                .map_err(|e| scene_error(&field("red_cell_fraction"), e))?;
+            let (from, to) = (c.from_mm * 1e-3, (c.from_mm + c.length_mm) * 1e-3);
+            if !(c.from_mm.is_finite() && from >= 0.0 && from < length) {
+                return Err(scene_error(
+                    &field("from_mm"),
+                    format!(
+                        "{} mm is not within the branch's {:.1} mm",
+                        c.from_mm,
+                        length * 1e3
+                    ),
+                ));
+            }
+            if !(c.length_mm.is_finite() && c.length_mm > 0.0 && to <= length) {
+                return Err(scene_error(
+                    &field("length_mm"),
+                    format!(
+                        "{} mm from {} mm does not fit in the branch's {:.1} mm",
+                        c.length_mm,
+                        c.from_mm,
+                        length * 1e3
+                    ),
+                ));
+            }
+            Ok(Occlusion {
+                vessel,
+                from_arc: from,
+                to_arc: to,
+                permeability_m2: composition.permeability_m2(),
+            })
+        })
+        .collect()
 }

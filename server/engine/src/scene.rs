@@ -47,6 +47,9 @@ pub struct SceneSpec {
     /// Blood flow and contrast; a scene without it runs no flow solver and refuses injections.
     #[serde(default)]
     pub flow: Option<FlowSpec>,
+    /// Clots occluding vessels (they need `flow`).
+    #[serde(default)]
+    pub clots: Vec<ClotSpec>,
     /// The target the trainee steers to.
     pub target: TargetSpec,
     /// Accuracy against cost.
@@ -614,6 +617,25 @@ pub struct FlowSpec {
     /// Iodine concentration of the contrast agent (mg/mL).
     #[serde(default = "default_agent")]
     pub agent_mg_per_ml: f64,
+}
+
+/// A clot in a vessel: where, how long, and what it is made of.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClotSpec {
+    /// The branch it sits in.
+    pub branch: String,
+    /// Where it starts, along the branch from its start (mm).
+    pub from_mm: f64,
+    /// Its length (mm); stroke clots are 5–15 mm.
+    pub length_mm: f64,
+    /// Fraction of red cells, 0 (fibrin/platelet-rich) to 1 (red-cell-rich).
+    #[serde(default = "default_red_cells")]
+    pub red_cell_fraction: f64,
+}
+
+fn default_red_cells() -> f64 {
+    0.5
 }
 
 fn default_pressure() -> f64 {

@@ -497,7 +497,8 @@ impl World {
         let hemo = match &assets.network {
             None => None,
             Some(network) => {
-                let solver = FlowSolver::new(network.clone())?;
+                let mut solver = FlowSolver::new(network.clone())?;
+                solver.set_occlusions(&assets.clots)?;
                 let mut contrast = Contrast::new(
                     network,
                     ContrastSettings {
@@ -1073,6 +1074,25 @@ impl World {
             }
         }
         Ok(())
+    }
+
+    /// Replaces the clots in the flow (vessel i = graph branch i; an empty slice reopens
+    /// every vessel) and re-solves the flow that carries the contrast.
+    pub fn set_clots(&mut self, clots: &[cathlab_hemo::Occlusion]) -> Result<()> {
+        let Some(hemo) = &mut self.hemo else {
+            return Err(EngineError::FailedPrecondition(
+                "the scene has no flow for clots to act on".into(),
+            ));
+        };
+        hemo.solver.set_occlusions(clots)?;
+        self.update_injection()
+    }
+
+    /// The clots in the flow now.
+    pub fn clots(&self) -> Vec<cathlab_hemo::Occlusion> {
+        self.hemo
+            .as_ref()
+            .map_or_else(Vec::new, |h| h.solver.occlusions().copied().collect())
     }
 
     fn update_injection(&mut self) -> Result<()> {

@@ -1,0 +1,177 @@
+//! A clot in a scene: the neuro phantom's left M1 occluded, contrast injected from the guide
+//! in the ICA. On the rendered image the M1 beyond the clot stays as dark as without contrast
+//! while the vessel before it fills as it does without the clot; once the clot is removed,
+//! contrast reaches beyond it. Bad clots name their field.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+
+use cathlab_engine::imaging::{carm_of, expose_snapshot_with};
+use cathlab_engine::*;
+use nalgebra::Point3;
+
+fn scenes() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes")
+}
+
+fn scene(clot: &str) -> String {
+    std::fs::read_to_string(scenes().join("neuro_phantom_m1.toml")).unwrap() + clot
+}
+
+const CLOT: &str = "
+[[clots]]
+branch = \"left_middle_cerebral\"
+from_mm = 4.0
+length_mm = 8.0
+red_cell_fraction = 0.5
+";
+
+/// One cache for the file: the scenes share their anatomy and CT.
+fn cache() -> &'static AssetCache {
+    static CACHE: OnceLock<AssetCache> = OnceLock::new();
+    CACHE.get_or_init(AssetCache::default)
+}
+
+fn assets(text: &str) -> Arc<SceneAssets> {
+    let spec = SceneSpec::parse(text, SceneFormat::Toml).unwrap();
+    cache().load(&spec, &scenes()).unwrap()
+}
+
+/// Injects 6 mL at 4 mL/s and runs `steps`; returns the world.
+fn inject_and_run(world: &mut World, first_seq: u64, steps: usize) {
+    world
+        .apply(
+            first_seq,
+            &Command::Inject {
+                volume_ml: 6.0,
+                rate_ml_s: 4.0,
+            },
+        )
+        .unwrap();
+    for _ in 0..steps {
+        world.step().unwrap();
+    }
+}
+
+/// The world's image (no detector noise) and the mean value (line integral) over the M1
+/// between each span's ends (mm along it).
+fn along_m1(world: &World, spans: &[(f64, f64)]) -> Vec<f64> {
+    let a = world.assets();
+    let snapshot = world.snapshot();
+    let frame = expose_snapshot_with(a, &snapshot, false).unwrap();
+    let carm = carm_of(a, &snapshot);
+    let graph = &a.anatomy.graph;
+    let m1 = &graph.branches[graph.branch_id("left_middle_cerebral").unwrap()];
+    spans
+        .iter()
+        .map(|&(from_mm, to_mm)| {
+            let mut sum = 0.0;
+            let mut count = 0;
+            let mut at = from_mm;
+            while at <= to_mm {
+                let p = Point3::from(a.to_lps * m1.point_at(at * 1e-3).coords);
+                let pixel = carm.project(&p).unwrap();
+                let (u, v) = (pixel.x.round() as usize, pixel.y.round() as usize);
+                let value = frame.values[u + frame.width as usize * v];
+                if value.is_finite() {
+                    sum += f64::from(value);
+                    count += 1;
+                }
+                at += 0.5;
+            }
+            assert!(count > 5, "the M1 is not in the field");
+            sum / count as f64
+        })
+        .collect()
+}
+
+#[test]
+fn a_clot_in_the_m1_keeps_contrast_beyond_it_off_the_image_until_it_is_removed() {
+    let unclotted = assets(&scene(""));
+    let clotted = assets(&scene(CLOT));
+    assert_eq!(clotted.clots.len(), 1);
+    let length_mm = {
+        let g = &clotted.anatomy.graph;
+        g.branches[g.branch_id("left_middle_cerebral").unwrap()].length() * 1e3
+    };
+    let steps = 600; // 1.2 s at 500 Hz
+    let mut bare = World::new(unclotted.clone()).unwrap();
+    for _ in 0..steps {
+        bare.step().unwrap();
+    }
+    let mut filled = World::new(unclotted).unwrap();
+    inject_and_run(&mut filled, 1, steps);
+    let mut blocked = World::new(clotted).unwrap();
+    inject_and_run(&mut blocked, 1, steps);
+    let spans = [(0.5, 3.5), (14.0, length_mm - 2.0)];
+    let baseline = along_m1(&bare, &spans);
+    let contrast = |w: &World| -> Vec<f64> {
+        along_m1(w, &spans)
+            .iter()
+            .zip(&baseline)
+            .map(|(a, b)| a - b)
+            .collect()
+    };
+    let (open, blocked_now) = (contrast(&filled), contrast(&blocked));
+    let (open_before, open_beyond) = (open[0], open[1]);
+    let (blocked_before, blocked_beyond) = (blocked_now[0], blocked_now[1]);
+    println!(
+        "contrast on the image (line integral over no injection): before the clot {open_before:.4} \
+         open / {blocked_before:.4} clotted; beyond it {open_beyond:.4} open / {blocked_beyond:.4} clotted"
+    );
+    assert!(open_before > 0.0 && open_beyond > 0.0, "the open M1 fills");
+    assert!(
+        blocked_before > 0.5 * open_before,
+        "the M1 before the clot fills"
+    );
+    assert!(
+        blocked_beyond.abs() < 0.02 * open_beyond,
+        "contrast got past the clot"
+    );
+    // Removed (as by a successful retrieval): the next injection fills the M1 beyond.
+    blocked.set_clots(&[]).unwrap();
+    assert!(blocked.clots().is_empty());
+    inject_and_run(&mut blocked, 10, steps);
+    let reopened = contrast(&blocked)[1];
+    println!("beyond the clot after its removal: {reopened:.4}");
+    assert!(reopened > 0.5 * open_beyond, "no reperfusion after removal");
+}
+
+#[test]
+fn bad_clots_name_their_field() {
+    let cases = [
+        (
+            CLOT.replace("left_middle_cerebral", "nowhere"),
+            "clots[0].branch",
+        ),
+        (
+            CLOT.replace("from_mm = 4.0", "from_mm = -1.0"),
+            "clots[0].from_mm",
+        ),
+        (
+            CLOT.replace("length_mm = 8.0", "length_mm = 900.0"),
+            "clots[0].length_mm",
+        ),
+        (
+            CLOT.replace("length_mm = 8.0", "length_mm = 0.0"),
+            "clots[0].length_mm",
+        ),
+        (
+            CLOT.replace("red_cell_fraction = 0.5", "red_cell_fraction = 2.0"),
+            "clots[0].red_cell_fraction",
+        ),
+    ];
+    for (clot, field) in cases {
+        let spec = SceneSpec::parse(&scene(&clot), SceneFormat::Toml).unwrap();
+        let e = cache().load(&spec, &scenes()).unwrap_err().to_string();
+        assert!(e.contains(field), "{field}: {e}");
+    }
+    // A clot without flow.
+    let text = scene(CLOT);
+    let start = text.find("[flow]").unwrap();
+    let end = start + text[start..].find("\n\n").unwrap();
+    let no_flow = format!("{}{}", &text[..start], &text[end..]);
+    let spec = SceneSpec::parse(&no_flow, SceneFormat::Toml).unwrap();
+    let e = cache().load(&spec, &scenes()).unwrap_err().to_string();
+    assert!(e.contains("clots[0].branch") && e.contains("[flow]"), "{e}");
+}
