@@ -50,6 +50,18 @@ pub struct Metrics {
     /// led (the catheter overtaking the wire's tip: the wire no longer guides it, a classic
     /// error).
     pub passed_inner_tip: u32,
+    /// The reperfusion of the territory the scene's clots cut off, from the flow solution
+    /// (none in a scene without clots).
+    pub reperfusion: Option<ReperfusionMetric>,
+}
+
+/// How much of an occluded territory the flow reaches again.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ReperfusionMetric {
+    /// Reperfused fraction of the territory (0–1), weighted by the outlets' open flows.
+    pub fraction: f64,
+    /// Its expanded TICI grade.
+    pub etici: cathlab_hemo::reperfusion::Etici,
 }
 
 /// Most instruments metrics are kept for (a stack's most).

@@ -5,7 +5,8 @@
 
 use std::sync::Arc;
 
-use cathlab_hemo::{Contrast, ContrastSettings, FlowSolver, Injection};
+use cathlab_hemo::reperfusion::{occluded_territory, reperfusion};
+use cathlab_hemo::{Contrast, ContrastSettings, FlowSolution, FlowSolver, Injection};
 use cathlab_physics::{Effort, Insertion, Navigation, NavigationSettings, Refinement, Twist};
 use cathlab_xray::{ContrastTube, DeviceAppearance, PulseRate};
 use nalgebra::{Point3, Vector3};
@@ -13,7 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::assets::{SceneAssets, SharedWall};
 use crate::error::{EngineError, Result};
-use crate::metrics::{Event, EventKind, Metrics};
+use crate::metrics::{Event, EventKind, Metrics, ReperfusionMetric};
 use crate::strand::{HandReaction, Strand};
 
 /// A trainee's or bridge's command, in SI units, as recorded.
@@ -327,6 +328,11 @@ struct Hemo {
     program: (f64, f64),
     /// When the injector linked to the current DSA run fires (procedure time, s).
     linked_at_s: Option<f64>,
+    /// The flow with every vessel open and no injection: what reperfusion is measured
+    /// against.
+    open_flow: FlowSolution,
+    /// The outlets the clots cut off (empty without clots).
+    territory: Vec<usize>,
 }
 
 /// The power injector's program before any injection: 6 mL at 4 mL/s, a selective
@@ -498,7 +504,9 @@ impl World {
             None => None,
             Some(network) => {
                 let mut solver = FlowSolver::new(network.clone())?;
+                let open_flow = solver.solve(None)?;
                 solver.set_occlusions(&assets.clots)?;
+                let territory = occluded_territory(&open_flow, &solver.solve(None)?)?;
                 let mut contrast = Contrast::new(
                     network,
                     ContrastSettings {
@@ -521,6 +529,8 @@ impl World {
                     active: false,
                     program: DEFAULT_INJECTOR_PROGRAM,
                     linked_at_s: None,
+                    open_flow,
+                    territory,
                 })
             }
         };
@@ -535,7 +545,7 @@ impl World {
         let tip = tracked_tip(&assets, &strand);
         let target_remaining_m = assets.remaining_to_target_m(&Point3::from(tip));
         let hands = start_hands(&assets, 0);
-        Ok(Self {
+        let mut world = Self {
             imaging: Imaging {
                 pedal: false,
                 pulse_rate,
@@ -562,7 +572,9 @@ impl World {
             fidelity: 0,
             previous_instruments: Vec::new(),
             exchanging: None,
-        })
+        };
+        world.update_reperfusion()?;
+        Ok(world)
     }
 
     /// The scene.
@@ -1085,7 +1097,36 @@ impl World {
             ));
         };
         hemo.solver.set_occlusions(clots)?;
+        let now = hemo.solver.solve(None)?;
+        if !clots.is_empty() {
+            // New clots cut off their own territory; removing them keeps the old one, whose
+            // reperfusion is then measured.
+            let cut = occluded_territory(&hemo.open_flow, &now)?;
+            if !cut.is_empty() {
+                hemo.territory = cut;
+            }
+        }
+        self.update_reperfusion()?;
         self.update_injection()
+    }
+
+    /// Grades the reperfusion of the clots' territory from the flow without injection, into
+    /// the metrics (none while no clot has cut anything off).
+    fn update_reperfusion(&mut self) -> Result<()> {
+        let Some(hemo) = &self.hemo else {
+            return Ok(());
+        };
+        self.metrics.reperfusion = if hemo.territory.is_empty() {
+            None
+        } else {
+            let now = hemo.solver.solve(None)?;
+            let r = reperfusion(&hemo.open_flow, &now, &hemo.territory)?;
+            Some(ReperfusionMetric {
+                fraction: r.fraction,
+                etici: r.grade,
+            })
+        };
+        Ok(())
     }
 
     /// The clots in the flow now.

@@ -1,7 +1,8 @@
 //! A clot in a scene: the neuro phantom's left M1 occluded, contrast injected from the guide
 //! in the ICA. On the rendered image the M1 beyond the clot stays as dark as without contrast
 //! while the vessel before it fills as it does without the clot; once the clot is removed,
-//! contrast reaches beyond it. Bad clots name their field.
+//! contrast reaches beyond it, and the session's metrics grade the reperfusion from eTICI 0
+//! to 3. Bad clots name their field.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
@@ -102,6 +103,15 @@ fn a_clot_in_the_m1_keeps_contrast_beyond_it_off_the_image_until_it_is_removed()
     let mut filled = World::new(unclotted).unwrap();
     inject_and_run(&mut filled, 1, steps);
     let mut blocked = World::new(clotted).unwrap();
+    let at_start = blocked.metrics().reperfusion.unwrap();
+    assert_eq!(at_start.etici.label(), "0", "{at_start:?}");
+    assert!(
+        World::new(assets(&scene("")))
+            .unwrap()
+            .metrics()
+            .reperfusion
+            .is_none()
+    );
     inject_and_run(&mut blocked, 1, steps);
     let spans = [(0.5, 3.5), (14.0, length_mm - 2.0)];
     let baseline = along_m1(&bare, &spans);
@@ -131,6 +141,9 @@ fn a_clot_in_the_m1_keeps_contrast_beyond_it_off_the_image_until_it_is_removed()
     // Removed (as by a successful retrieval): the next injection fills the M1 beyond.
     blocked.set_clots(&[]).unwrap();
     assert!(blocked.clots().is_empty());
+    let after = blocked.metrics().reperfusion.unwrap();
+    println!("reperfusion: at the start {at_start:?}, after removal {after:?}");
+    assert_eq!(after.etici.label(), "3", "{after:?}");
     inject_and_run(&mut blocked, 10, steps);
     let reopened = contrast(&blocked)[1];
     println!("beyond the clot after its removal: {reopened:.4}");

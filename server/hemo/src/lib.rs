@@ -14,6 +14,7 @@ pub mod flow;
 pub mod graph;
 pub mod network;
 pub mod openbf;
+pub mod reperfusion;
 pub mod scenarios;
 
 pub use clot::{ClotComposition, Occlusion};

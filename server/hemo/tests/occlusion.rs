@@ -274,6 +274,60 @@ fn collaterals_feed_the_occluded_territory_at_their_calibrated_share() {
     assert!(unknown.to_string().contains("no such vessel"), "{unknown}");
 }
 
+/// The reperfusion grade of the left M1's territory as the clot lets more through (a sweep
+/// of its permeability, as a stent's channel or a partial retrieval would): the territory is
+/// the left MCA's outlet alone, the fraction is its flow over the open flow, and the grade
+/// climbs through the eTICI bands from 0 to 3.
+#[test]
+fn reperfusion_climbs_through_the_etici_grades_as_the_clot_opens() {
+    use cathlab_hemo::reperfusion::{occluded_territory, reperfusion};
+    let network = circle_of_willis();
+    let mut solver = FlowSolver::new(network.clone()).unwrap();
+    let open = solver.solve(None).unwrap();
+    let m1 = network.vessel_id("23-L-MCA").unwrap();
+    let outlet = network
+        .outlets
+        .iter()
+        .position(|o| o.node == network.vessels[m1].to)
+        .unwrap();
+    let length = network.vessels[m1].length();
+    let clot = |k: f64| Occlusion {
+        vessel: m1,
+        from_arc: 0.3 * length,
+        to_arc: 0.3 * length + 0.010,
+        permeability_m2: k,
+    };
+    solver.set_occlusions(&[clot(1e-15)]).unwrap();
+    let territory = occluded_territory(&open, &solver.solve(None).unwrap()).unwrap();
+    assert_eq!(territory, vec![outlet]);
+    let mut grades = Vec::new();
+    for step in 0..=40 {
+        let k = 1e-15 * 10f64.powf(step as f64 * 0.25);
+        solver.set_occlusions(&[clot(k)]).unwrap();
+        let now = solver.solve(None).unwrap();
+        let r = reperfusion(&open, &now, &territory).unwrap();
+        let ratio = now.outlet_flows[outlet] / open.outlet_flows[outlet];
+        assert!(
+            (r.fraction - ratio.min(1.0)).abs() < 1e-12,
+            "{} vs {ratio}",
+            r.fraction
+        );
+        grades.push(r.grade);
+    }
+    assert!(grades.windows(2).all(|w| w[0] <= w[1]), "{grades:?}");
+    let mut distinct = grades.clone();
+    distinct.dedup();
+    println!(
+        "grades over the sweep: {:?}",
+        distinct.iter().map(|g| g.label()).collect::<Vec<_>>()
+    );
+    assert!(distinct.len() >= 5, "{distinct:?}");
+    assert_eq!(grades[0].label(), "0");
+    solver.set_occlusions(&[]).unwrap();
+    let back = reperfusion(&open, &solver.solve(None).unwrap(), &territory).unwrap();
+    assert_eq!(back.grade.label(), "3");
+}
+
 #[test]
 fn bad_clots_are_named_errors() {
     let network = circle_of_willis();
