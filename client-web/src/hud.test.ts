@@ -67,6 +67,11 @@ describe("HUD", () => {
     m.divergenceResets = 1;
     expect(resetsLine(m)).toBe("2 (+1 after divergence)");
   });
+  it("grades the reperfusion only in a scene with clots", () => {
+    expect(Object.keys(Object.fromEntries(metricRows(create(MetricsSchema, {}))))).not.toContain("eTICI");
+    const clotted = create(MetricsSchema, { reperfusion: { fraction: 0.7, etici: "2b67" } });
+    expect(Object.fromEntries(metricRows(clotted))).toMatchObject({ eTICI: "2b67 (70 %)" });
+  });
   it("shows fluoroscopy time, contrast and when the target was reached", () => {
     const metrics = create(MetricsSchema, {
       fluoroscopyTimeS: 75.2,

@@ -89,7 +89,15 @@ export function metricRows(m: Metrics | undefined): [string, string][] {
         : `${(m?.targetRemainingMm ?? 0).toFixed(0)} mm to go`,
     ],
     ["Resets", resetsLine(m)],
+    ...reperfusionRows(m),
   ];
+}
+
+/** The reperfusion row, in a scene with clots: the eTICI grade and the reperfused share of
+ *  the occluded territory. */
+export function reperfusionRows(m: Metrics | undefined): [string, string][] {
+  const r = m?.reperfusion;
+  return r ? [["eTICI", `${r.etici} (${Math.round(r.fraction * 100)} %)`]] : [];
 }
 
 

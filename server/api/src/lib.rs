@@ -389,6 +389,10 @@ pub fn metrics_to_wire(m: &Metrics) -> pb::Metrics {
         leading_instrument: u32::from(m.leading_instrument),
         lead_changes: m.lead_changes,
         passed_inner_tip: m.passed_inner_tip,
+        reperfusion: m.reperfusion.map(|r| pb::Reperfusion {
+            fraction: r.fraction,
+            etici: r.etici.label().into(),
+        }),
     }
 }
 
@@ -430,6 +434,18 @@ pub fn mode_to_wire(mode: cathlab_xray::ImagingMode) -> pb::ImagingMode {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn reperfusion_goes_on_the_wire_with_its_grade_as_written() {
+        let mut m = Metrics::default();
+        assert!(metrics_to_wire(&m).reperfusion.is_none());
+        m.reperfusion = Some(cathlab_engine::metrics::ReperfusionMetric {
+            fraction: 0.7,
+            etici: cathlab_engine::metrics::Etici::of_fraction(0.7),
+        });
+        let wire = metrics_to_wire(&m).reperfusion.unwrap();
+        assert_eq!((wire.fraction, wire.etici.as_str()), (0.7, "2b67"));
+    }
 
     fn push(v: f64) -> pb::Command {
         pb::Command {

@@ -3,6 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use cathlab_hemo::reperfusion::Etici;
+
 /// Per-session training metrics (SI units unless the name says otherwise).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct Metrics {
@@ -61,7 +63,7 @@ pub struct ReperfusionMetric {
     /// Reperfused fraction of the territory (0–1), weighted by the outlets' open flows.
     pub fraction: f64,
     /// Its expanded TICI grade.
-    pub etici: cathlab_hemo::reperfusion::Etici,
+    pub etici: Etici,
 }
 
 /// Most instruments metrics are kept for (a stack's most).
