@@ -1,11 +1,40 @@
 //! Reference scenarios shared by tests, benchmarks and charts: the bundled circle-of-Willis
-//! network, and a bolus advected down a straight tube, compared with the exact (shifted)
+//! network, a series chain of uniform vessels, and a bolus advected down a straight tube, compared with the exact (shifted)
 //! profile.
 
 use crate::contrast::{Contrast, ContrastSettings, Limiter};
 use crate::error::Result;
 use crate::flow::FlowSolver;
 use crate::network::{Blood, FlowNetwork, Inlet, InletCondition, Outlet, Vessel};
+
+/// A chain of uniform vessels `(length m, radius m)` from node 0 (inlet at `inlet_pa`) to
+/// the last node, which drains through `terminal` (Pa·s/m³) into `outlet_pa`; default blood.
+pub fn series_chain(
+    specs: &[(f64, f64)],
+    terminal: f64,
+    inlet_pa: f64,
+    outlet_pa: f64,
+) -> Result<FlowNetwork> {
+    let vessels: Vec<Vessel> = specs
+        .iter()
+        .enumerate()
+        .map(|(i, &(l, r))| Vessel::uniform(format!("v{i}"), i, i + 1, l, r))
+        .collect();
+    FlowNetwork::new(
+        specs.len() + 1,
+        vessels,
+        Inlet {
+            node: 0,
+            condition: InletCondition::Pressure(inlet_pa),
+        },
+        vec![Outlet {
+            node: specs.len(),
+            resistance: terminal,
+            pressure: outlet_pa,
+        }],
+        Blood::default(),
+    )
+}
 
 /// The bundled real circle-of-Willis network (`data/flow/circle_of_willis.yaml`, openBF) at
 /// 100 mmHg inlet pressure and 0 mmHg venous pressure.

@@ -42,28 +42,9 @@ fn circle_of_willis() -> FlowNetwork {
 #[test]
 fn series_chain_matches_the_sum_of_resistances() {
     let specs = [(0.05, 3e-3), (0.02, 1.5e-3), (0.08, 2.2e-3)];
-    let vessels: Vec<Vessel> = specs
-        .iter()
-        .enumerate()
-        .map(|(i, &(l, r))| Vessel::uniform(format!("v{i}"), i, i + 1, l, r))
-        .collect();
     let terminal = 3.0e9;
     let (p_in, p_out) = (100.0 * MMHG, 5.0 * MMHG);
-    let network = FlowNetwork::new(
-        4,
-        vessels,
-        Inlet {
-            node: 0,
-            condition: InletCondition::Pressure(p_in),
-        },
-        vec![Outlet {
-            node: 3,
-            resistance: terminal,
-            pressure: p_out,
-        }],
-        blood(),
-    )
-    .unwrap();
+    let network = cathlab_hemo::scenarios::series_chain(&specs, terminal, p_in, p_out).unwrap();
     let solution = FlowSolver::new(network).unwrap().solve(None).unwrap();
     let resistances: Vec<f64> = specs.iter().map(|&(l, r)| poiseuille(l, r)).collect();
     let q = (p_in - p_out) / (resistances.iter().sum::<f64>() + terminal);

@@ -5,8 +5,8 @@
 //! flow bring it past the clot; bad clots and collaterals are named errors.
 
 use cathlab_hemo::{
-    Blood, ClotComposition, CollateralStatus, FlowNetwork, FlowSolver, HemoError, Inlet,
-    InletCondition, ML_PER_MIN, MMHG, Narrowing, Occlusion, Outlet, Vessel, with_pial_collaterals,
+    ClotComposition, CollateralStatus, FlowNetwork, FlowSolver, HemoError, ML_PER_MIN, MMHG,
+    Narrowing, Occlusion, with_pial_collaterals,
 };
 
 const ETA: f64 = 4.0e-3;
@@ -18,28 +18,9 @@ fn relative(a: f64, b: f64) -> f64 {
 #[test]
 fn a_clot_in_a_series_chain_adds_its_darcy_resistance() {
     let specs = [(0.05, 3e-3), (0.02, 1.5e-3), (0.08, 2.2e-3)];
-    let vessels: Vec<Vessel> = specs
-        .iter()
-        .enumerate()
-        .map(|(i, &(l, r))| Vessel::uniform(format!("v{i}"), i, i + 1, l, r))
-        .collect();
     let terminal = 3.0e9;
     let (p_in, p_out) = (100.0 * MMHG, 5.0 * MMHG);
-    let network = FlowNetwork::new(
-        4,
-        vessels,
-        Inlet {
-            node: 0,
-            condition: InletCondition::Pressure(p_in),
-        },
-        vec![Outlet {
-            node: 3,
-            resistance: terminal,
-            pressure: p_out,
-        }],
-        Blood::default(),
-    )
-    .unwrap();
+    let network = cathlab_hemo::scenarios::series_chain(&specs, terminal, p_in, p_out).unwrap();
     let mut solver = FlowSolver::new(network).unwrap();
     let k = 1e-14;
     solver
