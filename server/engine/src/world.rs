@@ -500,13 +500,20 @@ impl World {
     /// The scene's start: its first device inserted, pedal up, the scene's C-arm pose.
     pub fn new(assets: Arc<SceneAssets>) -> Result<Self> {
         let strand = Strand::start(&assets, 0)?;
+        let mut reperfusion = None;
         let hemo = match &assets.network {
             None => None,
             Some(network) => {
                 let mut solver = FlowSolver::new(network.clone())?;
                 let open_flow = solver.solve(None)?;
-                solver.set_occlusions(&assets.clots)?;
-                let territory = occluded_territory(&open_flow, &solver.solve(None)?)?;
+                let (flow, territory) = if assets.clots.is_empty() {
+                    (open_flow.clone(), Vec::new())
+                } else {
+                    solver.set_occlusions(&assets.clots)?;
+                    let flow = solver.solve(None)?;
+                    let territory = occluded_territory(&open_flow, &flow)?;
+                    (flow, territory)
+                };
                 let mut contrast = Contrast::new(
                     network,
                     ContrastSettings {
@@ -514,7 +521,8 @@ impl World {
                         ..ContrastSettings::default()
                     },
                 )?;
-                contrast.set_flow(network, &solver.solve(None)?)?;
+                contrast.set_flow(network, &flow)?;
+                reperfusion = reperfusion_metric(&open_flow, &flow, &territory)?;
                 Some(Hemo {
                     solver,
                     contrast,
@@ -545,7 +553,7 @@ impl World {
         let tip = tracked_tip(&assets, &strand);
         let target_remaining_m = assets.remaining_to_target_m(&Point3::from(tip));
         let hands = start_hands(&assets, 0);
-        let mut world = Self {
+        Ok(Self {
             imaging: Imaging {
                 pedal: false,
                 pulse_rate,
@@ -562,6 +570,7 @@ impl World {
             hemo,
             metrics: Metrics {
                 target_remaining_m,
+                reperfusion,
                 ..Metrics::default()
             },
             step: 0,
@@ -572,9 +581,7 @@ impl World {
             fidelity: 0,
             previous_instruments: Vec::new(),
             exchanging: None,
-        };
-        world.update_reperfusion()?;
-        Ok(world)
+        })
     }
 
     /// The scene.
@@ -1106,27 +1113,8 @@ impl World {
                 hemo.territory = cut;
             }
         }
-        self.update_reperfusion()?;
+        self.metrics.reperfusion = reperfusion_metric(&hemo.open_flow, &now, &hemo.territory)?;
         self.update_injection()
-    }
-
-    /// Grades the reperfusion of the clots' territory from the flow without injection, into
-    /// the metrics (none while no clot has cut anything off).
-    fn update_reperfusion(&mut self) -> Result<()> {
-        let Some(hemo) = &self.hemo else {
-            return Ok(());
-        };
-        self.metrics.reperfusion = if hemo.territory.is_empty() {
-            None
-        } else {
-            let now = hemo.solver.solve(None)?;
-            let r = reperfusion(&hemo.open_flow, &now, &hemo.territory)?;
-            Some(ReperfusionMetric {
-                fraction: r.fraction,
-                etici: r.grade,
-            })
-        };
-        Ok(())
     }
 
     /// The clots in the flow now.
@@ -1627,6 +1615,23 @@ fn tracked_tip(assets: &SceneAssets, strand: &Strand) -> Vector3<f64> {
 /// Where contrast leaves the devices: the tip of the innermost instrument with a lumen that is
 /// beyond the entry (contrast goes in at its hub, around any wire inside), else the leading
 /// tip (anatomy frame, m).
+/// The reperfusion of `territory` in the flow `now` (no injection) against `open`, for the
+/// metrics; none while no clot has cut anything off.
+fn reperfusion_metric(
+    open: &FlowSolution,
+    now: &FlowSolution,
+    territory: &[usize],
+) -> Result<Option<ReperfusionMetric>> {
+    if territory.is_empty() {
+        return Ok(None);
+    }
+    let r = reperfusion(open, now, territory)?;
+    Ok(Some(ReperfusionMetric {
+        fraction: r.fraction,
+        etici: r.grade,
+    }))
+}
+
 fn injection_tip(strand: &Strand) -> Vector3<f64> {
     (0..strand.len())
         .rev()
