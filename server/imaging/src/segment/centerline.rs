@@ -127,10 +127,11 @@ pub fn cross_section(
             blur::edge_sigma((inner - outer) / contrast, width)
         })
         .collect();
-    let edge_sigma = (sigmas.len() * 2 >= RAYS).then(|| {
-        let mid = sigmas.len() / 2;
-        *sigmas.select_nth_unstable_by(mid, f64::total_cmp).1
-    });
+    let edge_sigma = if sigmas.len() * 2 >= RAYS {
+        middle(&mut sigmas)
+    } else {
+        None
+    };
     found.sort_by(f64::total_cmp);
     let median = found[found.len() / 2];
     let whole = found.len() == RAYS && found[RAYS - 1] < 1.5 * median;
@@ -163,6 +164,15 @@ pub fn cross_section(
         radius: (area / (std::f64::consts::PI * inscribed)).sqrt(),
         edge_sigma,
     })
+}
+
+/// The median (upper middle) of `values`, reordering them; `None` when empty.
+fn middle(values: &mut [f64]) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    let mid = values.len() / 2;
+    Some(*values.select_nth_unstable_by(mid, f64::total_cmp).1)
 }
 
 fn tangents(points: &[Point3<f64>]) -> Vec<Vector3<f64>> {
@@ -238,7 +248,7 @@ pub fn vessel_graph(
     settings: &CenterlineSettings,
 ) -> Result<VesselGraph> {
     let voxel_branches = branches(adjacency);
-    let correction = BlurCorrection::new();
+    let correction = settings.correct_blur.then(BlurCorrection::new);
     if voxel_branches.iter().all(|b| b.voxels.len() < 2) {
         return Err(ImagingError::Segmentation(
             "the skeleton has no branch longer than a voxel".into(),
@@ -433,24 +443,21 @@ pub fn vessel_graph(
             .flatten()
             .filter_map(|s| s.edge_sigma)
             .collect();
-        let sigma = if settings.correct_blur && !sigmas.is_empty() {
-            let mid = sigmas.len() / 2;
-            *sigmas.select_nth_unstable_by(mid, f64::total_cmp).1
-        } else {
-            0.0
-        };
+        let sigma = middle(&mut sigmas).unwrap_or(0.0);
         let mut raw_radii: Vec<f64> = (0..points.len())
             .map(|i| {
                 sections[i].map_or((wall_distance[i] - 0.5 * h).max(0.5 * h), |s| {
-                    correction.true_radius(s.radius, sigma)
+                    correction
+                        .as_ref()
+                        .map_or(s.radius, |c| c.true_radius(s.radius, sigma))
                 })
             })
             .collect();
         // Where a section is not whole (its rays ran into a branch point, a neighbour, the
-        // volume's edge) or lies in a branch point's inscribed sphere, its radius measures
-        // more than this vessel: take it from the whole
-        // sections either side, linearly by arc position, or the nearest one at the ends.
-        // Within a branch point's inscribed sphere a section cuts the other vessels too.
+        // volume's edge) or lies in a branch point's inscribed sphere (where it cuts the
+        // other vessels too), its radius measures more than this vessel: take it from the
+        // whole sections either side, linearly by arc position, or the nearest one at the
+        // ends.
         let inside_junction = |i: usize| {
             (!free_start && (points[i] - points[0]).norm() < wall_distance[0])
                 || (!free_end && {
