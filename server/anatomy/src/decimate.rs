@@ -56,7 +56,6 @@ impl Ord for Candidate {
 }
 
 struct State<'a> {
-    positions: &'a [Point3<f64>],
     triangles: Vec<[u32; 3]>,
     alive: Vec<bool>,
     faces_of: Vec<Vec<u32>>,
@@ -67,7 +66,8 @@ struct State<'a> {
     absorbed: Vec<Vec<u32>>,
     /// Squared tolerance (m²).
     limit: f64,
-    /// The original surface: its triangles and each vertex's triangles.
+    /// The original surface (its vertices are the decimated one's too) and each vertex's
+    /// original triangles.
     original: &'a TriangleMesh,
     original_faces_of: Vec<Vec<u32>>,
 }
@@ -94,16 +94,21 @@ impl State<'_> {
             if t[k] == moved {
                 *to
             } else {
-                self.positions[t[k] as usize]
+                self.original.vertices[t[k] as usize]
             }
         };
         (p(1) - p(0)).cross(&(p(2) - p(0)))
     }
 
+    /// Triangle `f` with `from` moved onto `to`.
+    fn collapsed(&self, f: u32, from: u32, to: u32) -> [u32; 3] {
+        self.triangles[f as usize].map(|w| if w == from { to } else { w })
+    }
+
     fn candidate(&self, from: u32, to: u32) -> Candidate {
         let q = self.quadrics[from as usize] + self.quadrics[to as usize];
         Candidate {
-            cost: self.error(&q, &self.positions[to as usize]),
+            cost: self.error(&q, &self.original.vertices[to as usize]),
             from,
             to,
             stamps: (self.stamps[from as usize], self.stamps[to as usize]),
@@ -145,7 +150,7 @@ impl State<'_> {
             return false;
         }
         // No remaining face of `from` may fold or collapse.
-        let to_point = self.positions[to as usize];
+        let to_point = self.original.vertices[to as usize];
         let folds = self.faces_of[from as usize]
             .iter()
             .filter(|f| !shared.contains(f))
@@ -166,12 +171,12 @@ impl State<'_> {
             .iter()
             .chain(&self.faces_of[to as usize])
             .filter(|f| !shared.contains(f))
-            .map(|&f| self.triangles[f as usize].map(|w| if w == from { to } else { w }))
+            .map(|&f| self.collapsed(f, from, to))
             .collect();
-        let corners = |t: &[u32; 3]| t.map(|w| self.positions[w as usize]);
+        let corners = |t: &[u32; 3]| t.map(|w| self.original.vertices[w as usize]);
         let within = |groups: &[&[u32]], star: &[[u32; 3]]| {
             groups.iter().flat_map(|g| g.iter()).all(|&v| {
-                let p = self.positions[v as usize];
+                let p = self.original.vertices[v as usize];
                 star.iter().any(|t| {
                     let [a, b, c] = corners(t);
                     let (q, _) = closest_on_triangle(&p, &a, &b, &c);
@@ -193,7 +198,7 @@ impl State<'_> {
                 let star: Vec<[u32; 3]> = self.faces_of[w as usize]
                     .iter()
                     .filter(|f| !shared.contains(f))
-                    .map(|&f| self.triangles[f as usize].map(|x| if x == from { to } else { x }))
+                    .map(|&f| self.collapsed(f, from, to))
                     .collect();
                 within(&[&self.absorbed[w as usize]], &star)
             });
@@ -221,9 +226,9 @@ impl State<'_> {
             .all(|x| {
                 let x = Point3::from(x);
                 let nearest = stands_for.iter().min_by(|&&u, &&v| {
-                    (self.positions[u as usize] - x)
+                    (self.original.vertices[u as usize] - x)
                         .norm_squared()
-                        .total_cmp(&(self.positions[v as usize] - x).norm_squared())
+                        .total_cmp(&(self.original.vertices[v as usize] - x).norm_squared())
                 });
                 nearest.is_some_and(|&v| {
                     self.original_faces_of[v as usize].iter().any(|&f| {
@@ -276,7 +281,6 @@ impl State<'_> {
 pub fn decimate(mesh: &TriangleMesh, tolerance_m: f64) -> (TriangleMesh, Decimation) {
     let n = mesh.vertices.len();
     let mut state = State {
-        positions: &mesh.vertices,
         triangles: mesh.triangles.clone(),
         alive: vec![true; mesh.triangles.len()],
         faces_of: vec![Vec::new(); n],
