@@ -578,6 +578,13 @@ pub(crate) fn active_set_normals(
     false
 }
 
+/// Replaces `loads` by the nodal loads of contact forces `local` (after the forces jumped:
+/// an acceleration or active-set step).
+fn reload(prepared: &[Prepared], local: &[Vector3<f64>], loads: &mut [Vector6<f64>]) {
+    loads.iter_mut().for_each(|l| l.fill(0.0));
+    accumulate_loads(prepared, local, loads);
+}
+
 /// Adds the nodal loads of contact forces `local` into `loads`.
 fn accumulate_loads(prepared: &[Prepared], local: &[Vector3<f64>], loads: &mut [Vector6<f64>]) {
     for (p, l) in prepared.iter().zip(local) {
@@ -827,8 +834,7 @@ pub fn gauss_seidel(
             // friction; the sweeps go on from there for the friction. After the last sweep
             // of the budget it is the answer (friction held), instead of a frozen phase.
             if polish_normals(flexibility, &prepared, &mut local) {
-                loads.iter_mut().for_each(|l| l.fill(0.0));
-                accumulate_loads(&prepared, &local, &mut loads);
+                reload(&prepared, &local, &mut loads);
                 anderson = Anderson::new(settings.acceleration_depth, 3 * contacts.len());
                 if sweep == budget {
                     response.polished = true;
@@ -843,15 +849,13 @@ pub fn gauss_seidel(
             for (p, l) in prepared.iter().zip(local.iter_mut()) {
                 *l = project_on_cone(l, p.friction);
             }
-            loads.iter_mut().for_each(|l| l.fill(0.0));
-            accumulate_loads(&prepared, &local, &mut loads);
+            reload(&prepared, &local, &mut loads);
         }
     }
     if !response.converged && !response.polished && settings.polish {
         // Gauss–Seidel ran out of sweeps: solve the normal forces of the active set directly.
         if polish_normals(flexibility, &prepared, &mut local) {
-            loads.iter_mut().for_each(|l| l.fill(0.0));
-            accumulate_loads(&prepared, &local, &mut loads);
+            reload(&prepared, &local, &mut loads);
             response.polished = true;
         }
     }
