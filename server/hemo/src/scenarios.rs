@@ -1,6 +1,6 @@
 //! Reference scenarios shared by tests, benchmarks and charts: the bundled circle-of-Willis
-//! network, a series chain of uniform vessels, and a bolus advected down a straight tube, compared with the exact (shifted)
-//! profile.
+//! network, a series chain of uniform vessels, and a bolus advected down a straight tube,
+//! compared with the exact (shifted) profile.
 
 use crate::contrast::{Contrast, ContrastSettings, Limiter};
 use crate::error::Result;
