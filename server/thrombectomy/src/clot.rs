@@ -80,15 +80,17 @@ impl ClotMechanics {
     }
 
     /// Pressure (Pa) that squeezes the clot, of free diameter `clot_diameter_m`, into a bore
-    /// of `bore_m` (m): the radial Cauchy stress of an incompressible neo-Hookean solid
-    /// (shear modulus μ = E/3) squeezed equibiaxially to the radial stretch
-    /// λ = bore / clot diameter with its axis free, `μ (λ⁻⁴ − λ²)`; zero when it fits.
+    /// of `bore_m` (m): drained compression (a clot is a porous network that gives up its
+    /// serum when squeezed, so its section shrinks without lengthening it) with the Hencky
+    /// law, `E ln(D/d)`, the derivative of the energy `E ε²/2` in the logarithmic strain
+    /// `ε = ln(D/d)`; zero when it fits. Chosen over an incompressible law, which would
+    /// lengthen the clot and ask several times the pressure clots are seen to enter
+    /// catheters at.
     pub fn ingestion_pressure_pa(&self, clot_diameter_m: f64, bore_m: f64) -> f64 {
-        let stretch = bore_m / clot_diameter_m;
-        if stretch >= 1.0 {
+        if bore_m >= clot_diameter_m {
             0.0
         } else {
-            self.modulus_pa / 3.0 * (stretch.powi(-4) - stretch * stretch)
+            self.modulus_pa * (clot_diameter_m / bore_m).ln()
         }
     }
 

@@ -208,11 +208,8 @@ impl Engagement {
         } else {
             (0.0, 0.0)
         };
-        let interlock = clot.mechanics.strength_pa
-            * stent.open_area
-            * embedding
-            * circumference
-            * (to - from);
+        let interlock =
+            clot.mechanics.strength_pa * stent.open_area * embedding * circumference * (to - from);
         Ok(Self {
             overlap_m: (from, to),
             radial_n,

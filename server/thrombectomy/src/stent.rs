@@ -231,7 +231,9 @@ impl Deployment {
         }
         // Start from the local balances (exact far from the mouth).
         for i in 1..=n {
-            r[i] = env[i].balance_radius_m(stent).max(mouth_radius_m.min(stent.nominal_radius_m()));
+            r[i] = env[i]
+                .balance_radius_m(stent)
+                .max(mouth_radius_m.min(stent.nominal_radius_m()));
         }
         let beta = stent.link_stiffness_n() / (spacing_m * spacing_m);
         let k = stent.radial_stiffness();
@@ -265,7 +267,10 @@ impl Deployment {
                 break;
             }
         }
-        let force_n_per_m = r.iter().map(|&ri| stent.outward_force_n_per_m(ri)).collect();
+        let force_n_per_m = r
+            .iter()
+            .map(|&ri| stent.outward_force_n_per_m(ri))
+            .collect();
         Ok(Self {
             spacing_m,
             radii_m: r,
