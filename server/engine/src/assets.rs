@@ -59,6 +59,8 @@ pub struct SceneAssets {
     pub target_branch: usize,
     /// The route sampled every [`ROUTE_SPACING_M`] (anatomy frame, m).
     pub route_samples: Vec<Point3<f64>>,
+    /// The vessel's radius at each route sample (m).
+    pub route_radii: Vec<f64>,
     /// How far along the route the target counts as reached (m): the route up to the target
     /// branch plus `target.reach_mm`.
     pub goal_along_m: f64,
@@ -258,7 +260,7 @@ pub fn appearance_of_entry(entry: &cathlab_physics::CatalogueEntry) -> DeviceApp
         )
     });
     let fill = match entry.kind {
-        DeviceKind::Guidewire | DeviceKind::Microwire => 1.0,
+        DeviceKind::Guidewire | DeviceKind::Microwire | DeviceKind::StentRetriever => 1.0,
         DeviceKind::Catheter => 0.15,
         DeviceKind::Guide | DeviceKind::Sheath | DeviceKind::DistalAccess => 0.2,
         DeviceKind::Microcatheter => 0.1,
@@ -790,11 +792,10 @@ impl AssetCache {
             }
         };
         let clots = scene_clots(spec, graph)?;
-        let route_samples: Vec<Point3<f64>> = graph
+        let (route_samples, route_radii): (Vec<Point3<f64>>, Vec<f64>) = graph
             .sample_path(&route, ROUTE_SPACING_M)
             .into_iter()
-            .map(|(p, _)| p)
-            .collect();
+            .unzip();
         let goal_along_m = route
             .legs
             .iter()
@@ -823,6 +824,7 @@ impl AssetCache {
             route,
             target_branch,
             route_samples,
+            route_radii,
             goal_along_m,
             carm,
             network,

@@ -15,6 +15,7 @@ pub mod scene;
 pub mod session;
 pub mod strand;
 pub mod telemetry;
+pub mod thrombectomy;
 pub mod world;
 
 pub use assets::{AssetCache, SceneAssets};

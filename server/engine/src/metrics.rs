@@ -55,6 +55,8 @@ pub struct Metrics {
     /// The reperfusion of the territory the scene's clots cut off, from the flow solution
     /// (none in a scene without clots).
     pub reperfusion: Option<ReperfusionMetric>,
+    /// The thrombectomy's figures, in a scene with a clot.
+    pub thrombectomy: Option<ThrombectomyMetric>,
 }
 
 /// How much of an occluded territory the flow reaches again.
@@ -92,6 +94,27 @@ impl Metrics {
     }
 }
 
+/// A thrombectomy's figures.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct ThrombectomyMetric {
+    /// Passes made (stent retriever or aspiration).
+    pub passes: u32,
+    /// The first pass took the clot out with no fragment lost.
+    pub first_pass_effect: bool,
+    /// Fragments lodged downstream.
+    pub emboli: u32,
+    /// Force the clot's stiffness asks of the first tip to cross it (N).
+    pub crossing_force_n: f64,
+    /// Largest axial force on a hand while its tip was in a clot (N).
+    pub peak_crossing_force_n: f64,
+    /// The deployed stent's grip on the clot (N), 0 when none is engaged.
+    pub grip_n: f64,
+    /// Suction on.
+    pub aspiration: bool,
+    /// When the reperfusion first reached eTICI 2b or better (procedure time, s).
+    pub reperfused_at_s: Option<f64>,
+}
+
 /// Kinds of session events.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -115,6 +138,8 @@ pub enum EventKind {
     Limit,
     /// The server lowered (or restored) the session's fidelity to keep its step rate.
     Overload,
+    /// A step of the thrombectomy: stent deployed, suction, a pass's outcome, an embolus.
+    Thrombectomy,
 }
 
 impl EventKind {
@@ -130,6 +155,7 @@ impl EventKind {
             EventKind::Closed => "closed",
             EventKind::Limit => "limit",
             EventKind::Overload => "overload",
+            EventKind::Thrombectomy => "thrombectomy",
         }
     }
 }

@@ -90,7 +90,18 @@ pub enum Command {
     },
     /// Back to the scene's start.
     Reset,
+    /// Aspiration through the distal-access catheter on or off.
+    Aspiration(bool),
+    /// Unsheathe the stent retriever: its hand holds while the microcatheter around it is
+    /// drawn back past the stent's proximal end.
+    DeployStent,
+    /// Retrieve: the stent retriever and its microcatheter pulled back together at
+    /// [`RETRIEVE_SPEED_M_S`]; they stop when the pass ends.
+    RetrieveStent,
 }
+
+/// Speed of the retrieve command's pull (m/s): the slow, steady withdrawal taught.
+pub const RETRIEVE_SPEED_M_S: f64 = 3e-3;
 
 impl Command {
     /// The push and the twist of an operator's command (the autopilot's, a scripted one's),
@@ -333,6 +344,8 @@ struct Hemo {
     open_flow: FlowSolution,
     /// The outlets the clots cut off (empty without clots).
     territory: Vec<usize>,
+    /// The flow with the clots now and no injection (pressures across a clot).
+    flow_now: FlowSolution,
 }
 
 /// The power injector's program before any injection: 6 mL at 4 mL/s, a selective
@@ -366,6 +379,8 @@ pub struct World {
     /// An exchange under way: the instrument (and those inside it) being withdrawn to the
     /// hub of the one around it, then replaced.
     exchanging: Option<PendingExchange>,
+    /// The thrombectomy of a clotted scene with flow.
+    procedure: Option<crate::thrombectomy::Procedure>,
 }
 
 /// An exchange waiting for its instrument to be withdrawn.
@@ -539,6 +554,7 @@ impl World {
                     linked_at_s: None,
                     open_flow,
                     territory,
+                    flow_now: flow,
                 })
             }
         };
@@ -553,6 +569,29 @@ impl World {
         let tip = tracked_tip(&assets, &strand);
         let target_remaining_m = assets.remaining_to_target_m(&Point3::from(tip));
         let hands = start_hands(&assets, 0);
+        let procedure = match (&assets.network, assets.clots.is_empty()) {
+            (Some(network), false) => {
+                let legs: Vec<(usize, f64, f64)> = assets
+                    .route
+                    .legs
+                    .iter()
+                    .map(|l| (l.branch, l.from_arc, l.to_arc))
+                    .collect();
+                let reds: Vec<f64> = assets
+                    .spec
+                    .clots
+                    .iter()
+                    .map(|c| c.red_cell_fraction)
+                    .collect();
+                Some(crate::thrombectomy::Procedure::new(
+                    &assets.clots,
+                    &reds,
+                    network,
+                    &legs,
+                ))
+            }
+            _ => None,
+        };
         Ok(Self {
             imaging: Imaging {
                 pedal: false,
@@ -581,6 +620,7 @@ impl World {
             fidelity: 0,
             previous_instruments: Vec::new(),
             exchanging: None,
+            procedure,
         })
     }
 
@@ -812,6 +852,63 @@ impl World {
                     self.event(EventKind::Overload, message);
                 }
             }
+            Command::Aspiration(on) => {
+                let Some(procedure) = &mut self.procedure else {
+                    return Err(EngineError::FailedPrecondition(
+                        "the scene has no clot to aspirate".into(),
+                    ));
+                };
+                procedure.set_aspiration(on);
+                self.event(
+                    EventKind::Thrombectomy,
+                    if on { "suction on" } else { "suction off" },
+                );
+            }
+            Command::DeployStent => {
+                let (k, spec) = self.stent_instrument()?;
+                let tip = |i: usize| self.strand.tip_position(i).map(Point3::from);
+                let (Some(stent_tip), Some(mc_tip)) = (tip(k), tip(k - 1)) else {
+                    return Err(EngineError::FailedPrecondition(
+                        "the stent retriever is not in the patient".into(),
+                    ));
+                };
+                let arc = |p: &Point3<f64>| {
+                    crate::thrombectomy::route_arc(
+                        &self.assets.route_samples,
+                        crate::assets::ROUTE_SPACING_M,
+                        p,
+                    )
+                };
+                let stent_proximal = arc(&stent_tip) - spec.from_tip_m - spec.length_m;
+                let back = arc(&mc_tip) - stent_proximal + 1e-3;
+                if back <= 0.0 {
+                    return Err(EngineError::FailedPrecondition(
+                        "the stent is already unsheathed".into(),
+                    ));
+                }
+                let target = self.strand.inserted_m(k - 1) - back;
+                self.drive(k, Drive::PushVelocity(0.0))?;
+                self.drive(k - 1, Drive::PushTarget(target))?;
+                self.event(
+                    EventKind::Thrombectomy,
+                    format!(
+                        "deploying: the microcatheter drawn back {:.1} mm over the held stent",
+                        back * 1e3
+                    ),
+                );
+            }
+            Command::RetrieveStent => {
+                let (k, _) = self.stent_instrument()?;
+                self.drive(k, Drive::PushVelocity(-RETRIEVE_SPEED_M_S))?;
+                self.drive(k - 1, Drive::PushVelocity(-RETRIEVE_SPEED_M_S))?;
+                self.event(
+                    EventKind::Thrombectomy,
+                    format!(
+                        "retrieving: stent and microcatheter pulled back at {:.0} mm/s",
+                        RETRIEVE_SPEED_M_S * 1e3
+                    ),
+                );
+            }
             Command::Reset => {
                 self.restart_device(self.active_device)?;
                 // A new attempt: the target is to be reached again.
@@ -822,6 +919,107 @@ impl World {
             }
         }
         self.last_seq = seq;
+        Ok(())
+    }
+
+    /// The stack's stent retriever (its index, not the outermost) and its stent.
+    fn stent_instrument(&self) -> Result<(usize, cathlab_physics::StentSpec)> {
+        let catalogue = crate::scene::catalogue();
+        self.hands
+            .iter()
+            .enumerate()
+            .skip(1)
+            .find_map(|(i, h)| {
+                catalogue
+                    .get(&h.catalogue_id)
+                    .and_then(|e| e.stent)
+                    .map(|s| (i, s))
+            })
+            .ok_or_else(|| {
+                EngineError::FailedPrecondition(
+                    "no stent retriever in the stack (exchange the microwire for one)".into(),
+                )
+            })
+    }
+
+    /// The thrombectomy's figures, when the scene has a clot.
+    pub fn procedure(&self) -> Option<&crate::thrombectomy::Procedure> {
+        self.procedure.as_ref()
+    }
+
+    /// Steps the thrombectomy: instruments on the route, passes, clots into the flow.
+    fn step_procedure(&mut self, dt: f64) -> Result<()> {
+        let (Some(procedure), Some(hemo)) = (&mut self.procedure, &self.hemo) else {
+            return Ok(());
+        };
+        let catalogue = crate::scene::catalogue();
+        let assets = &self.assets;
+        let views: Vec<crate::thrombectomy::InstrumentView> = (0..self.strand.len())
+            .map(|i| {
+                let entry = catalogue.get(&self.hands[i].catalogue_id);
+                let tip = self.strand.tip_position(i).map_or(0.0, |t| {
+                    crate::thrombectomy::route_arc(
+                        &assets.route_samples,
+                        crate::assets::ROUTE_SPACING_M,
+                        &Point3::from(t),
+                    )
+                });
+                let section = self
+                    .strand
+                    .device(i)
+                    .and_then(|d| d.sections.last())
+                    .map(|s| s.cross_section);
+                crate::thrombectomy::InstrumentView {
+                    kind: entry.map(|e| e.kind),
+                    stent: entry.and_then(|e| e.stent),
+                    tip_arc_m: tip,
+                    inserted_m: self.strand.inserted_m(i),
+                    outer_diameter_m: section.map_or(0.0, |c| 2.0 * c.outer_radius_m),
+                    bore_m: section.map_or(0.0, |c| 2.0 * c.inner_radius_m),
+                    axial_force_n: self.hands[i].reaction.axial_force_n,
+                }
+            })
+            .collect();
+        let outcome = procedure.step(
+            &views,
+            dt,
+            &assets.route_samples,
+            &assets.route_radii,
+            crate::assets::ROUTE_SPACING_M,
+            hemo.solver.network(),
+            &hemo.flow_now,
+            &hemo.open_flow,
+        );
+        let figures = procedure.figures();
+        self.metrics.thrombectomy = Some(crate::metrics::ThrombectomyMetric {
+            passes: figures.passes,
+            first_pass_effect: figures.first_pass_effect,
+            emboli: figures.emboli,
+            crossing_force_n: figures.crossing_force_n,
+            peak_crossing_force_n: figures.peak_crossing_force_n,
+            grip_n: figures.grip_n,
+            aspiration: procedure.aspiration(),
+            reperfused_at_s: self.metrics.thrombectomy.and_then(|t| t.reperfused_at_s),
+        });
+        for message in outcome.messages {
+            self.event(EventKind::Thrombectomy, message);
+        }
+        if outcome.pass_ended {
+            for i in 0..self.strand.len() {
+                if matches!(self.strand.command(i).insertion, Insertion::Velocity(v) if v < 0.0) {
+                    self.drive(i, Drive::PushVelocity(0.0))?;
+                }
+            }
+        }
+        if let Some(occlusions) = outcome.occlusions {
+            self.replace_clots(&occlusions, false)?;
+        }
+        if let (Some(t), Some(r)) = (&mut self.metrics.thrombectomy, &self.metrics.reperfusion)
+            && t.reperfused_at_s.is_none()
+            && r.etici.successful()
+        {
+            t.reperfused_at_s = Some(self.metrics.procedure_time_s);
+        }
         Ok(())
     }
 
@@ -1098,6 +1296,16 @@ impl World {
     /// Replaces the clots in the flow (vessel i = graph branch i; an empty slice reopens
     /// every vessel) and re-solves the flow that carries the contrast.
     pub fn set_clots(&mut self, clots: &[cathlab_hemo::Occlusion]) -> Result<()> {
+        self.replace_clots(clots, true)
+    }
+
+    /// As [`World::set_clots`]; with `new_territory` false the territory whose reperfusion
+    /// is graded stays the scene's (emboli and bypass channels do not redefine it).
+    fn replace_clots(
+        &mut self,
+        clots: &[cathlab_hemo::Occlusion],
+        new_territory: bool,
+    ) -> Result<()> {
         let Some(hemo) = &mut self.hemo else {
             return Err(EngineError::FailedPrecondition(
                 "the scene has no flow for clots to act on".into(),
@@ -1105,7 +1313,8 @@ impl World {
         };
         hemo.solver.set_occlusions(clots)?;
         let now = hemo.solver.solve(None)?;
-        if !clots.is_empty() {
+        hemo.flow_now = now.clone();
+        if new_territory && !clots.is_empty() {
             // New clots cut off their own territory; removing them keeps the old one, whose
             // reperfusion is then measured.
             let cut = occluded_territory(&hemo.open_flow, &now)?;
@@ -1369,6 +1578,7 @@ impl World {
             hand.reaction = reaction;
         }
         self.instrument_metrics(dt);
+        self.step_procedure(dt)?;
         self.step_contrast(dt)?;
         Ok(())
     }

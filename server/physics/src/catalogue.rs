@@ -35,6 +35,32 @@ pub enum DeviceKind {
     Guidewire,
     /// 0.010" / 0.014" microwire.
     Microwire,
+    /// Stent retriever: a self-expanding stent on a push wire (its `[device.stent]` table
+    /// gives the stent).
+    StentRetriever,
+}
+
+/// The stent of a stent retriever, as the catalogue gives it (SI units).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StentSpec {
+    /// Nominal (free) diameter (m).
+    pub nominal_diameter_m: f64,
+    /// Stent length (m).
+    pub length_m: f64,
+    /// Where the stent's distal end lies from the device's tip (m): the distal wire beyond.
+    pub from_tip_m: f64,
+    /// Chronic outward force per metre of stent (N/m) at `reference_diameter_m`.
+    pub cof_n_per_m: f64,
+    /// Diameter the COF is given at (m).
+    pub reference_diameter_m: f64,
+    /// Radial resistive force over chronic outward force.
+    pub rrf_ratio: f64,
+    /// Length over which it opens beyond the catheter's mouth (m).
+    pub transition_m: f64,
+    /// Strut–clot Coulomb friction.
+    pub strut_friction: f64,
+    /// Open fraction of its surface between struts.
+    pub open_area: f64,
 }
 
 /// One catalogue entry.
@@ -50,6 +76,8 @@ pub struct CatalogueEntry {
     pub device: Device,
     /// Radiopaque marker bands and tip coils, as the X-ray shows them.
     pub markers: Vec<Marker>,
+    /// The stent, for a stent retriever.
+    pub stent: Option<StentSpec>,
 }
 
 /// A radiopaque marker band or tip coil (platinum–iridium), placed from the distal tip.
@@ -87,6 +115,21 @@ struct RawDevice {
     section: Vec<RawSection>,
     #[serde(default)]
     marker: Vec<RawMarker>,
+    stent: Option<RawStent>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawStent {
+    nominal_diameter_mm: f64,
+    length_mm: f64,
+    from_tip_mm: f64,
+    cof_n_per_mm: f64,
+    reference_diameter_mm: f64,
+    rrf_ratio: f64,
+    transition_mm: f64,
+    strut_friction: f64,
+    open_area: f64,
 }
 
 #[derive(Deserialize)]
@@ -340,11 +383,84 @@ fn convert(raw: RawDevice) -> Result<CatalogueEntry> {
             fill,
         });
     }
+    let stent = match (raw.kind, raw.stent) {
+        (DeviceKind::StentRetriever, None) => {
+            return Err(fault(
+                "stent",
+                "stent",
+                "a stent retriever needs its [device.stent] table".into(),
+            ));
+        }
+        (DeviceKind::StentRetriever, Some(t)) => {
+            let check = |field: &str, value: f64, ok: bool, rule: &str| {
+                checked(&fault, "stent", field, value, ok, rule)
+            };
+            let nominal = check(
+                "nominal_diameter_mm",
+                t.nominal_diameter_mm,
+                t.nominal_diameter_mm > 0.0,
+                "> 0",
+            )?;
+            let length = check("length_mm", t.length_mm, t.length_mm > 0.0, "> 0")?;
+            let from_tip = check(
+                "from_tip_mm",
+                t.from_tip_mm,
+                t.from_tip_mm >= 0.0 && t.from_tip_mm + t.length_mm <= length_mm,
+                "≥ 0 and the stent within the device",
+            )?;
+            let cof = check("cof_n_per_mm", t.cof_n_per_mm, t.cof_n_per_mm > 0.0, "> 0")?;
+            let reference = check(
+                "reference_diameter_mm",
+                t.reference_diameter_mm,
+                t.reference_diameter_mm > 0.0 && t.reference_diameter_mm < nominal,
+                "> 0 and below nominal_diameter_mm",
+            )?;
+            let rrf = check("rrf_ratio", t.rrf_ratio, t.rrf_ratio >= 1.0, "≥ 1")?;
+            let transition = check(
+                "transition_mm",
+                t.transition_mm,
+                t.transition_mm > 0.0,
+                "> 0",
+            )?;
+            let strut = check(
+                "strut_friction",
+                t.strut_friction,
+                t.strut_friction >= 0.0,
+                "≥ 0",
+            )?;
+            let open = check(
+                "open_area",
+                t.open_area,
+                (0.0..=1.0).contains(&t.open_area),
+                "in [0, 1]",
+            )?;
+            Some(StentSpec {
+                nominal_diameter_m: nominal * 1e-3,
+                length_m: length * 1e-3,
+                from_tip_m: from_tip * 1e-3,
+                cof_n_per_m: cof * 1e3,
+                reference_diameter_m: reference * 1e-3,
+                rrf_ratio: rrf,
+                transition_m: transition * 1e-3,
+                strut_friction: strut,
+                open_area: open,
+            })
+        }
+        (_, Some(_)) => {
+            return Err(fault(
+                "stent",
+                "stent",
+                "only a stent retriever has a [device.stent] table".into(),
+            ));
+        }
+        (_, None) => None,
+    };
     Ok(CatalogueEntry {
         id,
         kind: raw.kind,
         source: raw.source,
         device,
         markers,
+        stent,
     })
 }

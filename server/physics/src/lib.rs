@@ -28,7 +28,7 @@ pub mod wall;
 pub use beam::{
     BeamModel, ContactStep, ElementSpec, SolverSettings, StepMode, StepReport, ViscousDrag,
 };
-pub use catalogue::{Catalogue, CatalogueEntry, DeviceKind, Marker};
+pub use catalogue::{Catalogue, CatalogueEntry, DeviceKind, Marker, StentSpec};
 pub use contact::{Contact, ContactResponse, ContactSettings};
 pub use device::{Device, RestArc, RestShape, Section, presets};
 pub use error::{DivergenceCheck, PhysicsError, Result};

@@ -743,6 +743,22 @@ fn the_builtin_catalogue_is_valid_sourced_and_nests() {
             }
         }
     }
+    // Stent retrievers go through 0.021" and 0.027" microcatheters, not 0.017" ones.
+    for stent in catalogue
+        .entries()
+        .iter()
+        .filter(|e| e.kind == StentRetriever)
+    {
+        let spec = stent.stent.expect("a stent retriever has its stent");
+        assert!(spec.from_tip_m + spec.length_m <= stent.device.length_m());
+        for id in ["microcatheter-021-160", "microcatheter-027-150"] {
+            let outer = catalogue.device(id).unwrap();
+            cathlab_physics::stack::check_fit(&outer, &stent.device)
+                .unwrap_or_else(|e| panic!("{e}"));
+        }
+        let small = catalogue.device("microcatheter-017-150").unwrap();
+        assert!(cathlab_physics::stack::check_fit(&small, &stent.device).is_err());
+    }
     // Shapes from the catalogue behave: the Simmons reverse curve turns back on itself.
     let simmons = catalogue.device("catheter-5f-simmons-2").unwrap();
     assert!(!simmons.sections.last().unwrap().rest_shape.is_straight());

@@ -1,0 +1,653 @@
+//! The thrombectomy of a clotted scene, step by step: where each clot sits on the route,
+//! what crossing it took, the stent retriever unsheathed across it (engagement, bypass flow),
+//! retrieval and aspiration passes driven by the hands, emboli lodged downstream, and the
+//! clots the flow must carry. The mechanics are `cathlab-thrombectomy`'s; this module maps
+//! instruments on the route to its passes.
+
+use cathlab_hemo::{FlowNetwork, FlowSolution, Occlusion};
+use cathlab_physics::{DeviceKind, StentSpec};
+use cathlab_thrombectomy::sweep::WEDGE_RELIEF;
+use cathlab_thrombectomy::{
+    AspirationPass, AspirationSetup, Clot, ClotComposition, DEFAULT_SUCTION_PA, Engagement,
+    PassOutcome, RetrievalPath, StentPass, StentRetriever, StentSetup,
+};
+use nalgebra::Point3;
+use std::f64::consts::PI;
+
+/// Wedge strain of a scene's clot (the middle of the sweep's 0.02–0.12).
+pub const SCENE_WEDGE_STRAIN: f64 = 0.07;
+
+/// Unsheathed stent length below which the stent counts as sheathed (m).
+const SHEATHED_M: f64 = 1e-3;
+
+/// How far short of the clot's face an aspiration catheter's tip still seals on it (m); its
+/// apposition falls from 1 at the face to 0.5 there.
+const APPOSITION_REACH_M: f64 = 1.5e-3;
+
+/// Pull of an engaged stent's wire that starts a retrieval pass (m): less is the hand's play.
+const START_PULL_M: f64 = 0.2e-3;
+
+/// Fraction of the stent's radius left open as a channel through the clot it holds (the rest
+/// is clot bulging through the cells; assumed).
+const BYPASS_RADIUS_FRACTION: f64 = 0.5;
+
+/// What the procedure needs of one instrument each step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InstrumentView {
+    /// Kind, from the catalogue (`None` for a custom device).
+    pub kind: Option<DeviceKind>,
+    /// The stent, for a stent retriever.
+    pub stent: Option<StentSpec>,
+    /// Tip's distance along the route (m).
+    pub tip_arc_m: f64,
+    /// Inserted length (m).
+    pub inserted_m: f64,
+    /// Distal outer diameter (m).
+    pub outer_diameter_m: f64,
+    /// Distal lumen (m), 0 for a wire.
+    pub bore_m: f64,
+    /// Axial force on the hand (N).
+    pub axial_force_n: f64,
+}
+
+/// A clot of the scene.
+#[derive(Debug, Clone, PartialEq)]
+struct Site {
+    occlusion: Occlusion,
+    clot: Clot,
+    /// Proximal end along the route (m), if the route passes it.
+    route_from_m: Option<f64>,
+    in_place: bool,
+    /// Channel held open by a stent across it (m).
+    bypass_radius_m: Option<f64>,
+    crossed: bool,
+    /// An embolus (not the scene's clot).
+    embolus: bool,
+}
+
+/// The pass under way.
+#[derive(Debug, Clone, PartialEq)]
+enum Pass {
+    Stent {
+        site: usize,
+        pass: StentPass,
+        stent_index: usize,
+        last_inserted_m: f64,
+        receiving_tip_m: f64,
+    },
+    Aspiration {
+        site: usize,
+        pass: AspirationPass,
+        catheter_index: usize,
+        last_inserted_m: f64,
+        guide_tip_m: f64,
+    },
+}
+
+/// What a step of the procedure asks of the world.
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct ProcedureStep {
+    /// The clots changed: the flow's occlusions now.
+    pub occlusions: Option<Vec<Occlusion>>,
+    /// Things to tell the trainee.
+    pub messages: Vec<String>,
+    /// A pass ended: the hands that pulled should stop.
+    pub pass_ended: bool,
+}
+
+/// Figures of the procedure, for the metrics.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ProcedureFigures {
+    /// Passes made (stent retriever or aspiration).
+    pub passes: u32,
+    /// The first pass retrieved the clot with no fragment lost.
+    pub first_pass_effect: bool,
+    /// Fragments lodged downstream.
+    pub emboli: u32,
+    /// The largest axial force on a hand while its tip was in a clot (N).
+    pub peak_crossing_force_n: f64,
+    /// Force the clot's stiffness asks of the first tip that crossed it (N).
+    pub crossing_force_n: f64,
+    /// The deployed stent's grip on the clot (N), 0 when none.
+    pub grip_n: f64,
+}
+
+/// The procedure state of a session.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Procedure {
+    sites: Vec<Site>,
+    aspiration: bool,
+    /// The engaged stent: site, engagement, unsheathed length (m), the stent's largest
+    /// inserted length since (m).
+    engaged: Option<(usize, Engagement, f64, f64)>,
+    needs_resheath: bool,
+    pass: Option<Pass>,
+    figures: ProcedureFigures,
+}
+
+/// Distance along the route polyline of the point nearest `p` (m), the samples `spacing_m`
+/// apart.
+pub fn route_arc(samples: &[Point3<f64>], spacing_m: f64, p: &Point3<f64>) -> f64 {
+    let mut best = (f64::MAX, 0.0);
+    for i in 0..samples.len().saturating_sub(1) {
+        let (a, b) = (samples[i], samples[i + 1]);
+        let ab = b - a;
+        let t = ((p - a).dot(&ab) / ab.norm_squared().max(1e-30)).clamp(0.0, 1.0);
+        let d = (a + ab * t - p).norm_squared();
+        if d < best.0 {
+            best = (d, (i as f64 + t) * spacing_m);
+        }
+    }
+    best.1
+}
+
+impl Procedure {
+    /// The scene's clots (`occlusions`, with their compositions) placed on the route whose
+    /// legs are given as (branch, from arc, to arc) (m).
+    pub fn new(
+        occlusions: &[Occlusion],
+        compositions: &[f64],
+        network: &FlowNetwork,
+        legs: &[(usize, f64, f64)],
+    ) -> Self {
+        let sites = occlusions
+            .iter()
+            .zip(compositions)
+            .map(|(o, &red)| {
+                let vessel = &network.vessels[o.vessel];
+                let radius = vessel.radius_at(0.5 * (o.from_arc + o.to_arc));
+                let mut before = 0.0;
+                let mut route_from_m = None;
+                for &(branch, from, to) in legs {
+                    if branch == o.vessel {
+                        route_from_m = Some(if to >= from {
+                            before + (o.from_arc - from)
+                        } else {
+                            before + (from - o.to_arc)
+                        });
+                        break;
+                    }
+                    before += (to - from).abs();
+                }
+                Site {
+                    occlusion: *o,
+                    clot: Clot::new(
+                        ClotComposition {
+                            red_cell_fraction: red,
+                        },
+                        o.to_arc - o.from_arc,
+                        radius,
+                        SCENE_WEDGE_STRAIN,
+                    ),
+                    route_from_m,
+                    in_place: true,
+                    bypass_radius_m: None,
+                    crossed: false,
+                    embolus: false,
+                }
+            })
+            .collect();
+        Self {
+            sites,
+            aspiration: false,
+            engaged: None,
+            needs_resheath: false,
+            pass: None,
+            figures: ProcedureFigures::default(),
+        }
+    }
+
+    /// Suction on or off.
+    pub fn set_aspiration(&mut self, on: bool) {
+        self.aspiration = on;
+    }
+
+    /// Whether suction is on.
+    pub fn aspiration(&self) -> bool {
+        self.aspiration
+    }
+
+    /// The figures so far.
+    pub fn figures(&self) -> ProcedureFigures {
+        self.figures
+    }
+
+    /// Whether a pass is under way.
+    pub fn pass_under_way(&self) -> bool {
+        self.pass.is_some()
+    }
+
+    /// The clots still in the patient, as the flow takes them (bypass channels included).
+    pub fn occlusions(&self) -> Vec<Occlusion> {
+        self.sites
+            .iter()
+            .filter(|s| s.in_place)
+            .map(|s| {
+                let mut o = s.occlusion;
+                if let Some(r) = s.bypass_radius_m {
+                    // Darcy plug in parallel with a Poiseuille channel of radius r:
+                    // k_eff = k + π r⁴ / (8 A).
+                    o.permeability_m2 += PI * r.powi(4) / (8.0 * s.clot.area_m2());
+                }
+                o
+            })
+            .collect()
+    }
+
+    /// The scene's clot that is in place on the route, nearest the access.
+    fn site_on_route(&self) -> Option<(usize, f64)> {
+        self.sites
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.in_place && !s.embolus)
+            .filter_map(|(i, s)| s.route_from_m.map(|a| (i, a)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    }
+
+    /// One step: `instruments` outermost first, `dt` (s); `route` samples and radii
+    /// (spacing `spacing_m`); the flow `now` and with every vessel open, `open`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn step(
+        &mut self,
+        instruments: &[InstrumentView],
+        dt: f64,
+        route: &[Point3<f64>],
+        radii: &[f64],
+        spacing_m: f64,
+        network: &FlowNetwork,
+        now: &FlowSolution,
+        open: &FlowSolution,
+    ) -> ProcedureStep {
+        let mut out = ProcedureStep::default();
+        self.crossing(instruments);
+        let Some((site, from)) = self.site_on_route() else {
+            return out;
+        };
+        let length = self.sites[site].clot.length_m;
+        let vessel = &network.vessels[self.sites[site].occlusion.vessel];
+        let pressure_drop = (now.pressure[vessel.from] - now.pressure[vessel.to]).max(0.0);
+        // The way back from the clot's proximal end to a tip at `to` along the route.
+        let path_to = |to: f64| -> Option<RetrievalPath> {
+            let (a, b) = (
+                (to / spacing_m).floor().max(0.0) as usize,
+                ((from / spacing_m).ceil() as usize).min(route.len() - 1),
+            );
+            if b <= a + 1 {
+                return Some(RetrievalPath::straight(spacing_m, radii[b]));
+            }
+            let points: Vec<_> = route[a..=b].iter().rev().copied().collect();
+            let r: Vec<_> = radii[a..=b].iter().rev().copied().collect();
+            RetrievalPath::from_centerline(&points, &r).ok()
+        };
+        let mut outcome = None;
+        match &mut self.pass {
+            Some(Pass::Stent {
+                site: s,
+                pass,
+                stent_index,
+                last_inserted_m,
+                receiving_tip_m,
+            }) => {
+                let now_in = instruments[*stent_index].inserted_m;
+                let pull = *last_inserted_m - now_in;
+                *last_inserted_m = now_in;
+                if pull > 0.0
+                    && let Some(path) = path_to(*receiving_tip_m)
+                {
+                    outcome = pass
+                        .advance(pull, pull / dt, &path, (from - *receiving_tip_m).max(0.0))
+                        .map(|o| (*s, o));
+                }
+            }
+            Some(Pass::Aspiration {
+                site: s,
+                pass,
+                catheter_index,
+                last_inserted_m,
+                guide_tip_m,
+            }) => {
+                if !self.aspiration {
+                    outcome = Some((
+                        *s,
+                        PassOutcome::Failed {
+                            emboli_m: Vec::new(),
+                            reason: "suction released",
+                        },
+                    ));
+                } else {
+                    let now_in = instruments[*catheter_index].inserted_m;
+                    let pull = *last_inserted_m - now_in;
+                    *last_inserted_m = now_in;
+                    if pass.ingested() || pull > 0.0 {
+                        let path = path_to(*guide_tip_m);
+                        if let Some(path) = path {
+                            outcome = pass
+                                .advance(
+                                    pull.max(0.0),
+                                    pull.max(0.0) / dt,
+                                    &path,
+                                    (from - *guide_tip_m).max(0.0),
+                                )
+                                .map(|o| (*s, o));
+                        }
+                    }
+                }
+            }
+            None => {
+                self.start_passes(instruments, site, from, length, pressure_drop, &mut out);
+            }
+        }
+        if let Some((s, o)) = outcome {
+            self.finish_pass(s, o, network, open, &mut out);
+        }
+        out
+    }
+
+    /// Tips entering a clot: the force its stiffness asks, and the hand's force meanwhile
+    /// (wires and catheters crossing it, before any stent is engaged).
+    fn crossing(&mut self, instruments: &[InstrumentView]) {
+        if self.engaged.is_some() || self.pass.is_some() || self.figures.passes > 0 {
+            return;
+        }
+        for s in self.sites.iter_mut().filter(|s| s.in_place) {
+            let Some(from) = s.route_from_m else { continue };
+            let to = from + s.clot.length_m;
+            for v in instruments.iter().filter(|v| v.stent.is_none()) {
+                if v.tip_arc_m > from && v.tip_arc_m <= to + 1e-3 {
+                    if !s.crossed {
+                        s.crossed = true;
+                        self.figures.crossing_force_n =
+                            s.clot.mechanics.crossing_force_n(v.outer_diameter_m);
+                    }
+                    self.figures.peak_crossing_force_n = self
+                        .figures
+                        .peak_crossing_force_n
+                        .max(v.axial_force_n.abs());
+                }
+            }
+        }
+    }
+
+    /// With no pass under way: a stent unsheathed across the clot engages it (and a pull on
+    /// it starts a pass); suction on a catheter at the clot's face starts an aspiration pass.
+    fn start_passes(
+        &mut self,
+        instruments: &[InstrumentView],
+        site: usize,
+        from: f64,
+        length: f64,
+        pressure_drop: f64,
+        out: &mut ProcedureStep,
+    ) {
+        let to = from + length;
+        // The stent retriever and the microcatheter around it.
+        let stent = instruments
+            .iter()
+            .enumerate()
+            .skip(1)
+            .find_map(|(i, v)| v.stent.map(|s| (i, s)));
+        if let Some((k, spec)) = stent {
+            let distal = instruments[k].tip_arc_m - spec.from_tip_m;
+            let unsheathed = (distal - instruments[k - 1].tip_arc_m).clamp(0.0, spec.length_m);
+            if unsheathed < SHEATHED_M {
+                self.needs_resheath = false;
+                if self.engaged.take().is_some() {
+                    self.sites[site].bypass_radius_m = None;
+                    out.occlusions = Some(self.occlusions());
+                    out.messages.push("the stent was resheathed".into());
+                }
+            } else if !self.needs_resheath {
+                let model = StentRetriever {
+                    nominal_diameter_m: spec.nominal_diameter_m,
+                    length_m: unsheathed,
+                    cof_n_per_m: spec.cof_n_per_m,
+                    reference_diameter_m: spec.reference_diameter_m,
+                    rrf_ratio: spec.rrf_ratio,
+                    transition_m: spec.transition_m,
+                    strut_friction: spec.strut_friction,
+                    open_area: spec.open_area,
+                };
+                let clot = self.sites[site].clot;
+                let setup = StentSetup {
+                    stent: model,
+                    clot,
+                    distal_offset_m: distal - to,
+                    channel_radius_m: instruments[k - 1].bore_m / 2.0,
+                    receiving_bore_m: receiving(instruments, k, from)
+                        .map_or(instruments[0].bore_m, |(_, v)| v.bore_m),
+                    suction_pa: if self.aspiration {
+                        DEFAULT_SUCTION_PA
+                    } else {
+                        0.0
+                    },
+                    pressure_drop_pa: pressure_drop,
+                };
+                let overlaps = distal > from && distal - unsheathed < to;
+                let changed = self
+                    .engaged
+                    .as_ref()
+                    .is_none_or(|(_, _, u, _)| (u - unsheathed).abs() > 0.5e-3);
+                if overlaps
+                    && changed
+                    && let Ok(engagement) = Engagement::of(&setup)
+                    && engagement.grip_n > 0.0
+                {
+                    let opened = unsheathed >= spec.length_m - 0.5e-3
+                        && self.engaged.is_none_or(|e| e.2 < spec.length_m - 0.5e-3);
+                    self.figures.grip_n = engagement.grip_n;
+                    let channel = BYPASS_RADIUS_FRACTION
+                        * clot.vessel_radius_m
+                        * engagement.embedding.max(0.3);
+                    self.sites[site].bypass_radius_m = Some(channel);
+                    out.occlusions = Some(self.occlusions());
+                    if opened {
+                        out.messages.push(format!(
+                            "the stent is open across the clot: {:.1} mm overlap, grip {:.2} N",
+                            (engagement.overlap_m.1 - engagement.overlap_m.0) * 1e3,
+                            engagement.grip_n
+                        ));
+                    }
+                    let peak = self.engaged.map_or(instruments[k].inserted_m, |e| e.3);
+                    self.engaged = Some((site, engagement, unsheathed, peak));
+                }
+                // A pull of the engaged stent by more than START_PULL_M starts the pass.
+                if let Some((s, engagement, u, peak)) = self.engaged
+                    && s == site
+                {
+                    let stent_now = instruments[k].inserted_m;
+                    self.engaged = Some((s, engagement, u, peak.max(stent_now)));
+                    if stent_now < peak - START_PULL_M {
+                        let receiving_tip = receiving(instruments, k, from)
+                            .map_or(instruments[0].tip_arc_m, |(_, v)| v.tip_arc_m);
+                        if let Ok(pass) = StentPass::new(setup) {
+                            out.messages.push(format!(
+                                "pass {}: retrieving the stent with the clot",
+                                self.figures.passes + 1
+                            ));
+                            self.pass = Some(Pass::Stent {
+                                site,
+                                pass,
+                                stent_index: k,
+                                last_inserted_m: peak,
+                                receiving_tip_m: receiving_tip,
+                            });
+                        }
+                    }
+                }
+            }
+        }
+        if self.pass.is_some() {
+            return;
+        }
+        // Aspiration: the innermost distal-access catheter at the clot's face.
+        if !self.aspiration {
+            return;
+        }
+        let Some((c, catheter)) = instruments
+            .iter()
+            .enumerate()
+            .rev()
+            .find(|(_, v)| v.kind == Some(DeviceKind::DistalAccess))
+        else {
+            return;
+        };
+        let gap = from - catheter.tip_arc_m;
+        if !(-0.5e-3..=APPOSITION_REACH_M).contains(&gap) {
+            return;
+        }
+        let apposition = 1.0 - 0.5 * (gap / APPOSITION_REACH_M).clamp(0.0, 1.0);
+        let guide_tip = if c > 0 {
+            instruments[c - 1].tip_arc_m
+        } else {
+            0.0
+        };
+        if let Ok(pass) = AspirationPass::new(AspirationSetup {
+            clot: self.sites[site].clot,
+            bore_m: catheter.bore_m,
+            suction_pa: DEFAULT_SUCTION_PA,
+            apposition,
+            pressure_drop_pa: pressure_drop,
+        }) {
+            out.messages.push(if pass.ingested() {
+                "aspiration: the clot is ingested".into()
+            } else {
+                format!(
+                    "aspiration: the clot corks the catheter (held with {:.2} N); withdraw under suction",
+                    pass.hold_n()
+                )
+            });
+            self.pass = Some(Pass::Aspiration {
+                site,
+                pass,
+                catheter_index: c,
+                last_inserted_m: catheter.inserted_m,
+                guide_tip_m: guide_tip,
+            });
+        }
+    }
+
+    fn finish_pass(
+        &mut self,
+        site: usize,
+        outcome: PassOutcome,
+        network: &FlowNetwork,
+        open: &FlowSolution,
+        out: &mut ProcedureStep,
+    ) {
+        self.pass = None;
+        self.engaged = None;
+        self.figures.grip_n = 0.0;
+        self.figures.passes += 1;
+        out.pass_ended = true;
+        let pass = self.figures.passes;
+        let emboli = outcome.emboli_m().to_vec();
+        let retrieved = outcome.retrieved();
+        if retrieved {
+            self.sites[site].in_place = false;
+            if pass == 1 && emboli.is_empty() {
+                self.figures.first_pass_effect = true;
+            }
+            out.messages.push(format!("pass {pass}: the clot is out"));
+        } else {
+            let reason = match &outcome {
+                PassOutcome::Failed { reason, .. } => *reason,
+                PassOutcome::Retrieved { .. } => "",
+            };
+            let s = &mut self.sites[site];
+            s.bypass_radius_m = None;
+            s.clot.wedge_strain *= WEDGE_RELIEF;
+            self.needs_resheath = true;
+            out.messages.push(format!(
+                "pass {pass}: the clot was lost ({reason} let go); it is still in place"
+            ));
+        }
+        for length in emboli {
+            if let Some(o) = lodge(&self.sites[site], length, network, open) {
+                self.figures.emboli += 1;
+                let name = &network.vessels[o.vessel].name;
+                out.messages.push(format!(
+                    "a {:.1} mm fragment embolized to {name}",
+                    length * 1e3
+                ));
+                let mut clot = self.sites[site].clot;
+                clot.length_m = o.to_arc - o.from_arc;
+                clot.vessel_radius_m = network.vessels[o.vessel].radius_at(o.from_arc);
+                self.sites.push(Site {
+                    occlusion: o,
+                    clot,
+                    route_from_m: None,
+                    in_place: true,
+                    bypass_radius_m: None,
+                    crossed: false,
+                    embolus: true,
+                });
+            }
+        }
+        if !retrieved {
+            self.sites[site].bypass_radius_m = None;
+        }
+        out.occlusions = Some(self.occlusions());
+    }
+}
+
+/// The catheter a stent at instrument `k` is pulled into: the innermost one outside its
+/// microcatheter whose tip is short of the clot.
+fn receiving(
+    instruments: &[InstrumentView],
+    k: usize,
+    from: f64,
+) -> Option<(usize, &InstrumentView)> {
+    instruments[..k.saturating_sub(1)]
+        .iter()
+        .enumerate()
+        .rev()
+        .find(|(_, v)| v.bore_m > 0.0 && v.tip_arc_m <= from)
+}
+
+/// Where a fragment of `length_m` of the clot at `site` lodges: carried down the branch with
+/// the most flow at each junction (with every vessel open) until a vessel is narrower than
+/// the fragment (a sphere of its volume), or at the end of the last.
+fn lodge(
+    site: &Site,
+    length_m: f64,
+    network: &FlowNetwork,
+    open: &FlowSolution,
+) -> Option<Occlusion> {
+    let volume = site.clot.area_m2() * length_m;
+    let sphere = (3.0 * volume / (4.0 * PI)).cbrt();
+    let mut vessel = site.occlusion.vessel;
+    for _ in 0..network.vessels.len() {
+        let node = network.vessels[vessel].to;
+        let next = network
+            .vessels
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.from == node)
+            .max_by(|a, b| {
+                open.vessels[a.0]
+                    .proximal
+                    .total_cmp(&open.vessels[b.0].proximal)
+            });
+        match next {
+            Some((i, v)) => {
+                vessel = i;
+                if v.radius_at(0.0) < sphere {
+                    break;
+                }
+            }
+            None => break,
+        }
+    }
+    if vessel == site.occlusion.vessel {
+        return None;
+    }
+    let v = &network.vessels[vessel];
+    let r = v.radius_at(0.0);
+    let len = (volume / (PI * r * r)).clamp(0.5e-3, 0.9 * v.length());
+    Some(Occlusion {
+        vessel,
+        from_arc: 0.0,
+        to_arc: len,
+        permeability_m2: site.occlusion.permeability_m2,
+    })
+}

@@ -1,0 +1,273 @@
+//! The stroke case end to end in the engine (`scenes/stroke_m1_thrombectomy.toml`): the
+//! scripted two-hand operator crosses the left M1 clot with the microwire and the
+//! microcatheter; then either the stent retriever (exchanged for the microwire, pushed to the
+//! microcatheter's tip, unsheathed over the clot, retrieved into the distal-access catheter)
+//! or aspiration (the distal-access catheter at the clot's face, suction on). The session's
+//! metrics carry the crossing forces, passes, first-pass effect, reperfusion time and the
+//! eTICI grade from the flow; the final run's contrast reaches beyond the clot.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+
+use cathlab_engine::metrics::Etici;
+use cathlab_engine::*;
+use nalgebra::Point3;
+
+fn scenes() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes")
+}
+
+fn assets() -> Arc<SceneAssets> {
+    static ASSETS: OnceLock<Arc<SceneAssets>> = OnceLock::new();
+    ASSETS
+        .get_or_init(|| {
+            let text =
+                std::fs::read_to_string(scenes().join("stroke_m1_thrombectomy.toml")).unwrap();
+            let spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
+            AssetCache::default().load(&spec, &scenes()).unwrap()
+        })
+        .clone()
+}
+
+/// Inserted length at which a tip reaches the start of the left M1 (m).
+fn m1_inserted(assets: &SceneAssets) -> f64 {
+    let graph = &assets.anatomy.graph;
+    let mut along = 0.0;
+    for leg in &assets.route.legs {
+        if graph.branches[leg.branch].name == "left_middle_cerebral" {
+            break;
+        }
+        along += (leg.to_arc - leg.from_arc).abs();
+    }
+    along - assets.spec.start.along_route_mm * 1e-3
+}
+
+struct Case {
+    world: World,
+    seq: u64,
+    m1: f64,
+}
+
+impl Case {
+    /// The scene with the clot crossed: the microcatheter 6 mm beyond it, every hand still.
+    fn crossed() -> Self {
+        let assets = assets();
+        let m1 = m1_inserted(&assets);
+        let mut world = World::new(assets).unwrap();
+        let reached = world.follow_two_hands(40_000, 1).unwrap();
+        assert!(reached.is_some(), "the microcatheter crossed the clot");
+        let mut case = Self {
+            world,
+            seq: 1_000_000,
+            m1,
+        };
+        for i in 0..4 {
+            case.drive(i, Drive::PushVelocity(0.0));
+        }
+        case
+    }
+
+    fn apply(&mut self, command: Command) -> Result<()> {
+        self.seq += 1;
+        self.world.apply(self.seq, &command)
+    }
+
+    fn drive(&mut self, index: u32, drive: Drive) {
+        self.apply(Command::Instrument { index, drive }).unwrap();
+    }
+
+    fn run(&mut self, steps: usize) {
+        for _ in 0..steps {
+            self.world.step().unwrap();
+        }
+    }
+
+    /// Runs up to `steps` until `done`.
+    fn run_until(&mut self, steps: usize, done: impl Fn(&World) -> bool) -> bool {
+        for _ in 0..steps {
+            if done(&self.world) {
+                return true;
+            }
+            self.world.step().unwrap();
+        }
+        done(&self.world)
+    }
+
+    fn figures(&self) -> cathlab_engine::metrics::ThrombectomyMetric {
+        self.world.metrics().thrombectomy.unwrap()
+    }
+
+    fn reperfusion(&self) -> (f64, Etici) {
+        let r = self.world.metrics().reperfusion.unwrap();
+        (r.fraction, r.etici)
+    }
+
+    /// Runs a DSA with an injection (through the innermost catheter) for `steps` and returns
+    /// the most iodine drawn, at any frame, within 1.5 mm of the M1 between 14 and 20 mm
+    /// along it (beyond the clot's 4–12 mm) (mg/mL).
+    fn contrast_beyond_clot(&mut self, steps: usize) -> f64 {
+        self.apply(Command::Dsa(true)).unwrap();
+        self.apply(Command::Inject {
+            volume_ml: 6.0,
+            rate_ml_s: 4.0,
+        })
+        .unwrap();
+        let a = self.world.assets().clone();
+        let m1 = a.anatomy.graph.branch("left_middle_cerebral").unwrap();
+        let beyond: Vec<Point3<f64>> = (14..=20)
+            .map(|mm| Point3::from(a.to_lps * m1.point_at(f64::from(mm) * 1e-3).coords))
+            .collect();
+        let mut most: f64 = 0.0;
+        for _ in 0..steps / 50 {
+            self.run(50);
+            let snapshot = self.world.snapshot();
+            for t in snapshot.contrast.iter() {
+                let ab = t.end - t.start;
+                let near = beyond.iter().any(|p| {
+                    let s = ((p - t.start).dot(&ab) / ab.norm_squared().max(1e-30)).clamp(0.0, 1.0);
+                    (t.start + ab * s - p).norm() < 1.5e-3
+                });
+                if near {
+                    most = most.max(t.concentration_mg_per_ml);
+                }
+            }
+        }
+        most
+    }
+}
+
+#[test]
+fn thrombectomy_by_stent_retriever_from_crossing_to_etici_3() {
+    let mut case = Case::crossed();
+    let f = case.figures();
+    assert!(f.crossing_force_n > 0.0, "crossing asked a force: {f:?}");
+    assert!(
+        f.peak_crossing_force_n > 0.0,
+        "the hand's force was measured: {f:?}"
+    );
+    assert_eq!(case.reperfusion().1, Etici::Grade0);
+    // Stent commands need a stent retriever in the stack.
+    let e = case.apply(Command::DeployStent).unwrap_err().to_string();
+    assert!(e.contains("no stent retriever"), "{e}");
+    assert!(case.apply(Command::RetrieveStent).is_err());
+    // The distal-access catheter up to 8 mm short of the M1.
+    let m1 = case.m1;
+    case.drive(1, Drive::PushTarget(m1 - 8e-3));
+    case.run(3000);
+    // The microwire out, the stent retriever in, pushed to the microcatheter's tip.
+    let stent = cathlab_engine::scene::catalogue()
+        .entries()
+        .iter()
+        .position(|e| e.id == "stent-retriever-4x20")
+        .unwrap() as u32;
+    case.apply(Command::Exchange {
+        index: 3,
+        catalogue: stent,
+    })
+    .unwrap();
+    assert!(case.run_until(20_000, |w| {
+        w.strand()
+            .device(3)
+            .is_some_and(|d| d.name.starts_with("Stent retriever"))
+    }));
+    let tip = case.world.strand().inserted_m(2);
+    case.drive(3, Drive::PushTarget(tip));
+    assert!(case.run_until(20_000, |w| (w.strand().inserted_m(3) - tip).abs() < 0.3e-3));
+    // Deployed: the stent grips the clot and its channel lets some flow through.
+    case.apply(Command::DeployStent).unwrap();
+    case.run(5000);
+    let f = case.figures();
+    assert!(f.grip_n > 0.05, "{f:?}");
+    let (bypass, grade) = case.reperfusion();
+    assert!(
+        bypass > 0.05 && bypass < 0.9,
+        "partial flow through the deployed stent: {bypass} ({grade:?})"
+    );
+    assert_eq!(case.world.clots().len(), 1);
+    let before = case.world.metrics().procedure_time_s;
+    // Retrieved into the distal-access catheter at 3 mm/s: out on the first pass.
+    case.apply(Command::RetrieveStent).unwrap();
+    assert!(case.run_until(10_000, |w| {
+        w.metrics().thrombectomy.is_some_and(|t| t.passes > 0)
+    }));
+    let f = case.figures();
+    assert_eq!(f.passes, 1);
+    assert!(f.first_pass_effect, "{f:?}");
+    assert_eq!(f.emboli, 0);
+    assert!(case.world.clots().is_empty());
+    let (fraction, grade) = case.reperfusion();
+    assert!(fraction > 0.99, "{fraction}");
+    assert_eq!(grade, Etici::Grade3);
+    let at = f.reperfused_at_s.unwrap();
+    assert!(at > before && at <= case.world.metrics().procedure_time_s);
+    // The hands stopped when the pass ended.
+    let stopped = case.world.strand().inserted_m(3);
+    case.run(200);
+    assert!((case.world.strand().inserted_m(3) - stopped).abs() < 1e-4);
+    // The final run: contrast reaches beyond where the clot was.
+    let beyond = case.contrast_beyond_clot(1500);
+    assert!(
+        beyond > 20.0,
+        "iodine beyond the clot's site: {beyond} mg/mL"
+    );
+    let events: Vec<String> = case
+        .world
+        .take_events()
+        .into_iter()
+        .filter(|e| e.kind == EventKind::Thrombectomy)
+        .map(|e| e.message)
+        .collect();
+    assert!(
+        events.iter().any(|m| m.contains("open across the clot")),
+        "{events:?}"
+    );
+    assert!(
+        events.iter().any(|m| m.contains("pass 1: the clot is out")),
+        "{events:?}"
+    );
+}
+
+#[test]
+fn thrombectomy_by_aspiration_at_the_clot_face() {
+    let mut case = Case::crossed();
+    let face = case.m1 + 4e-3;
+    // Suction with the catheter far from the clot starts nothing.
+    case.apply(Command::Aspiration(true)).unwrap();
+    case.run(200);
+    assert_eq!(case.figures().passes, 0);
+    assert!(case.world.metrics().thrombectomy.unwrap().aspiration);
+    case.apply(Command::Aspiration(false)).unwrap();
+    // The distal-access catheter over the microcatheter to the clot's face (its tip's
+    // distance along the route); the microcatheter and microwire drawn back into it.
+    let a = case.world.assets().clone();
+    let face_arc = face + a.spec.start.along_route_mm * 1e-3;
+    let tip_arc = |w: &World| {
+        let tip = w.strand().tip_position(1).unwrap();
+        cathlab_engine::thrombectomy::route_arc(
+            &a.route_samples,
+            cathlab_engine::assets::ROUTE_SPACING_M,
+            &Point3::from(tip),
+        )
+    };
+    case.drive(1, Drive::PushVelocity(5e-3));
+    assert!(case.run_until(20_000, |w| tip_arc(w) >= face_arc - 0.7e-3));
+    case.drive(1, Drive::PushVelocity(0.0));
+    let dac = case.world.strand().inserted_m(1);
+    assert!(
+        tip_arc(&case.world) <= face_arc + 0.5e-3,
+        "the tip stopped at the face"
+    );
+    case.drive(2, Drive::PushTarget(dac - 10e-3));
+    case.drive(3, Drive::PushTarget(dac - 8e-3));
+    case.run(6000);
+    assert_eq!(case.world.clots().len(), 1);
+    case.apply(Command::Aspiration(true)).unwrap();
+    assert!(
+        case.run_until(500, |w| w.clots().is_empty()),
+        "the clot was ingested"
+    );
+    let f = case.figures();
+    assert_eq!(f.passes, 1);
+    assert!(f.first_pass_effect);
+    assert_eq!(case.reperfusion().1, Etici::Grade3);
+}
