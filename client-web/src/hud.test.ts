@@ -71,6 +71,27 @@ describe("HUD", () => {
     expect(Object.keys(Object.fromEntries(metricRows(create(MetricsSchema, {}))))).not.toContain("eTICI");
     const clotted = create(MetricsSchema, { reperfusion: { fraction: 0.7, etici: "2b67" } });
     expect(Object.fromEntries(metricRows(clotted))).toMatchObject({ eTICI: "2b67 (70 %)" });
+    expect(Object.keys(Object.fromEntries(metricRows(clotted)))).not.toContain("Passes");
+  });
+
+  it("shows the thrombectomy's passes, emboli, grip and time to reperfusion", () => {
+    const engaged = create(MetricsSchema, {
+      reperfusion: { fraction: 0.2, etici: "2a" },
+      thrombectomy: { passes: 0, gripN: 0.238 },
+    });
+    const rows = Object.fromEntries(metricRows(engaged));
+    expect(rows).toMatchObject({ Passes: "0", "Stent grip": "0.24 N" });
+    expect(rows).not.toHaveProperty("Emboli");
+    expect(rows).not.toHaveProperty("Reperfused at");
+    const done = create(MetricsSchema, {
+      reperfusion: { fraction: 1, etici: "3" },
+      thrombectomy: { passes: 1, firstPassEffect: true, emboli: 1, reperfusedAtS: 47.3 },
+    });
+    expect(Object.fromEntries(metricRows(done))).toMatchObject({
+      Passes: "1 · first-pass effect",
+      Emboli: "1",
+      "Reperfused at": clock(47.3),
+    });
   });
   it("shows fluoroscopy time, contrast and when the target was reached", () => {
     const metrics = create(MetricsSchema, {

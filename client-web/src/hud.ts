@@ -97,7 +97,16 @@ export function metricRows(m: Metrics | undefined): [string, string][] {
  *  the occluded territory. */
 export function reperfusionRows(m: Metrics | undefined): [string, string][] {
   const r = m?.reperfusion;
-  return r ? [["eTICI", `${r.etici} (${Math.round(r.fraction * 100)} %)`]] : [];
+  const rows: [string, string][] = r ? [["eTICI", `${r.etici} (${Math.round(r.fraction * 100)} %)`]] : [];
+  const t = m?.thrombectomy;
+  if (t) {
+    const fpe = t.firstPassEffect ? " · first-pass effect" : "";
+    rows.push(["Passes", `${t.passes}${fpe}`]);
+    if (t.emboli > 0) rows.push(["Emboli", `${t.emboli}`]);
+    if (t.gripN > 0) rows.push(["Stent grip", `${t.gripN.toFixed(2)} N`]);
+    if (t.reperfusedAtS !== undefined) rows.push(["Reperfused at", clock(t.reperfusedAtS)]);
+  }
+  return rows;
 }
 
 

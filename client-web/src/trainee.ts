@@ -21,6 +21,7 @@ import {
   type ListScenesResponse,
   type Metrics,
   PulseRate,
+  ThrombectomyAction,
   type SceneSummary,
 } from "./gen/cathlab/v1/simulator_pb.js";
 import { showFrames } from "./frames.js";
@@ -200,6 +201,9 @@ async function main() {
       try {
         const now = await client.getSession({ sessionId: joined.id }, { signal: stop.signal });
         metrics = now.metrics;
+        const clot = metrics?.thrombectomy;
+        $("thrombectomy").hidden = clot === undefined;
+        if (clot) $("aspiration").setAttribute("aria-pressed", String(clot.aspiration));
         if (metrics && metrics.divergenceResets > resets) {
           say("The simulation diverged and the device was put back at its start.");
         }
@@ -467,6 +471,21 @@ function controls(client: SimulatorClient, sessionId: string, instruments: numbe
   $<HTMLSelectElement>("pulse").addEventListener("change", (e) =>
     command({ case: "pulseRate", value: Number((e.target as HTMLSelectElement).value) as PulseRate }),
   );
+  $("deploy-stent").addEventListener("click", async () => {
+    if (await command({ case: "thrombectomy", value: ThrombectomyAction.DEPLOY_STENT })) {
+      say("Deploying: the microcatheter comes back over the held stent.", "success");
+    }
+  });
+  $("retrieve-stent").addEventListener("click", async () => {
+    if (await command({ case: "thrombectomy", value: ThrombectomyAction.RETRIEVE_STENT })) {
+      say("Retrieving: stent and microcatheter come back together.", "success");
+    }
+  });
+  const aspiration = $("aspiration");
+  aspiration.addEventListener("click", async () => {
+    const on = aspiration.getAttribute("aria-pressed") !== "true";
+    if (await command({ case: "aspiration", value: on })) aspiration.setAttribute("aria-pressed", String(on));
+  });
   const dsa = $("dsa");
   dsa.addEventListener("click", () => {
     const on = dsa.getAttribute("aria-pressed") !== "true";

@@ -172,6 +172,18 @@ fn plain_command(kind: &pb::command::Kind) -> Result<Command, Status> {
             }
         }
         Kind::Reset(_) => Command::Reset,
+        Kind::Aspiration(on) => Command::Aspiration(*on),
+        Kind::Demonstrate(on) => Command::Demonstrate(*on),
+        Kind::Thrombectomy(action) => match pb::ThrombectomyAction::try_from(*action) {
+            Ok(pb::ThrombectomyAction::DeployStent) => Command::DeployStent,
+            Ok(pb::ThrombectomyAction::RetrieveStent) => Command::RetrieveStent,
+            _ => {
+                return Err(Status::invalid_argument(format!(
+                    "command.thrombectomy: {action} is not a thrombectomy action \
+                     (DEPLOY_STENT or RETRIEVE_STENT)"
+                )));
+            }
+        },
         Kind::Exchange(x) => {
             let index = x.instrument;
             match &x.device {
@@ -393,6 +405,16 @@ pub fn metrics_to_wire(m: &Metrics) -> pb::Metrics {
             fraction: r.fraction,
             etici: r.etici.label().into(),
         }),
+        thrombectomy: m.thrombectomy.map(|t| pb::Thrombectomy {
+            passes: t.passes,
+            first_pass_effect: t.first_pass_effect,
+            emboli: t.emboli,
+            crossing_force_n: t.crossing_force_n,
+            peak_crossing_force_n: t.peak_crossing_force_n,
+            grip_n: t.grip_n,
+            aspiration: t.aspiration,
+            reperfused_at_s: t.reperfused_at_s,
+        }),
     }
 }
 
@@ -601,6 +623,55 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn thrombectomy_commands_and_figures_cross_the_wire() {
+        let command = |kind| pb::Command {
+            kind: Some(kind),
+            instrument: None,
+        };
+        let deploy = command(pb::command::Kind::Thrombectomy(
+            pb::ThrombectomyAction::DeployStent as i32,
+        ));
+        assert_eq!(
+            command_from_wire(Some(&deploy)).unwrap(),
+            Command::DeployStent
+        );
+        let retrieve = command(pb::command::Kind::Thrombectomy(
+            pb::ThrombectomyAction::RetrieveStent as i32,
+        ));
+        assert_eq!(
+            command_from_wire(Some(&retrieve)).unwrap(),
+            Command::RetrieveStent
+        );
+        for bad in [0, 3, -1, 99] {
+            let err = command_from_wire(Some(&command(pb::command::Kind::Thrombectomy(bad))))
+                .unwrap_err();
+            assert_eq!(err.code(), tonic::Code::InvalidArgument);
+            assert!(
+                err.message().starts_with("command.thrombectomy"),
+                "{}",
+                err.message()
+            );
+        }
+        let suction = command(pb::command::Kind::Aspiration(true));
+        assert_eq!(
+            command_from_wire(Some(&suction)).unwrap(),
+            Command::Aspiration(true)
+        );
+        let mut m = cathlab_engine::Metrics::default();
+        assert!(metrics_to_wire(&m).thrombectomy.is_none());
+        m.thrombectomy = Some(cathlab_engine::metrics::ThrombectomyMetric {
+            passes: 2,
+            first_pass_effect: false,
+            emboli: 1,
+            reperfused_at_s: Some(41.5),
+            ..Default::default()
+        });
+        let wire = metrics_to_wire(&m).thrombectomy.unwrap();
+        assert_eq!((wire.passes, wire.emboli), (2, 1));
+        assert_eq!(wire.reperfused_at_s, Some(41.5));
     }
 
     #[test]

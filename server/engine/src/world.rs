@@ -98,6 +98,10 @@ pub enum Command {
     /// Retrieve: the stent retriever and its microcatheter pulled back together at
     /// [`RETRIEVE_SPEED_M_S`]; they stop when the pass ends.
     RetrieveStent,
+    /// Demonstration on (true) or off: the scene's scripted two-hand operator drives the
+    /// stack until the target is reached (a push, twist or exchange by the trainee takes
+    /// over). Its commands are not recorded; the world replays them from this one.
+    Demonstrate(bool),
 }
 
 /// Speed of the retrieve command's pull (m/s): the slow, steady withdrawal taught.
@@ -381,6 +385,10 @@ pub struct World {
     exchanging: Option<PendingExchange>,
     /// The thrombectomy of a clotted scene with flow.
     procedure: Option<crate::thrombectomy::Procedure>,
+    /// The scene's scripted operator, while it demonstrates.
+    demonstration: Option<cathlab_physics::two_hands::TwoHands<'static>>,
+    /// The world applies its own operator's commands (they do not end a demonstration).
+    operating: bool,
 }
 
 /// An exchange waiting for its instrument to be withdrawn.
@@ -621,6 +629,8 @@ impl World {
             previous_instruments: Vec::new(),
             exchanging: None,
             procedure,
+            demonstration: None,
+            operating: false,
         })
     }
 
@@ -680,6 +690,28 @@ impl World {
     pub fn apply(&mut self, seq: u64, command: &Command) -> Result<()> {
         let innermost = self.strand.len() - 1;
         self.cancel_exchange_if_pushed(command);
+        if !self.operating
+            && self.demonstration.is_some()
+            && matches!(
+                command,
+                Command::PushVelocity(_)
+                    | Command::PushTarget(_)
+                    | Command::TwistRate(_)
+                    | Command::TwistTarget(_)
+                    | Command::Setpoints { .. }
+                    | Command::Instrument { .. }
+                    | Command::Exchange { .. }
+                    | Command::ExchangeSpare { .. }
+                    | Command::SelectDevice(_)
+                    | Command::Reset
+            )
+        {
+            self.demonstration = None;
+            self.event(
+                EventKind::Device,
+                "demonstration ended: the trainee took over",
+            );
+        }
         match *command {
             Command::PushVelocity(v) => self.drive(innermost, Drive::PushVelocity(v))?,
             Command::PushTarget(x) => self.drive(innermost, Drive::PushTarget(x))?,
@@ -896,6 +928,20 @@ impl World {
                         back * 1e3
                     ),
                 );
+            }
+            Command::Demonstrate(on) => {
+                if !on {
+                    if self.demonstration.take().is_some() {
+                        self.hold_all()?;
+                        self.event(EventKind::Device, "demonstration stopped");
+                    }
+                } else if self.demonstration.is_none() {
+                    self.demonstration = Some(self.scene_operator()?);
+                    self.event(
+                        EventKind::Device,
+                        "demonstration: the scene's operator drives to the target",
+                    );
+                }
             }
             Command::RetrieveStent => {
                 let (k, _) = self.stent_instrument()?;
@@ -1396,29 +1442,55 @@ impl World {
     /// its catalogue entry). Returns the step at which the target was reached, or `None` if
     /// it was not.
     pub fn follow_two_hands(&mut self, max_steps: usize, first_seq: u64) -> Result<Option<u64>> {
-        use cathlab_physics::two_hands::{TwoHandAction, TwoHands};
-        let assets = self.assets.clone();
-        let plan = assets.two_hand_plan()?.ok_or_else(|| {
-            EngineError::FailedPrecondition("this scene has no two-hand autopilot".into())
-        })?;
-        let mut hands = TwoHands::new(
-            &assets.anatomy.graph,
-            assets.route.clone(),
-            assets.spec.start.along_route_mm * 1e-3,
-            plan,
-        )?;
+        let mut hands = self.scene_operator()?;
         let mut seq = first_seq;
         for _ in 0..max_steps {
             if self.metrics.target_reached_at_s.is_some() {
                 return Ok(Some(self.step));
             }
+            if !self.operate(&mut hands, &mut seq)? {
+                break;
+            }
+            self.step()?;
+        }
+        Ok(self.metrics.target_reached_at_s.map(|_| self.step))
+    }
+
+    /// The scene's scripted two-hand operator, at the scene's start.
+    fn scene_operator(&self) -> Result<cathlab_physics::two_hands::TwoHands<'static>> {
+        let assets = &self.assets;
+        let plan = assets.two_hand_plan()?.ok_or_else(|| {
+            EngineError::FailedPrecondition("this scene has no two-hand autopilot".into())
+        })?;
+        if self.strand.stack().is_none() {
+            return Err(EngineError::FailedPrecondition(
+                "the two-hand autopilot drives a stack".into(),
+            ));
+        }
+        Ok(cathlab_physics::two_hands::TwoHands::shared(
+            Arc::new(assets.anatomy.graph.clone()),
+            assets.route.clone(),
+            assets.spec.start.along_route_mm * 1e-3,
+            plan,
+        )?)
+    }
+
+    /// One decision of the operator `hands`, applied as commands numbered from `seq`
+    /// (exchanges at once, then the next decision). False when it is done.
+    fn operate(
+        &mut self,
+        hands: &mut cathlab_physics::two_hands::TwoHands<'static>,
+        seq: &mut u64,
+    ) -> Result<bool> {
+        use cathlab_physics::two_hands::TwoHandAction;
+        loop {
             let Some(stack) = self.strand.stack() else {
                 return Err(EngineError::FailedPrecondition(
                     "the two-hand autopilot drives a stack".into(),
                 ));
             };
             match hands.next(stack)? {
-                TwoHandAction::Done => break,
+                TwoHandAction::Done => return Ok(false),
                 TwoHandAction::Drive(commands) => {
                     for (index, command) in commands {
                         let push = match command.insertion {
@@ -1431,14 +1503,15 @@ impl World {
                         };
                         for drive in [push, twist] {
                             let index = index as u32;
-                            self.apply(seq, &Command::Instrument { index, drive })?;
-                            seq += 1;
+                            self.apply(*seq, &Command::Instrument { index, drive })?;
+                            *seq += 1;
                         }
                     }
+                    return Ok(true);
                 }
                 TwoHandAction::Exchange(index, device) => {
                     let index = index as u32;
-                    let spare = assets.spares.iter().position(|(d, _)| *d == device);
+                    let spare = self.assets.spares.iter().position(|(d, _)| *d == device);
                     let catalogue = crate::scene::catalogue()
                         .entries()
                         .iter()
@@ -1460,9 +1533,8 @@ impl World {
                             )));
                         }
                     };
-                    self.apply(seq, &command)?;
-                    seq += 1;
-                    continue;
+                    self.apply(*seq, &command)?;
+                    *seq += 1;
                 }
                 TwoHandAction::Replace(_) => {
                     return Err(EngineError::FailedPrecondition(
@@ -1470,15 +1542,49 @@ impl World {
                     ));
                 }
             }
-            self.step()?;
         }
-        Ok(self.metrics.target_reached_at_s.map(|_| self.step))
+    }
+
+    /// Every hand holds still.
+    fn hold_all(&mut self) -> Result<()> {
+        for i in 0..self.strand.len() {
+            self.drive(i, Drive::PushVelocity(0.0))?;
+            self.drive(i, Drive::TwistRate(0.0))?;
+        }
+        Ok(())
+    }
+
+    /// The demonstration's next decision, before a step; ends it at the target.
+    fn demonstrate(&mut self) -> Result<()> {
+        let Some(mut hands) = self.demonstration.take() else {
+            return Ok(());
+        };
+        let done = if self.metrics.target_reached_at_s.is_some() {
+            true
+        } else {
+            // Its commands carry the last client sequence number, which they leave as it is.
+            let keep = self.last_seq;
+            let mut seq = keep;
+            self.operating = true;
+            let going = self.operate(&mut hands, &mut seq);
+            self.operating = false;
+            self.last_seq = keep;
+            !going?
+        };
+        if done {
+            self.hold_all()?;
+            self.event(EventKind::Device, "demonstration done: every hand holds");
+        } else {
+            self.demonstration = Some(hands);
+        }
+        Ok(())
     }
 
     /// Advances one physics step (and contrast every few steps). Divergence puts the device
     /// back at its start, reports it and counts it; the world stays usable.
     pub fn step(&mut self) -> Result<()> {
         let dt = self.assets.spec.time_step_s();
+        self.demonstrate()?;
         // An exchange under way: replaced once withdrawn (after the last step), else drawn
         // on back.
         if !self.finish_exchange()? {

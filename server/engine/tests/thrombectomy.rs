@@ -230,6 +230,26 @@ fn thrombectomy_by_stent_retriever_from_crossing_to_etici_3() {
 #[test]
 fn thrombectomy_by_aspiration_at_the_clot_face() {
     let mut case = Case::crossed();
+    // The same crossing as a session's demonstration (the operator inside the world):
+    // step for step the same world.
+    let mut shown = World::new(assets()).unwrap();
+    shown.apply(1, &Command::Demonstrate(true)).unwrap();
+    let reached = case.world.metrics().target_reached_at_s.unwrap();
+    while shown.metrics().target_reached_at_s.is_none() {
+        assert!(
+            shown.metrics().procedure_time_s <= reached,
+            "the demonstration reaches it too"
+        );
+        shown.step().unwrap();
+    }
+    assert_eq!(shown.metrics().target_reached_at_s, Some(reached));
+    shown.step().unwrap();
+    assert!(
+        shown
+            .take_events()
+            .iter()
+            .any(|e| e.message.contains("demonstration done"))
+    );
     let face = case.m1 + 4e-3;
     // Suction with the catheter far from the clot starts nothing.
     case.apply(Command::Aspiration(true)).unwrap();

@@ -99,7 +99,7 @@ const RETRY_AIM_OFFSETS_RAD: [f64; 4] = [
 /// Steers a [`Navigation`] along a [`VesselPath`].
 #[derive(Debug, Clone)]
 pub struct Autopilot<'g> {
-    graph: &'g VesselGraph,
+    graph: GraphHandle<'g>,
     path: VesselPath,
     /// Route samples (position, lumen radius), m.
     route: Vec<(Point3<f64>, f64)>,
@@ -110,11 +110,42 @@ pub struct Autopilot<'g> {
     retries: usize,
 }
 
+/// The vessel graph a scripted operator follows: borrowed, or shared (for an operator that
+/// lives as long as a session's world).
+#[derive(Debug, Clone)]
+pub enum GraphHandle<'g> {
+    /// Borrowed for `'g`.
+    Borrowed(&'g VesselGraph),
+    /// Shared.
+    Shared(std::sync::Arc<VesselGraph>),
+}
+
+impl std::ops::Deref for GraphHandle<'_> {
+    type Target = VesselGraph;
+
+    fn deref(&self) -> &VesselGraph {
+        match self {
+            GraphHandle::Borrowed(g) => g,
+            GraphHandle::Shared(g) => g,
+        }
+    }
+}
+
 impl<'g> Autopilot<'g> {
     /// Follows `path` from `start_along_m` metres along it (0: its start; more to begin, for
     /// example, with a guide catheter parked in the aortic arch).
     pub fn new(
         graph: &'g VesselGraph,
+        path: VesselPath,
+        start_along_m: f64,
+        settings: AutopilotSettings,
+    ) -> Result<Self> {
+        Self::with_graph(GraphHandle::Borrowed(graph), path, start_along_m, settings)
+    }
+
+    /// As [`Autopilot::new`], on a graph handle.
+    pub fn with_graph(
+        graph: GraphHandle<'g>,
         path: VesselPath,
         start_along_m: f64,
         settings: AutopilotSettings,

@@ -11,7 +11,7 @@
 use cathlab_anatomy::graph::{VesselGraph, VesselPath};
 use nalgebra::{Point3, Vector3};
 
-use crate::autopilot::{Autopilot, AutopilotPhase, AutopilotSettings};
+use crate::autopilot::{Autopilot, AutopilotPhase, AutopilotSettings, GraphHandle};
 use crate::device::Device;
 use crate::error::{PhysicsError, Result};
 use crate::navigation::{Command, Insertion, Twist};
@@ -79,7 +79,7 @@ pub enum TwoHandPhase {
 /// The two-hand autopilot's state.
 #[derive(Debug, Clone)]
 pub struct TwoHands<'g> {
-    graph: &'g VesselGraph,
+    graph: GraphHandle<'g>,
     path: VesselPath,
     start_along_m: f64,
     /// Route samples every millimetre from the path's start (m).
@@ -125,7 +125,27 @@ impl<'g> TwoHands<'g> {
         start_along_m: f64,
         plan: TwoHandPlan,
     ) -> Result<Self> {
-        let pilot = Autopilot::new(graph, path.clone(), start_along_m, plan.autopilot)?;
+        Self::with_graph(GraphHandle::Borrowed(graph), path, start_along_m, plan)
+    }
+
+    /// As [`TwoHands::new`] on a shared graph: an operator that can live in a session.
+    pub fn shared(
+        graph: std::sync::Arc<VesselGraph>,
+        path: VesselPath,
+        start_along_m: f64,
+        plan: TwoHandPlan,
+    ) -> Result<TwoHands<'static>> {
+        TwoHands::with_graph(GraphHandle::Shared(graph), path, start_along_m, plan)
+    }
+
+    fn with_graph(
+        graph: GraphHandle<'g>,
+        path: VesselPath,
+        start_along_m: f64,
+        plan: TwoHandPlan,
+    ) -> Result<Self> {
+        let pilot =
+            Autopilot::with_graph(graph.clone(), path.clone(), start_along_m, plan.autopilot)?;
         let route = graph
             .sample_path(&path, 1e-3)
             .into_iter()
@@ -259,8 +279,8 @@ impl<'g> TwoHands<'g> {
                     if !self.exchanged {
                         let (_, device, settings) =
                             self.plan.exchange.clone().expect("an exchange is planned");
-                        let next = Autopilot::new(
-                            self.graph,
+                        let next = Autopilot::with_graph(
+                            self.graph.clone(),
                             self.path.clone(),
                             self.start_along_m,
                             settings,

@@ -20,7 +20,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cathlab/v1/simulator.proto.
  */
 export const file_cathlab_v1_simulator: GenFile = /*@__PURE__*/
-  fileDesc("ChpjYXRobGFiL3YxL3NpbXVsYXRvci5wcm90bxIKY2F0aGxhYi52MSITChFMaXN0U2NlbmVzUmVxdWVzdCKgAQoMU2NlbmVTdW1tYXJ5EgwKBG5hbWUYASABKAkSEwoLZGVzY3JpcHRpb24YAiABKAkSDwoHZGV2aWNlcxgDIAMoCRIQCghoYXNfZmxvdxgEIAEoCBIOCgZ0YXJnZXQYBSABKAkSKgoFc3RhY2sYBiADKAsyGy5jYXRobGFiLnYxLlN0YWNrSW5zdHJ1bWVudBIOCgZzcGFyZXMYByADKAkiNgoPU3RhY2tJbnN0cnVtZW50Eg4KBmRldmljZRgBIAEoCRITCgtpbnNlcnRlZF9tbRgCIAEoASKCAQoPQ2F0YWxvZ3VlRGV2aWNlEgoKAmlkGAEgASgJEgwKBG5hbWUYAiABKAkSDAoEa2luZBgDIAEoCRIRCglsZW5ndGhfbW0YBCABKAESGQoRb3V0ZXJfZGlhbWV0ZXJfbW0YBSABKAESGQoRaW5uZXJfZGlhbWV0ZXJfbW0YBiABKAEihQEKEkxpc3RTY2VuZXNSZXNwb25zZRIoCgZzY2VuZXMYASADKAsyGC5jYXRobGFiLnYxLlNjZW5lU3VtbWFyeRIuCgljYXRhbG9ndWUYAiADKAsyGy5jYXRobGFiLnYxLkNhdGFsb2d1ZURldmljZRIVCg1kZWZhdWx0X3NjZW5lGAMgASgJIoQBChRDcmVhdGVTZXNzaW9uUmVxdWVzdBIUCgpzY2VuZV9uYW1lGAEgASgJSAASFAoKc2NlbmVfdG9tbBgCIAEoCUgAEhQKCnNjZW5lX2pzb24YAyABKAlIABINCgVsYWJlbBgEIAEoCRISCgphc3Nlc3NtZW50GAUgASgIQgcKBXNjZW5lIksKCEd1aWRhbmNlEhUKDXRhcmdldF9tYXJrZXIYASABKAgSFwoPdGFyZ2V0X2Rpc3RhbmNlGAIgASgIEg8KB3Byb21wdHMYAyABKAgihAEKFUNyZWF0ZVNlc3Npb25SZXNwb25zZRISCgpzZXNzaW9uX2lkGAEgASgJEhgKEGNvbnRyb2xsZXJfdG9rZW4YAiABKAkSFgoOb2JzZXJ2ZXJfdG9rZW4YAyABKAkSJQoEaW5mbxgEIAEoCzIXLmNhdGhsYWIudjEuU2Vzc2lvbkluZm8iLwoTTGlzdFNlc3Npb25zUmVxdWVzdBIYChBpbmNsdWRlX3JlY29yZGVkGAEgASgIIkEKFExpc3RTZXNzaW9uc1Jlc3BvbnNlEikKCHNlc3Npb25zGAEgAygLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyInChFHZXRTZXNzaW9uUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIikKE0Nsb3NlU2Vzc2lvblJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSI9ChRDbG9zZVNlc3Npb25SZXNwb25zZRIlCgRpbmZvGAEgASgLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyLQAgoLU2Vzc2lvbkluZm8SEgoKc2Vzc2lvbl9pZBgBIAEoCRISCgpzY2VuZV9uYW1lGAIgASgJEg0KBWxhYmVsGAMgASgJEikKBnN0YXR1cxgEIAEoDjIZLmNhdGhsYWIudjEuU2Vzc2lvblN0YXR1cxIWCg5jcmVhdGVkX3VuaXhfcxgFIAEoARIUCgxzdGVwX3JhdGVfaHoYBiABKAESJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcxIiCgZ0aW1pbmcYCCABKAsyEi5jYXRobGFiLnYxLlRpbWluZxIQCghjb21tYW5kcxgJIAEoBBIVCg1hY3RpdmVfZGV2aWNlGAogASgNEhYKDm9ic2VydmVyX3Rva2VuGAsgASgJEiYKCGd1aWRhbmNlGAwgASgLMhQuY2F0aGxhYi52MS5HdWlkYW5jZSKfBAoHTWV0cmljcxIYChBwcm9jZWR1cmVfdGltZV9zGAEgASgBEhoKEmZsdW9yb3Njb3B5X3RpbWVfcxgCIAEoARIQCghkc2FfcnVucxgDIAEoDRIaChJjb250cmFzdF92b2x1bWVfbWwYBCABKAESGAoQbWF4X3dhbGxfZm9yY2VfbhgFIAEoARIZChFtZWFuX3dhbGxfZm9yY2VfbhgGIAEoARIaChJ0aXBfcGF0aF9sZW5ndGhfbW0YByABKAESFgoOdGFyZ2V0X3JlYWNoZWQYCCABKAgSGwoTdGFyZ2V0X3JlYWNoZWRfYXRfcxgJIAEoARINCgVzdGVwcxgKIAEoBBIZChFkaXZlcmdlbmNlX3Jlc2V0cxgLIAEoDRIXCg9vcGVyYXRvcl9yZXNldHMYDCABKA0SHAoUYXR0ZW1wdF9zdGFydGVkX2F0X3MYDSABKAESGwoTdGFyZ2V0X3JlbWFpbmluZ19tbRgOIAEoARIyCgtpbnN0cnVtZW50cxgPIAMoCzIdLmNhdGhsYWIudjEuSW5zdHJ1bWVudE1ldHJpY3MSGgoSbGVhZGluZ19pbnN0cnVtZW50GBAgASgNEhQKDGxlYWRfY2hhbmdlcxgRIAEoDRIYChBwYXNzZWRfaW5uZXJfdGlwGBIgASgNEiwKC3JlcGVyZnVzaW9uGBMgASgLMhcuY2F0aGxhYi52MS5SZXBlcmZ1c2lvbiIuCgtSZXBlcmZ1c2lvbhIQCghmcmFjdGlvbhgBIAEoARINCgVldGljaRgCIAEoCSJiChFJbnN0cnVtZW50TWV0cmljcxIaChJ0aXBfcGF0aF9sZW5ndGhfbW0YASABKAESFQoNbW92aW5nX3RpbWVfcxgCIAEoARIaChJwZWFrX2F4aWFsX2ZvcmNlX24YAyABKAEi8AEKBlRpbWluZxINCgVzdGVwcxgBIAEoBBISCgpsYXRlX3N0ZXBzGAIgASgEEhQKDG1pc3NlZF9zdGVwcxgDIAEoBBIYChBzdGVwX3RpbWVfcDUwX21zGAQgASgBEhgKEHN0ZXBfdGltZV9wOTlfbXMYBSABKAESGAoQc3RlcF90aW1lX21heF9tcxgGIAEoARIOCgZmcmFtZXMYByABKAQSGQoRZnJhbWVfdGltZV9wNTBfbXMYCCABKAESGQoRZnJhbWVfdGltZV9wOTlfbXMYCSABKAESGQoRZnJhbWVfdGltZV9tYXhfbXMYCiABKAEiTwoJSW5zZXJ0aW9uEhcKDXZlbG9jaXR5X21tX3MYASABKAFIABITCgl0YXJnZXRfbW0YAiABKAFIABIMCgRob2xkGAMgASgIQgYKBG1vZGUiSQoFVHdpc3QSFAoKcmF0ZV9kZWdfcxgBIAEoAUgAEhQKCnRhcmdldF9kZWcYAiABKAFIABIMCgRob2xkGAMgASgIQgYKBG1vZGUiNgoIQ0FybVBvc2USEwoLcHJpbWFyeV9kZWcYASABKAESFQoNc2Vjb25kYXJ5X2RlZxgCIAEoASIxCglJbmplY3Rpb24SEQoJdm9sdW1lX21sGAEgASgBEhEKCXJhdGVfbWxfcxgCIAEoASKSAwoHQ29tbWFuZBIqCglpbnNlcnRpb24YASABKAsyFS5jYXRobGFiLnYxLkluc2VydGlvbkgAEiIKBXR3aXN0GAIgASgLMhEuY2F0aGxhYi52MS5Ud2lzdEgAEhcKDXNlbGVjdF9kZXZpY2UYAyABKA1IABIVCgtmbHVvcm9zY29weRgEIAEoCEgAEisKCnB1bHNlX3JhdGUYBSABKA4yFS5jYXRobGFiLnYxLlB1bHNlUmF0ZUgAEg0KA2RzYRgGIAEoCEgAEhEKB3JvYWRtYXAYByABKAhIABIkCgRjYXJtGAggASgLMhQuY2F0aGxhYi52MS5DQXJtUG9zZUgAEicKBmluamVjdBgJIAEoCzIVLmNhdGhsYWIudjEuSW5qZWN0aW9uSAASDwoFcmVzZXQYCiABKAhIABIoCghleGNoYW5nZRgLIAEoCzIULmNhdGhsYWIudjEuRXhjaGFuZ2VIABIXCgppbnN0cnVtZW50GAwgASgNSAGIAQFCBgoEa2luZEINCgtfaW5zdHJ1bWVudCJRCghFeGNoYW5nZRISCgppbnN0cnVtZW50GAEgASgNEhYKDGNhdGFsb2d1ZV9pZBgCIAEoCUgAEg8KBXNwYXJlGAMgASgNSABCCAoGZGV2aWNlIlsKElNlbmRDb21tYW5kUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEgsKA3NlcRgCIAEoBBIkCgdjb21tYW5kGAMgASgLMhMuY2F0aGxhYi52MS5Db21tYW5kIicKCkNvbW1hbmRBY2sSCwoDc2VxGAEgASgEEgwKBHN0ZXAYAiABKAQigAEKDENvbnRyb2xJbnB1dBISCgpzZXNzaW9uX2lkGAEgASgJEgsKA3NlcRgCIAEoBBIRCglwdXNoX21tX3MYAyABKAESEwoLdHdpc3RfZGVnX3MYBCABKAESJwoFaGFuZHMYBSADKAsyGC5jYXRobGFiLnYxLkhhbmRTZXRwb2ludCJKCgxIYW5kU2V0cG9pbnQSEgoKaW5zdHJ1bWVudBgBIAEoDRIRCglwdXNoX21tX3MYAiABKAESEwoLdHdpc3RfZGVnX3MYAyABKAEiTAoNQ29udHJvbE91dHB1dBImCgVzdGF0ZRgBIAEoCzIXLmNhdGhsYWIudjEuRGV2aWNlU3RhdGUSEwoLZHVyYWJsZV9zZXEYAiABKAQiOgoSU3RyZWFtU3RhdGVSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSEAoIdGlwX29ubHkYAiABKAgiJwoEVmVjMxIJCgF4GAEgASgBEgkKAXkYAiABKAESCQoBehgDIAEoASJSCgtXYWxsQ29udGFjdBIiCghwb3NpdGlvbhgBIAEoCzIQLmNhdGhsYWIudjEuVmVjMxIfCgVmb3JjZRgCIAEoCzIQLmNhdGhsYWIudjEuVmVjMyLCBAoLRGV2aWNlU3RhdGUSDAoEc3RlcBgBIAEoBBIOCgZ0aW1lX3MYAiABKAESEAoIbGFzdF9zZXEYAyABKAQSEAoIbm9kZXNfbW0YBCADKAISKQoPdGlwX3Bvc2l0aW9uX21tGAUgASgLMhAuY2F0aGxhYi52MS5WZWMzEicKDXRpcF9kaXJlY3Rpb24YBiABKAsyEC5jYXRobGFiLnYxLlZlYzMSEwoLaW5zZXJ0ZWRfbW0YByABKAESEQoJdHdpc3RfZGVnGAggASgBEikKCGNvbnRhY3RzGAkgAygLMhcuY2F0aGxhYi52MS5XYWxsQ29udGFjdBIqChBwcm94aW1hbF9mb3JjZV9uGAogASgLMhAuY2F0aGxhYi52MS5WZWMzEi0KE3Byb3hpbWFsX3RvcnF1ZV9ubW0YCyABKAsyEC5jYXRobGFiLnYxLlZlYzMSFQoNYWN0aXZlX2RldmljZRgMIAEoDRIWCg5zZXJ2ZXJfdW5peF91cxgNIAEoBBIVCg1heGlhbF9mb3JjZV9uGA4gASgBEhgKEGF4aWFsX3RvcnF1ZV9ubW0YDyABKAESKQoKcHVzaF9saW1pdBgQIAEoDjIVLmNhdGhsYWIudjEuUHVzaExpbWl0EhoKEnB1c2hfZm9yY2VfbGltaXRfbhgRIAEoARIWCg5maWRlbGl0eV9sZXZlbBgSIAEoDRIwCgtpbnN0cnVtZW50cxgTIAMoCzIbLmNhdGhsYWIudjEuSW5zdHJ1bWVudFN0YXRlIqsCCg9JbnN0cnVtZW50U3RhdGUSDAoEbmFtZRgBIAEoCRIUCgxjYXRhbG9ndWVfaWQYAiABKAkSEAoIbm9kZXNfbW0YAyADKAISEwoLaW5zZXJ0ZWRfbW0YBCABKAESEQoJdHdpc3RfZGVnGAUgASgBEikKD3RpcF9wb3NpdGlvbl9tbRgGIAEoCzIQLmNhdGhsYWIudjEuVmVjMxIXCg9iZXlvbmRfb3V0ZXJfbW0YByABKAESFQoNYXhpYWxfZm9yY2VfbhgIIAEoARIYChBheGlhbF90b3JxdWVfbm1tGAkgASgBEikKCnB1c2hfbGltaXQYCiABKA4yFS5jYXRobGFiLnYxLlB1c2hMaW1pdBIaChJwdXNoX2ZvcmNlX2xpbWl0X24YCyABKAEiiwEKE1N0cmVhbUZyYW1lc1JlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCRIrCghlbmNvZGluZxgCIAEoDjIZLmNhdGhsYWIudjEuRnJhbWVFbmNvZGluZxINCgV3aWR0aBgDIAEoDRIOCgZoZWlnaHQYBCABKA0SFAoManBlZ19xdWFsaXR5GAUgASgNIrgCCglYcmF5RnJhbWUSDQoFaW5kZXgYASABKAQSDgoGdGltZV9zGAIgASgBEg0KBXdpZHRoGAMgASgNEg4KBmhlaWdodBgEIAEoDRIrCghlbmNvZGluZxgFIAEoDjIZLmNhdGhsYWIudjEuRnJhbWVFbmNvZGluZxIMCgRkYXRhGAYgASgMEiUKBG1vZGUYByABKA4yFy5jYXRobGFiLnYxLkltYWdpbmdNb2RlEgwKBGhlbGQYCCABKAgSEAoIbGFzdF9zZXEYCSABKAQSDwoHc2tpcHBlZBgKIAEoBBIfChdyZWZlcmVuY2VfYWlyX2tlcm1hX21neRgLIAEoARIhChlrZXJtYV9hcmVhX3Byb2R1Y3RfZ3lfY20yGAwgASgBEhYKDnRhcmdldF9vdXRsaW5lGA0gAygCIioKFFN0cmVhbU1ldHJpY3NSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkiRAoFRXZlbnQSDAoEc3RlcBgBIAEoBBIOCgZ0aW1lX3MYAiABKAESDAoEa2luZBgDIAEoCRIPCgdtZXNzYWdlGAQgASgJImMKDVNlc3Npb25VcGRhdGUSJgoHbWV0cmljcxgBIAEoCzITLmNhdGhsYWIudjEuTWV0cmljc0gAEiIKBWV2ZW50GAIgASgLMhEuY2F0aGxhYi52MS5FdmVudEgAQgYKBGtpbmQiJwoRR2V0QW5hdG9teVJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSI7CgZCcmFuY2gSDAoEbmFtZRgBIAEoCRIRCglwb2ludHNfbW0YAiADKAISEAoIcmFkaWlfbW0YAyADKAIijAEKB0FuYXRvbXkSJAoIYnJhbmNoZXMYASADKAsyEi5jYXRobGFiLnYxLkJyYW5jaBITCgt2ZXJ0aWNlc19tbRgCIAMoAhIRCgl0cmlhbmdsZXMYAyADKA0SIwoJYWNjZXNzX21tGAQgASgLMhAuY2F0aGxhYi52MS5WZWMzEg4KBnRhcmdldBgFIAEoCSIqChRSZXBsYXlTZXNzaW9uUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIq0BCgxSZXBsYXlSZXN1bHQSDQoFc3RlcHMYASABKAQSEAoIY29tbWFuZHMYAiABKA0SEwoLY2hlY2twb2ludHMYAyABKA0SDwoHbWF0Y2hlZBgEIAEoDRIXCg9yZWNvcmRlZF9kaWdlc3QYBSABKAkSFwoPcmVwbGF5ZWRfZGlnZXN0GAYgASgJEiQKB21ldHJpY3MYByABKAsyEy5jYXRobGFiLnYxLk1ldHJpY3MqhgEKDVNlc3Npb25TdGF0dXMSHgoaU0VTU0lPTl9TVEFUVVNfVU5TUEVDSUZJRUQQABIaChZTRVNTSU9OX1NUQVRVU19SVU5OSU5HEAESGQoVU0VTU0lPTl9TVEFUVVNfQ0xPU0VEEAISHgoaU0VTU0lPTl9TVEFUVVNfSU5URVJSVVBURUQQAyphCglQdWxzZVJhdGUSGgoWUFVMU0VfUkFURV9VTlNQRUNJRklFRBAAEhIKDlBVTFNFX1JBVEVfN181EAESEQoNUFVMU0VfUkFURV8xNRACEhEKDVBVTFNFX1JBVEVfMzAQAypNCglQdXNoTGltaXQSEwoPUFVTSF9MSU1JVF9OT05FEAASFAoQUFVTSF9MSU1JVF9GT1JDRRABEhUKEVBVU0hfTElNSVRfTEVOR1RIEAIqkwEKDUZyYW1lRW5jb2RpbmcSHgoaRlJBTUVfRU5DT0RJTkdfVU5TUEVDSUZJRUQQABIXChNGUkFNRV9FTkNPRElOR19SQVc4EAESGAoURlJBTUVfRU5DT0RJTkdfUkFXMTYQAhIWChJGUkFNRV9FTkNPRElOR19QTkcQAxIXChNGUkFNRV9FTkNPRElOR19KUEVHEAQqgQEKC0ltYWdpbmdNb2RlEhwKGElNQUdJTkdfTU9ERV9VTlNQRUNJRklFRBAAEhwKGElNQUdJTkdfTU9ERV9GTFVPUk9TQ09QWRABEhwKGElNQUdJTkdfTU9ERV9TVUJUUkFDVElPThACEhgKFElNQUdJTkdfTU9ERV9ST0FETUFQEAMymAcKCVNpbXVsYXRvchJLCgpMaXN0U2NlbmVzEh0uY2F0aGxhYi52MS5MaXN0U2NlbmVzUmVxdWVzdBoeLmNhdGhsYWIudjEuTGlzdFNjZW5lc1Jlc3BvbnNlElQKDUNyZWF0ZVNlc3Npb24SIC5jYXRobGFiLnYxLkNyZWF0ZVNlc3Npb25SZXF1ZXN0GiEuY2F0aGxhYi52MS5DcmVhdGVTZXNzaW9uUmVzcG9uc2USUQoMTGlzdFNlc3Npb25zEh8uY2F0aGxhYi52MS5MaXN0U2Vzc2lvbnNSZXF1ZXN0GiAuY2F0aGxhYi52MS5MaXN0U2Vzc2lvbnNSZXNwb25zZRJECgpHZXRTZXNzaW9uEh0uY2F0aGxhYi52MS5HZXRTZXNzaW9uUmVxdWVzdBoXLmNhdGhsYWIudjEuU2Vzc2lvbkluZm8SUQoMQ2xvc2VTZXNzaW9uEh8uY2F0aGxhYi52MS5DbG9zZVNlc3Npb25SZXF1ZXN0GiAuY2F0aGxhYi52MS5DbG9zZVNlc3Npb25SZXNwb25zZRJFCgtTZW5kQ29tbWFuZBIeLmNhdGhsYWIudjEuU2VuZENvbW1hbmRSZXF1ZXN0GhYuY2F0aGxhYi52MS5Db21tYW5kQWNrEkIKB0NvbnRyb2wSGC5jYXRobGFiLnYxLkNvbnRyb2xJbnB1dBoZLmNhdGhsYWIudjEuQ29udHJvbE91dHB1dCgBMAESSAoLU3RyZWFtU3RhdGUSHi5jYXRobGFiLnYxLlN0cmVhbVN0YXRlUmVxdWVzdBoXLmNhdGhsYWIudjEuRGV2aWNlU3RhdGUwARJICgxTdHJlYW1GcmFtZXMSHy5jYXRobGFiLnYxLlN0cmVhbUZyYW1lc1JlcXVlc3QaFS5jYXRobGFiLnYxLlhyYXlGcmFtZTABEk4KDVN0cmVhbU1ldHJpY3MSIC5jYXRobGFiLnYxLlN0cmVhbU1ldHJpY3NSZXF1ZXN0GhkuY2F0aGxhYi52MS5TZXNzaW9uVXBkYXRlMAESQAoKR2V0QW5hdG9teRIdLmNhdGhsYWIudjEuR2V0QW5hdG9teVJlcXVlc3QaEy5jYXRobGFiLnYxLkFuYXRvbXkSSwoNUmVwbGF5U2Vzc2lvbhIgLmNhdGhsYWIudjEuUmVwbGF5U2Vzc2lvblJlcXVlc3QaGC5jYXRobGFiLnYxLlJlcGxheVJlc3VsdGIGcHJvdG8z");
+  fileDesc("ChpjYXRobGFiL3YxL3NpbXVsYXRvci5wcm90bxIKY2F0aGxhYi52MSITChFMaXN0U2NlbmVzUmVxdWVzdCKgAQoMU2NlbmVTdW1tYXJ5EgwKBG5hbWUYASABKAkSEwoLZGVzY3JpcHRpb24YAiABKAkSDwoHZGV2aWNlcxgDIAMoCRIQCghoYXNfZmxvdxgEIAEoCBIOCgZ0YXJnZXQYBSABKAkSKgoFc3RhY2sYBiADKAsyGy5jYXRobGFiLnYxLlN0YWNrSW5zdHJ1bWVudBIOCgZzcGFyZXMYByADKAkiNgoPU3RhY2tJbnN0cnVtZW50Eg4KBmRldmljZRgBIAEoCRITCgtpbnNlcnRlZF9tbRgCIAEoASKCAQoPQ2F0YWxvZ3VlRGV2aWNlEgoKAmlkGAEgASgJEgwKBG5hbWUYAiABKAkSDAoEa2luZBgDIAEoCRIRCglsZW5ndGhfbW0YBCABKAESGQoRb3V0ZXJfZGlhbWV0ZXJfbW0YBSABKAESGQoRaW5uZXJfZGlhbWV0ZXJfbW0YBiABKAEihQEKEkxpc3RTY2VuZXNSZXNwb25zZRIoCgZzY2VuZXMYASADKAsyGC5jYXRobGFiLnYxLlNjZW5lU3VtbWFyeRIuCgljYXRhbG9ndWUYAiADKAsyGy5jYXRobGFiLnYxLkNhdGFsb2d1ZURldmljZRIVCg1kZWZhdWx0X3NjZW5lGAMgASgJIoQBChRDcmVhdGVTZXNzaW9uUmVxdWVzdBIUCgpzY2VuZV9uYW1lGAEgASgJSAASFAoKc2NlbmVfdG9tbBgCIAEoCUgAEhQKCnNjZW5lX2pzb24YAyABKAlIABINCgVsYWJlbBgEIAEoCRISCgphc3Nlc3NtZW50GAUgASgIQgcKBXNjZW5lIksKCEd1aWRhbmNlEhUKDXRhcmdldF9tYXJrZXIYASABKAgSFwoPdGFyZ2V0X2Rpc3RhbmNlGAIgASgIEg8KB3Byb21wdHMYAyABKAgihAEKFUNyZWF0ZVNlc3Npb25SZXNwb25zZRISCgpzZXNzaW9uX2lkGAEgASgJEhgKEGNvbnRyb2xsZXJfdG9rZW4YAiABKAkSFgoOb2JzZXJ2ZXJfdG9rZW4YAyABKAkSJQoEaW5mbxgEIAEoCzIXLmNhdGhsYWIudjEuU2Vzc2lvbkluZm8iLwoTTGlzdFNlc3Npb25zUmVxdWVzdBIYChBpbmNsdWRlX3JlY29yZGVkGAEgASgIIkEKFExpc3RTZXNzaW9uc1Jlc3BvbnNlEikKCHNlc3Npb25zGAEgAygLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyInChFHZXRTZXNzaW9uUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIikKE0Nsb3NlU2Vzc2lvblJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSI9ChRDbG9zZVNlc3Npb25SZXNwb25zZRIlCgRpbmZvGAEgASgLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyLQAgoLU2Vzc2lvbkluZm8SEgoKc2Vzc2lvbl9pZBgBIAEoCRISCgpzY2VuZV9uYW1lGAIgASgJEg0KBWxhYmVsGAMgASgJEikKBnN0YXR1cxgEIAEoDjIZLmNhdGhsYWIudjEuU2Vzc2lvblN0YXR1cxIWCg5jcmVhdGVkX3VuaXhfcxgFIAEoARIUCgxzdGVwX3JhdGVfaHoYBiABKAESJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcxIiCgZ0aW1pbmcYCCABKAsyEi5jYXRobGFiLnYxLlRpbWluZxIQCghjb21tYW5kcxgJIAEoBBIVCg1hY3RpdmVfZGV2aWNlGAogASgNEhYKDm9ic2VydmVyX3Rva2VuGAsgASgJEiYKCGd1aWRhbmNlGAwgASgLMhQuY2F0aGxhYi52MS5HdWlkYW5jZSLPBAoHTWV0cmljcxIYChBwcm9jZWR1cmVfdGltZV9zGAEgASgBEhoKEmZsdW9yb3Njb3B5X3RpbWVfcxgCIAEoARIQCghkc2FfcnVucxgDIAEoDRIaChJjb250cmFzdF92b2x1bWVfbWwYBCABKAESGAoQbWF4X3dhbGxfZm9yY2VfbhgFIAEoARIZChFtZWFuX3dhbGxfZm9yY2VfbhgGIAEoARIaChJ0aXBfcGF0aF9sZW5ndGhfbW0YByABKAESFgoOdGFyZ2V0X3JlYWNoZWQYCCABKAgSGwoTdGFyZ2V0X3JlYWNoZWRfYXRfcxgJIAEoARINCgVzdGVwcxgKIAEoBBIZChFkaXZlcmdlbmNlX3Jlc2V0cxgLIAEoDRIXCg9vcGVyYXRvcl9yZXNldHMYDCABKA0SHAoUYXR0ZW1wdF9zdGFydGVkX2F0X3MYDSABKAESGwoTdGFyZ2V0X3JlbWFpbmluZ19tbRgOIAEoARIyCgtpbnN0cnVtZW50cxgPIAMoCzIdLmNhdGhsYWIudjEuSW5zdHJ1bWVudE1ldHJpY3MSGgoSbGVhZGluZ19pbnN0cnVtZW50GBAgASgNEhQKDGxlYWRfY2hhbmdlcxgRIAEoDRIYChBwYXNzZWRfaW5uZXJfdGlwGBIgASgNEiwKC3JlcGVyZnVzaW9uGBMgASgLMhcuY2F0aGxhYi52MS5SZXBlcmZ1c2lvbhIuCgx0aHJvbWJlY3RvbXkYFCABKAsyGC5jYXRobGFiLnYxLlRocm9tYmVjdG9teSLYAQoMVGhyb21iZWN0b215Eg4KBnBhc3NlcxgBIAEoDRIZChFmaXJzdF9wYXNzX2VmZmVjdBgCIAEoCBIOCgZlbWJvbGkYAyABKA0SGAoQY3Jvc3NpbmdfZm9yY2VfbhgEIAEoARIdChVwZWFrX2Nyb3NzaW5nX2ZvcmNlX24YBSABKAESDgoGZ3JpcF9uGAYgASgBEhIKCmFzcGlyYXRpb24YByABKAgSHAoPcmVwZXJmdXNlZF9hdF9zGAggASgBSACIAQFCEgoQX3JlcGVyZnVzZWRfYXRfcyIuCgtSZXBlcmZ1c2lvbhIQCghmcmFjdGlvbhgBIAEoARINCgVldGljaRgCIAEoCSJiChFJbnN0cnVtZW50TWV0cmljcxIaChJ0aXBfcGF0aF9sZW5ndGhfbW0YASABKAESFQoNbW92aW5nX3RpbWVfcxgCIAEoARIaChJwZWFrX2F4aWFsX2ZvcmNlX24YAyABKAEi8AEKBlRpbWluZxINCgVzdGVwcxgBIAEoBBISCgpsYXRlX3N0ZXBzGAIgASgEEhQKDG1pc3NlZF9zdGVwcxgDIAEoBBIYChBzdGVwX3RpbWVfcDUwX21zGAQgASgBEhgKEHN0ZXBfdGltZV9wOTlfbXMYBSABKAESGAoQc3RlcF90aW1lX21heF9tcxgGIAEoARIOCgZmcmFtZXMYByABKAQSGQoRZnJhbWVfdGltZV9wNTBfbXMYCCABKAESGQoRZnJhbWVfdGltZV9wOTlfbXMYCSABKAESGQoRZnJhbWVfdGltZV9tYXhfbXMYCiABKAEiTwoJSW5zZXJ0aW9uEhcKDXZlbG9jaXR5X21tX3MYASABKAFIABITCgl0YXJnZXRfbW0YAiABKAFIABIMCgRob2xkGAMgASgIQgYKBG1vZGUiSQoFVHdpc3QSFAoKcmF0ZV9kZWdfcxgBIAEoAUgAEhQKCnRhcmdldF9kZWcYAiABKAFIABIMCgRob2xkGAMgASgIQgYKBG1vZGUiNgoIQ0FybVBvc2USEwoLcHJpbWFyeV9kZWcYASABKAESFQoNc2Vjb25kYXJ5X2RlZxgCIAEoASIxCglJbmplY3Rpb24SEQoJdm9sdW1lX21sGAEgASgBEhEKCXJhdGVfbWxfcxgCIAEoASL3AwoHQ29tbWFuZBIqCglpbnNlcnRpb24YASABKAsyFS5jYXRobGFiLnYxLkluc2VydGlvbkgAEiIKBXR3aXN0GAIgASgLMhEuY2F0aGxhYi52MS5Ud2lzdEgAEhcKDXNlbGVjdF9kZXZpY2UYAyABKA1IABIVCgtmbHVvcm9zY29weRgEIAEoCEgAEisKCnB1bHNlX3JhdGUYBSABKA4yFS5jYXRobGFiLnYxLlB1bHNlUmF0ZUgAEg0KA2RzYRgGIAEoCEgAEhEKB3JvYWRtYXAYByABKAhIABIkCgRjYXJtGAggASgLMhQuY2F0aGxhYi52MS5DQXJtUG9zZUgAEicKBmluamVjdBgJIAEoCzIVLmNhdGhsYWIudjEuSW5qZWN0aW9uSAASDwoFcmVzZXQYCiABKAhIABIoCghleGNoYW5nZRgLIAEoCzIULmNhdGhsYWIudjEuRXhjaGFuZ2VIABIUCgphc3BpcmF0aW9uGA0gASgISAASNgoMdGhyb21iZWN0b215GA4gASgOMh4uY2F0aGxhYi52MS5UaHJvbWJlY3RvbXlBY3Rpb25IABIVCgtkZW1vbnN0cmF0ZRgPIAEoCEgAEhcKCmluc3RydW1lbnQYDCABKA1IAYgBAUIGCgRraW5kQg0KC19pbnN0cnVtZW50IlEKCEV4Y2hhbmdlEhIKCmluc3RydW1lbnQYASABKA0SFgoMY2F0YWxvZ3VlX2lkGAIgASgJSAASDwoFc3BhcmUYAyABKA1IAEIICgZkZXZpY2UiWwoSU2VuZENvbW1hbmRSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSCwoDc2VxGAIgASgEEiQKB2NvbW1hbmQYAyABKAsyEy5jYXRobGFiLnYxLkNvbW1hbmQiJwoKQ29tbWFuZEFjaxILCgNzZXEYASABKAQSDAoEc3RlcBgCIAEoBCKAAQoMQ29udHJvbElucHV0EhIKCnNlc3Npb25faWQYASABKAkSCwoDc2VxGAIgASgEEhEKCXB1c2hfbW1fcxgDIAEoARITCgt0d2lzdF9kZWdfcxgEIAEoARInCgVoYW5kcxgFIAMoCzIYLmNhdGhsYWIudjEuSGFuZFNldHBvaW50IkoKDEhhbmRTZXRwb2ludBISCgppbnN0cnVtZW50GAEgASgNEhEKCXB1c2hfbW1fcxgCIAEoARITCgt0d2lzdF9kZWdfcxgDIAEoASJMCg1Db250cm9sT3V0cHV0EiYKBXN0YXRlGAEgASgLMhcuY2F0aGxhYi52MS5EZXZpY2VTdGF0ZRITCgtkdXJhYmxlX3NlcRgCIAEoBCI6ChJTdHJlYW1TdGF0ZVJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCRIQCgh0aXBfb25seRgCIAEoCCInCgRWZWMzEgkKAXgYASABKAESCQoBeRgCIAEoARIJCgF6GAMgASgBIlIKC1dhbGxDb250YWN0EiIKCHBvc2l0aW9uGAEgASgLMhAuY2F0aGxhYi52MS5WZWMzEh8KBWZvcmNlGAIgASgLMhAuY2F0aGxhYi52MS5WZWMzIsIECgtEZXZpY2VTdGF0ZRIMCgRzdGVwGAEgASgEEg4KBnRpbWVfcxgCIAEoARIQCghsYXN0X3NlcRgDIAEoBBIQCghub2Rlc19tbRgEIAMoAhIpCg90aXBfcG9zaXRpb25fbW0YBSABKAsyEC5jYXRobGFiLnYxLlZlYzMSJwoNdGlwX2RpcmVjdGlvbhgGIAEoCzIQLmNhdGhsYWIudjEuVmVjMxITCgtpbnNlcnRlZF9tbRgHIAEoARIRCgl0d2lzdF9kZWcYCCABKAESKQoIY29udGFjdHMYCSADKAsyFy5jYXRobGFiLnYxLldhbGxDb250YWN0EioKEHByb3hpbWFsX2ZvcmNlX24YCiABKAsyEC5jYXRobGFiLnYxLlZlYzMSLQoTcHJveGltYWxfdG9ycXVlX25tbRgLIAEoCzIQLmNhdGhsYWIudjEuVmVjMxIVCg1hY3RpdmVfZGV2aWNlGAwgASgNEhYKDnNlcnZlcl91bml4X3VzGA0gASgEEhUKDWF4aWFsX2ZvcmNlX24YDiABKAESGAoQYXhpYWxfdG9ycXVlX25tbRgPIAEoARIpCgpwdXNoX2xpbWl0GBAgASgOMhUuY2F0aGxhYi52MS5QdXNoTGltaXQSGgoScHVzaF9mb3JjZV9saW1pdF9uGBEgASgBEhYKDmZpZGVsaXR5X2xldmVsGBIgASgNEjAKC2luc3RydW1lbnRzGBMgAygLMhsuY2F0aGxhYi52MS5JbnN0cnVtZW50U3RhdGUiqwIKD0luc3RydW1lbnRTdGF0ZRIMCgRuYW1lGAEgASgJEhQKDGNhdGFsb2d1ZV9pZBgCIAEoCRIQCghub2Rlc19tbRgDIAMoAhITCgtpbnNlcnRlZF9tbRgEIAEoARIRCgl0d2lzdF9kZWcYBSABKAESKQoPdGlwX3Bvc2l0aW9uX21tGAYgASgLMhAuY2F0aGxhYi52MS5WZWMzEhcKD2JleW9uZF9vdXRlcl9tbRgHIAEoARIVCg1heGlhbF9mb3JjZV9uGAggASgBEhgKEGF4aWFsX3RvcnF1ZV9ubW0YCSABKAESKQoKcHVzaF9saW1pdBgKIAEoDjIVLmNhdGhsYWIudjEuUHVzaExpbWl0EhoKEnB1c2hfZm9yY2VfbGltaXRfbhgLIAEoASKLAQoTU3RyZWFtRnJhbWVzUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEisKCGVuY29kaW5nGAIgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEg0KBXdpZHRoGAMgASgNEg4KBmhlaWdodBgEIAEoDRIUCgxqcGVnX3F1YWxpdHkYBSABKA0iuAIKCVhyYXlGcmFtZRINCgVpbmRleBgBIAEoBBIOCgZ0aW1lX3MYAiABKAESDQoFd2lkdGgYAyABKA0SDgoGaGVpZ2h0GAQgASgNEisKCGVuY29kaW5nGAUgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEgwKBGRhdGEYBiABKAwSJQoEbW9kZRgHIAEoDjIXLmNhdGhsYWIudjEuSW1hZ2luZ01vZGUSDAoEaGVsZBgIIAEoCBIQCghsYXN0X3NlcRgJIAEoBBIPCgdza2lwcGVkGAogASgEEh8KF3JlZmVyZW5jZV9haXJfa2VybWFfbWd5GAsgASgBEiEKGWtlcm1hX2FyZWFfcHJvZHVjdF9neV9jbTIYDCABKAESFgoOdGFyZ2V0X291dGxpbmUYDSADKAIiKgoUU3RyZWFtTWV0cmljc1JlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSJECgVFdmVudBIMCgRzdGVwGAEgASgEEg4KBnRpbWVfcxgCIAEoARIMCgRraW5kGAMgASgJEg8KB21lc3NhZ2UYBCABKAkiYwoNU2Vzc2lvblVwZGF0ZRImCgdtZXRyaWNzGAEgASgLMhMuY2F0aGxhYi52MS5NZXRyaWNzSAASIgoFZXZlbnQYAiABKAsyES5jYXRobGFiLnYxLkV2ZW50SABCBgoEa2luZCInChFHZXRBbmF0b215UmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIjsKBkJyYW5jaBIMCgRuYW1lGAEgASgJEhEKCXBvaW50c19tbRgCIAMoAhIQCghyYWRpaV9tbRgDIAMoAiKMAQoHQW5hdG9teRIkCghicmFuY2hlcxgBIAMoCzISLmNhdGhsYWIudjEuQnJhbmNoEhMKC3ZlcnRpY2VzX21tGAIgAygCEhEKCXRyaWFuZ2xlcxgDIAMoDRIjCglhY2Nlc3NfbW0YBCABKAsyEC5jYXRobGFiLnYxLlZlYzMSDgoGdGFyZ2V0GAUgASgJIioKFFJlcGxheVNlc3Npb25SZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkirQEKDFJlcGxheVJlc3VsdBINCgVzdGVwcxgBIAEoBBIQCghjb21tYW5kcxgCIAEoDRITCgtjaGVja3BvaW50cxgDIAEoDRIPCgdtYXRjaGVkGAQgASgNEhcKD3JlY29yZGVkX2RpZ2VzdBgFIAEoCRIXCg9yZXBsYXllZF9kaWdlc3QYBiABKAkSJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcyqGAQoNU2Vzc2lvblN0YXR1cxIeChpTRVNTSU9OX1NUQVRVU19VTlNQRUNJRklFRBAAEhoKFlNFU1NJT05fU1RBVFVTX1JVTk5JTkcQARIZChVTRVNTSU9OX1NUQVRVU19DTE9TRUQQAhIeChpTRVNTSU9OX1NUQVRVU19JTlRFUlJVUFRFRBADKmEKCVB1bHNlUmF0ZRIaChZQVUxTRV9SQVRFX1VOU1BFQ0lGSUVEEAASEgoOUFVMU0VfUkFURV83XzUQARIRCg1QVUxTRV9SQVRFXzE1EAISEQoNUFVMU0VfUkFURV8zMBADKocBChJUaHJvbWJlY3RvbXlBY3Rpb24SIwofVEhST01CRUNUT01ZX0FDVElPTl9VTlNQRUNJRklFRBAAEiQKIFRIUk9NQkVDVE9NWV9BQ1RJT05fREVQTE9ZX1NURU5UEAESJgoiVEhST01CRUNUT01ZX0FDVElPTl9SRVRSSUVWRV9TVEVOVBACKk0KCVB1c2hMaW1pdBITCg9QVVNIX0xJTUlUX05PTkUQABIUChBQVVNIX0xJTUlUX0ZPUkNFEAESFQoRUFVTSF9MSU1JVF9MRU5HVEgQAiqTAQoNRnJhbWVFbmNvZGluZxIeChpGUkFNRV9FTkNPRElOR19VTlNQRUNJRklFRBAAEhcKE0ZSQU1FX0VOQ09ESU5HX1JBVzgQARIYChRGUkFNRV9FTkNPRElOR19SQVcxNhACEhYKEkZSQU1FX0VOQ09ESU5HX1BORxADEhcKE0ZSQU1FX0VOQ09ESU5HX0pQRUcQBCqBAQoLSW1hZ2luZ01vZGUSHAoYSU1BR0lOR19NT0RFX1VOU1BFQ0lGSUVEEAASHAoYSU1BR0lOR19NT0RFX0ZMVU9ST1NDT1BZEAESHAoYSU1BR0lOR19NT0RFX1NVQlRSQUNUSU9OEAISGAoUSU1BR0lOR19NT0RFX1JPQURNQVAQAzKYBwoJU2ltdWxhdG9yEksKCkxpc3RTY2VuZXMSHS5jYXRobGFiLnYxLkxpc3RTY2VuZXNSZXF1ZXN0Gh4uY2F0aGxhYi52MS5MaXN0U2NlbmVzUmVzcG9uc2USVAoNQ3JlYXRlU2Vzc2lvbhIgLmNhdGhsYWIudjEuQ3JlYXRlU2Vzc2lvblJlcXVlc3QaIS5jYXRobGFiLnYxLkNyZWF0ZVNlc3Npb25SZXNwb25zZRJRCgxMaXN0U2Vzc2lvbnMSHy5jYXRobGFiLnYxLkxpc3RTZXNzaW9uc1JlcXVlc3QaIC5jYXRobGFiLnYxLkxpc3RTZXNzaW9uc1Jlc3BvbnNlEkQKCkdldFNlc3Npb24SHS5jYXRobGFiLnYxLkdldFNlc3Npb25SZXF1ZXN0GhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbxJRCgxDbG9zZVNlc3Npb24SHy5jYXRobGFiLnYxLkNsb3NlU2Vzc2lvblJlcXVlc3QaIC5jYXRobGFiLnYxLkNsb3NlU2Vzc2lvblJlc3BvbnNlEkUKC1NlbmRDb21tYW5kEh4uY2F0aGxhYi52MS5TZW5kQ29tbWFuZFJlcXVlc3QaFi5jYXRobGFiLnYxLkNvbW1hbmRBY2sSQgoHQ29udHJvbBIYLmNhdGhsYWIudjEuQ29udHJvbElucHV0GhkuY2F0aGxhYi52MS5Db250cm9sT3V0cHV0KAEwARJICgtTdHJlYW1TdGF0ZRIeLmNhdGhsYWIudjEuU3RyZWFtU3RhdGVSZXF1ZXN0GhcuY2F0aGxhYi52MS5EZXZpY2VTdGF0ZTABEkgKDFN0cmVhbUZyYW1lcxIfLmNhdGhsYWIudjEuU3RyZWFtRnJhbWVzUmVxdWVzdBoVLmNhdGhsYWIudjEuWHJheUZyYW1lMAESTgoNU3RyZWFtTWV0cmljcxIgLmNhdGhsYWIudjEuU3RyZWFtTWV0cmljc1JlcXVlc3QaGS5jYXRobGFiLnYxLlNlc3Npb25VcGRhdGUwARJACgpHZXRBbmF0b215Eh0uY2F0aGxhYi52MS5HZXRBbmF0b215UmVxdWVzdBoTLmNhdGhsYWIudjEuQW5hdG9teRJLCg1SZXBsYXlTZXNzaW9uEiAuY2F0aGxhYi52MS5SZXBsYXlTZXNzaW9uUmVxdWVzdBoYLmNhdGhsYWIudjEuUmVwbGF5UmVzdWx0YgZwcm90bzM");
 
 /**
  * @generated from message cathlab.v1.ListScenesRequest
@@ -133,7 +133,8 @@ export type CatalogueDevice = Message<"cathlab.v1.CatalogueDevice"> & {
   name: string;
 
   /**
-   * guide, sheath, distal-access, catheter, microcatheter, guidewire or microwire.
+   * guide, sheath, distal-access, catheter, microcatheter, guidewire, microwire or
+   * stent-retriever.
    *
    * @generated from field: string kind = 3;
    */
@@ -625,6 +626,13 @@ export type Metrics = Message<"cathlab.v1.Metrics"> & {
    * @generated from field: cathlab.v1.Reperfusion reperfusion = 19;
    */
   reperfusion?: Reperfusion | undefined;
+
+  /**
+   * The thrombectomy's figures (absent without clots).
+   *
+   * @generated from field: cathlab.v1.Thrombectomy thrombectomy = 20;
+   */
+  thrombectomy?: Thrombectomy | undefined;
 };
 
 /**
@@ -633,6 +641,76 @@ export type Metrics = Message<"cathlab.v1.Metrics"> & {
  */
 export const MetricsSchema: GenMessage<Metrics> = /*@__PURE__*/
   messageDesc(file_cathlab_v1_simulator, 14);
+
+/**
+ * A thrombectomy's figures so far.
+ *
+ * @generated from message cathlab.v1.Thrombectomy
+ */
+export type Thrombectomy = Message<"cathlab.v1.Thrombectomy"> & {
+  /**
+   * Stent-retriever and aspiration passes made.
+   *
+   * @generated from field: uint32 passes = 1;
+   */
+  passes: number;
+
+  /**
+   * The first pass took the clot out with no fragment lost.
+   *
+   * @generated from field: bool first_pass_effect = 2;
+   */
+  firstPassEffect: boolean;
+
+  /**
+   * Fragments lodged downstream.
+   *
+   * @generated from field: uint32 emboli = 3;
+   */
+  emboli: number;
+
+  /**
+   * Force the clot's stiffness asks of the first tip to cross it (N).
+   *
+   * @generated from field: double crossing_force_n = 4;
+   */
+  crossingForceN: number;
+
+  /**
+   * Largest axial force on a hand while its tip was in the clot (N).
+   *
+   * @generated from field: double peak_crossing_force_n = 5;
+   */
+  peakCrossingForceN: number;
+
+  /**
+   * The deployed stent's grip on the clot (N), 0 when none is engaged.
+   *
+   * @generated from field: double grip_n = 6;
+   */
+  gripN: number;
+
+  /**
+   * Suction on.
+   *
+   * @generated from field: bool aspiration = 7;
+   */
+  aspiration: boolean;
+
+  /**
+   * When the reperfusion first reached eTICI 2b (procedure time, s); absent before.
+   *
+   * @generated from field: optional double reperfused_at_s = 8;
+   */
+  reperfusedAtS?: number | undefined;
+};
+
+/**
+ * Describes the message cathlab.v1.Thrombectomy.
+ * Use `create(ThrombectomySchema)` to create a new message.
+ */
+export const ThrombectomySchema: GenMessage<Thrombectomy> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 15);
 
 /**
  * How much of an occluded territory the flow reaches again, graded from the flow solution.
@@ -660,7 +738,7 @@ export type Reperfusion = Message<"cathlab.v1.Reperfusion"> & {
  * Use `create(ReperfusionSchema)` to create a new message.
  */
 export const ReperfusionSchema: GenMessage<Reperfusion> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 15);
+  messageDesc(file_cathlab_v1_simulator, 16);
 
 /**
  * @generated from message cathlab.v1.InstrumentMetrics
@@ -693,7 +771,7 @@ export type InstrumentMetrics = Message<"cathlab.v1.InstrumentMetrics"> & {
  * Use `create(InstrumentMetricsSchema)` to create a new message.
  */
 export const InstrumentMetricsSchema: GenMessage<InstrumentMetrics> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 16);
+  messageDesc(file_cathlab_v1_simulator, 17);
 
 /**
  * Wall-clock timing of the session's threads.
@@ -761,7 +839,7 @@ export type Timing = Message<"cathlab.v1.Timing"> & {
  * Use `create(TimingSchema)` to create a new message.
  */
 export const TimingSchema: GenMessage<Timing> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 17);
+  messageDesc(file_cathlab_v1_simulator, 18);
 
 /**
  * Push/pull.
@@ -805,7 +883,7 @@ export type Insertion = Message<"cathlab.v1.Insertion"> & {
  * Use `create(InsertionSchema)` to create a new message.
  */
 export const InsertionSchema: GenMessage<Insertion> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 18);
+  messageDesc(file_cathlab_v1_simulator, 19);
 
 /**
  * Twist about the device axis at the entry point.
@@ -843,7 +921,7 @@ export type Twist = Message<"cathlab.v1.Twist"> & {
  * Use `create(TwistSchema)` to create a new message.
  */
 export const TwistSchema: GenMessage<Twist> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 19);
+  messageDesc(file_cathlab_v1_simulator, 20);
 
 /**
  * @generated from message cathlab.v1.CArmPose
@@ -869,7 +947,7 @@ export type CArmPose = Message<"cathlab.v1.CArmPose"> & {
  * Use `create(CArmPoseSchema)` to create a new message.
  */
 export const CArmPoseSchema: GenMessage<CArmPose> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 20);
+  messageDesc(file_cathlab_v1_simulator, 21);
 
 /**
  * @generated from message cathlab.v1.Injection
@@ -895,7 +973,7 @@ export type Injection = Message<"cathlab.v1.Injection"> & {
  * Use `create(InjectionSchema)` to create a new message.
  */
 export const InjectionSchema: GenMessage<Injection> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 21);
+  messageDesc(file_cathlab_v1_simulator, 22);
 
 /**
  * @generated from message cathlab.v1.Command
@@ -982,6 +1060,33 @@ export type Command = Message<"cathlab.v1.Command"> & {
      */
     value: Exchange;
     case: "exchange";
+  } | {
+    /**
+     * Suction through the distal-access catheter on (true) or off; a scene with a clot only
+     * (FAILED_PRECONDITION otherwise).
+     *
+     * @generated from field: bool aspiration = 13;
+     */
+    value: boolean;
+    case: "aspiration";
+  } | {
+    /**
+     * A thrombectomy step with the stack's stent retriever (FAILED_PRECONDITION without one).
+     *
+     * @generated from field: cathlab.v1.ThrombectomyAction thrombectomy = 14;
+     */
+    value: ThrombectomyAction;
+    case: "thrombectomy";
+  } | {
+    /**
+     * Demonstration on (true) or off: the scene's scripted two-hand operator drives the
+     * stack to the target (FAILED_PRECONDITION for a scene without one); a push, twist or
+     * exchange takes over from it.
+     *
+     * @generated from field: bool demonstrate = 15;
+     */
+    value: boolean;
+    case: "demonstrate";
   } | { case: undefined; value?: undefined };
 
   /**
@@ -999,7 +1104,7 @@ export type Command = Message<"cathlab.v1.Command"> & {
  * Use `create(CommandSchema)` to create a new message.
  */
 export const CommandSchema: GenMessage<Command> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 22);
+  messageDesc(file_cathlab_v1_simulator, 23);
 
 /**
  * @generated from message cathlab.v1.Exchange
@@ -1039,7 +1144,7 @@ export type Exchange = Message<"cathlab.v1.Exchange"> & {
  * Use `create(ExchangeSchema)` to create a new message.
  */
 export const ExchangeSchema: GenMessage<Exchange> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 23);
+  messageDesc(file_cathlab_v1_simulator, 24);
 
 /**
  * @generated from message cathlab.v1.SendCommandRequest
@@ -1068,7 +1173,7 @@ export type SendCommandRequest = Message<"cathlab.v1.SendCommandRequest"> & {
  * Use `create(SendCommandRequestSchema)` to create a new message.
  */
 export const SendCommandRequestSchema: GenMessage<SendCommandRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 24);
+  messageDesc(file_cathlab_v1_simulator, 25);
 
 /**
  * @generated from message cathlab.v1.CommandAck
@@ -1092,7 +1197,7 @@ export type CommandAck = Message<"cathlab.v1.CommandAck"> & {
  * Use `create(CommandAckSchema)` to create a new message.
  */
 export const CommandAckSchema: GenMessage<CommandAck> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 25);
+  messageDesc(file_cathlab_v1_simulator, 26);
 
 /**
  * @generated from message cathlab.v1.ControlInput
@@ -1139,7 +1244,7 @@ export type ControlInput = Message<"cathlab.v1.ControlInput"> & {
  * Use `create(ControlInputSchema)` to create a new message.
  */
 export const ControlInputSchema: GenMessage<ControlInput> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 26);
+  messageDesc(file_cathlab_v1_simulator, 27);
 
 /**
  * One hand's speeds on one instrument of a coaxial stack.
@@ -1174,7 +1279,7 @@ export type HandSetpoint = Message<"cathlab.v1.HandSetpoint"> & {
  * Use `create(HandSetpointSchema)` to create a new message.
  */
 export const HandSetpointSchema: GenMessage<HandSetpoint> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 27);
+  messageDesc(file_cathlab_v1_simulator, 28);
 
 /**
  * @generated from message cathlab.v1.ControlOutput
@@ -1203,7 +1308,7 @@ export type ControlOutput = Message<"cathlab.v1.ControlOutput"> & {
  * Use `create(ControlOutputSchema)` to create a new message.
  */
 export const ControlOutputSchema: GenMessage<ControlOutput> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 28);
+  messageDesc(file_cathlab_v1_simulator, 29);
 
 /**
  * @generated from message cathlab.v1.StreamStateRequest
@@ -1228,7 +1333,7 @@ export type StreamStateRequest = Message<"cathlab.v1.StreamStateRequest"> & {
  * Use `create(StreamStateRequestSchema)` to create a new message.
  */
 export const StreamStateRequestSchema: GenMessage<StreamStateRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 29);
+  messageDesc(file_cathlab_v1_simulator, 30);
 
 /**
  * @generated from message cathlab.v1.Vec3
@@ -1255,7 +1360,7 @@ export type Vec3 = Message<"cathlab.v1.Vec3"> & {
  * Use `create(Vec3Schema)` to create a new message.
  */
 export const Vec3Schema: GenMessage<Vec3> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 30);
+  messageDesc(file_cathlab_v1_simulator, 31);
 
 /**
  * @generated from message cathlab.v1.WallContact
@@ -1281,7 +1386,7 @@ export type WallContact = Message<"cathlab.v1.WallContact"> & {
  * Use `create(WallContactSchema)` to create a new message.
  */
 export const WallContactSchema: GenMessage<WallContact> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 31);
+  messageDesc(file_cathlab_v1_simulator, 32);
 
 /**
  * @generated from message cathlab.v1.DeviceState
@@ -1415,7 +1520,7 @@ export type DeviceState = Message<"cathlab.v1.DeviceState"> & {
  * Use `create(DeviceStateSchema)` to create a new message.
  */
 export const DeviceStateSchema: GenMessage<DeviceState> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 32);
+  messageDesc(file_cathlab_v1_simulator, 33);
 
 /**
  * @generated from message cathlab.v1.InstrumentState
@@ -1497,7 +1602,7 @@ export type InstrumentState = Message<"cathlab.v1.InstrumentState"> & {
  * Use `create(InstrumentStateSchema)` to create a new message.
  */
 export const InstrumentStateSchema: GenMessage<InstrumentState> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 33);
+  messageDesc(file_cathlab_v1_simulator, 34);
 
 /**
  * @generated from message cathlab.v1.StreamFramesRequest
@@ -1538,7 +1643,7 @@ export type StreamFramesRequest = Message<"cathlab.v1.StreamFramesRequest"> & {
  * Use `create(StreamFramesRequestSchema)` to create a new message.
  */
 export const StreamFramesRequestSchema: GenMessage<StreamFramesRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 34);
+  messageDesc(file_cathlab_v1_simulator, 35);
 
 /**
  * @generated from message cathlab.v1.XrayFrame
@@ -1630,7 +1735,7 @@ export type XrayFrame = Message<"cathlab.v1.XrayFrame"> & {
  * Use `create(XrayFrameSchema)` to create a new message.
  */
 export const XrayFrameSchema: GenMessage<XrayFrame> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 35);
+  messageDesc(file_cathlab_v1_simulator, 36);
 
 /**
  * @generated from message cathlab.v1.StreamMetricsRequest
@@ -1647,7 +1752,7 @@ export type StreamMetricsRequest = Message<"cathlab.v1.StreamMetricsRequest"> & 
  * Use `create(StreamMetricsRequestSchema)` to create a new message.
  */
 export const StreamMetricsRequestSchema: GenMessage<StreamMetricsRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 36);
+  messageDesc(file_cathlab_v1_simulator, 37);
 
 /**
  * @generated from message cathlab.v1.Event
@@ -1681,7 +1786,7 @@ export type Event = Message<"cathlab.v1.Event"> & {
  * Use `create(EventSchema)` to create a new message.
  */
 export const EventSchema: GenMessage<Event> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 37);
+  messageDesc(file_cathlab_v1_simulator, 38);
 
 /**
  * @generated from message cathlab.v1.SessionUpdate
@@ -1710,7 +1815,7 @@ export type SessionUpdate = Message<"cathlab.v1.SessionUpdate"> & {
  * Use `create(SessionUpdateSchema)` to create a new message.
  */
 export const SessionUpdateSchema: GenMessage<SessionUpdate> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 38);
+  messageDesc(file_cathlab_v1_simulator, 39);
 
 /**
  * @generated from message cathlab.v1.GetAnatomyRequest
@@ -1727,7 +1832,7 @@ export type GetAnatomyRequest = Message<"cathlab.v1.GetAnatomyRequest"> & {
  * Use `create(GetAnatomyRequestSchema)` to create a new message.
  */
 export const GetAnatomyRequestSchema: GenMessage<GetAnatomyRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 39);
+  messageDesc(file_cathlab_v1_simulator, 40);
 
 /**
  * @generated from message cathlab.v1.Branch
@@ -1758,7 +1863,7 @@ export type Branch = Message<"cathlab.v1.Branch"> & {
  * Use `create(BranchSchema)` to create a new message.
  */
 export const BranchSchema: GenMessage<Branch> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 40);
+  messageDesc(file_cathlab_v1_simulator, 41);
 
 /**
  * @generated from message cathlab.v1.Anatomy
@@ -1799,7 +1904,7 @@ export type Anatomy = Message<"cathlab.v1.Anatomy"> & {
  * Use `create(AnatomySchema)` to create a new message.
  */
 export const AnatomySchema: GenMessage<Anatomy> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 41);
+  messageDesc(file_cathlab_v1_simulator, 42);
 
 /**
  * @generated from message cathlab.v1.ReplaySessionRequest
@@ -1816,7 +1921,7 @@ export type ReplaySessionRequest = Message<"cathlab.v1.ReplaySessionRequest"> & 
  * Use `create(ReplaySessionRequestSchema)` to create a new message.
  */
 export const ReplaySessionRequestSchema: GenMessage<ReplaySessionRequest> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 42);
+  messageDesc(file_cathlab_v1_simulator, 43);
 
 /**
  * @generated from message cathlab.v1.ReplayResult
@@ -1869,7 +1974,7 @@ export type ReplayResult = Message<"cathlab.v1.ReplayResult"> & {
  * Use `create(ReplayResultSchema)` to create a new message.
  */
 export const ReplayResultSchema: GenMessage<ReplayResult> = /*@__PURE__*/
-  messageDesc(file_cathlab_v1_simulator, 43);
+  messageDesc(file_cathlab_v1_simulator, 44);
 
 /**
  * @generated from enum cathlab.v1.SessionStatus
@@ -1936,6 +2041,36 @@ export const PulseRateSchema: GenEnum<PulseRate> = /*@__PURE__*/
   enumDesc(file_cathlab_v1_simulator, 1);
 
 /**
+ * @generated from enum cathlab.v1.ThrombectomyAction
+ */
+export enum ThrombectomyAction {
+  /**
+   * @generated from enum value: THROMBECTOMY_ACTION_UNSPECIFIED = 0;
+   */
+  UNSPECIFIED = 0,
+
+  /**
+   * Unsheathe the stent: its hand holds while the microcatheter is drawn back past it.
+   *
+   * @generated from enum value: THROMBECTOMY_ACTION_DEPLOY_STENT = 1;
+   */
+  DEPLOY_STENT = 1,
+
+  /**
+   * Pull the stent and its microcatheter back together (3 mm/s) until the pass ends.
+   *
+   * @generated from enum value: THROMBECTOMY_ACTION_RETRIEVE_STENT = 2;
+   */
+  RETRIEVE_STENT = 2,
+}
+
+/**
+ * Describes the enum cathlab.v1.ThrombectomyAction.
+ */
+export const ThrombectomyActionSchema: GenEnum<ThrombectomyAction> = /*@__PURE__*/
+  enumDesc(file_cathlab_v1_simulator, 2);
+
+/**
  * @generated from enum cathlab.v1.PushLimit
  */
 export enum PushLimit {
@@ -1965,7 +2100,7 @@ export enum PushLimit {
  * Describes the enum cathlab.v1.PushLimit.
  */
 export const PushLimitSchema: GenEnum<PushLimit> = /*@__PURE__*/
-  enumDesc(file_cathlab_v1_simulator, 2);
+  enumDesc(file_cathlab_v1_simulator, 3);
 
 /**
  * @generated from enum cathlab.v1.FrameEncoding
@@ -2005,7 +2140,7 @@ export enum FrameEncoding {
  * Describes the enum cathlab.v1.FrameEncoding.
  */
 export const FrameEncodingSchema: GenEnum<FrameEncoding> = /*@__PURE__*/
-  enumDesc(file_cathlab_v1_simulator, 3);
+  enumDesc(file_cathlab_v1_simulator, 4);
 
 /**
  * @generated from enum cathlab.v1.ImagingMode
@@ -2036,7 +2171,7 @@ export enum ImagingMode {
  * Describes the enum cathlab.v1.ImagingMode.
  */
 export const ImagingModeSchema: GenEnum<ImagingMode> = /*@__PURE__*/
-  enumDesc(file_cathlab_v1_simulator, 4);
+  enumDesc(file_cathlab_v1_simulator, 5);
 
 /**
  * The simulator: scenes, sessions, commands and the streams clients draw from.
