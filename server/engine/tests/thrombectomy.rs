@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
 use cathlab_engine::metrics::Etici;
+use cathlab_engine::thrombectomy::StrokeScript;
 use cathlab_engine::*;
 use nalgebra::Point3;
 
@@ -29,47 +30,27 @@ fn assets() -> Arc<SceneAssets> {
         .clone()
 }
 
-/// Inserted length at which a tip reaches the start of the left M1 (m).
-fn m1_inserted(assets: &SceneAssets) -> f64 {
-    let graph = &assets.anatomy.graph;
-    let mut along = 0.0;
-    for leg in &assets.route.legs {
-        if graph.branches[leg.branch].name == "left_middle_cerebral" {
-            break;
-        }
-        along += (leg.to_arc - leg.from_arc).abs();
-    }
-    along - assets.spec.start.along_route_mm * 1e-3
-}
-
 struct Case {
     world: World,
-    seq: u64,
+    script: StrokeScript,
     m1: f64,
 }
 
 impl Case {
     /// The scene with the clot crossed: the microcatheter 6 mm beyond it, every hand still.
     fn crossed() -> Self {
-        let assets = assets();
-        let m1 = m1_inserted(&assets);
-        let mut world = World::new(assets).unwrap();
-        let reached = world.follow_two_hands(40_000, 1).unwrap();
-        assert!(reached.is_some(), "the microcatheter crossed the clot");
-        let mut case = Self {
-            world,
-            seq: 1_000_000,
-            m1,
-        };
-        for i in 0..4 {
-            case.drive(i, Drive::PushVelocity(0.0));
-        }
-        case
+        let mut world = World::new(assets()).unwrap();
+        let mut script = StrokeScript::new(&world, "left_middle_cerebral", 1).unwrap();
+        assert!(
+            script.cross(&mut world).unwrap(),
+            "the microcatheter crossed the clot"
+        );
+        let m1 = script.branch_inserted_m;
+        Self { world, script, m1 }
     }
 
     fn apply(&mut self, command: Command) -> Result<()> {
-        self.seq += 1;
-        self.world.apply(self.seq, &command)
+        self.script.apply(&mut self.world, command)
     }
 
     fn drive(&mut self, index: u32, drive: Drive) {
@@ -84,13 +65,7 @@ impl Case {
 
     /// Runs up to `steps` until `done`.
     fn run_until(&mut self, steps: usize, done: impl Fn(&World) -> bool) -> bool {
-        for _ in 0..steps {
-            if done(&self.world) {
-                return true;
-            }
-            self.world.step().unwrap();
-        }
-        done(&self.world)
+        StrokeScript::run_until(&mut self.world, steps, done).unwrap()
     }
 
     fn figures(&self) -> cathlab_engine::metrics::ThrombectomyMetric {
@@ -150,29 +125,19 @@ fn thrombectomy_by_stent_retriever_from_crossing_to_etici_3() {
     let e = case.apply(Command::DeployStent).unwrap_err().to_string();
     assert!(e.contains("no stent retriever"), "{e}");
     assert!(case.apply(Command::RetrieveStent).is_err());
-    // The distal-access catheter up to 8 mm short of the M1.
+    // The distal-access catheter up to 8 mm short of the M1; the microwire out, the stent
+    // retriever in, pushed to the microcatheter's tip.
     let m1 = case.m1;
-    case.drive(1, Drive::PushTarget(m1 - 8e-3));
-    case.run(3000);
-    // The microwire out, the stent retriever in, pushed to the microcatheter's tip.
-    let stent = cathlab_engine::scene::catalogue()
-        .entries()
-        .iter()
-        .position(|e| e.id == "stent-retriever-4x20")
-        .unwrap() as u32;
-    case.apply(Command::Exchange {
-        index: 3,
-        catalogue: stent,
-    })
-    .unwrap();
-    assert!(case.run_until(20_000, |w| {
-        w.strand()
-            .device(3)
-            .is_some_and(|d| d.name.starts_with("Stent retriever"))
-    }));
-    let tip = case.world.strand().inserted_m(2);
-    case.drive(3, Drive::PushTarget(tip));
-    assert!(case.run_until(20_000, |w| (w.strand().inserted_m(3) - tip).abs() < 0.3e-3));
+    assert!(
+        case.script
+            .move_to(&mut case.world, 1, m1 - 8e-3, 6000)
+            .unwrap()
+    );
+    assert!(
+        case.script
+            .bring_in(&mut case.world, "stent-retriever-4x20")
+            .unwrap()
+    );
     // Deployed: the stent grips the clot and its channel lets some flow through.
     case.apply(Command::DeployStent).unwrap();
     case.run(5000);
