@@ -557,6 +557,56 @@ try {
     await machine.close();
   });
 
+  await test("stroke_scene_thrombectomy_panel_grade_and_demonstration", async () => {
+    const machine = await browser.newContext({ viewport: { width: 1280, height: 800 } });
+    const page = await machine.newPage();
+    page.on("pageerror", (e) => pageErrors.push(`stroke: ${e.message}`));
+    const message = () => page.textContent("#message");
+    // The stroke scene (its anatomy takes a while to build on first use).
+    await page.goto(`${url}/?label=e2e-stroke&scene=stroke_m1_thrombectomy`);
+    await page.waitForSelector('#connection[data-status="connected"]', { timeout: 120_000 });
+    await page.waitForSelector("#thrombectomy:not([hidden])", { timeout: 15_000 });
+    await page.waitForFunction(() => /^0 /.test(document.querySelector("#hud-etici")?.textContent ?? ""), null, {
+      timeout: 15_000,
+    });
+    console.log(`  eTICI ${await page.textContent("#hud-etici")}, passes ${await page.textContent("#hud-passes")}`);
+    // Deploying before a stent retriever is in: the server's reason on the page.
+    await page.click("#deploy-stent");
+    await page.waitForFunction(() => /stent retriever/.test(document.querySelector("#message")?.textContent ?? ""), null, {
+      timeout: 10_000,
+    });
+    console.log(`  deploy refused: ${await message()}`);
+    // Suction on: still on after the metrics polls (the server's figure).
+    await page.click("#aspiration");
+    await page.waitForTimeout(2500);
+    assert((await page.getAttribute("#aspiration", "aria-pressed")) === "true", "suction stays on");
+    await page.click("#aspiration");
+    await page.waitForTimeout(2500);
+    assert((await page.getAttribute("#aspiration", "aria-pressed")) === "false", "suction off again");
+    // The scene's operator demonstrates the crossing: the microcatheter reaches beyond the clot.
+    await page.click("#demonstrate");
+    await page.waitForFunction(() => /reached/.test(document.querySelector("#hud-target")?.textContent ?? ""), null, {
+      timeout: 120_000,
+    });
+    console.log(`  demonstration: ${await page.textContent("#hud-target")}`);
+    // Every control of the stroke page is in view at 1280×800.
+    const outside = await page.evaluate(() =>
+      [...document.querySelectorAll("#controls button, #controls input, #controls select, #hud dd")]
+        .filter((e) => e.checkVisibility())
+        .map((e) => ({ id: e.id || e.textContent?.trim().slice(0, 20), r: e.getBoundingClientRect() }))
+        .filter(({ r }) => r.bottom > innerHeight + 0.5 || r.right > innerWidth + 0.5 || r.width === 0)
+        .map(({ id }) => id),
+    );
+    assert(outside.length === 0, `out of view on the stroke page at 1280×800: ${outside.join(", ")}`);
+    assert((await page.getAttribute("#demonstrate", "aria-pressed")) === "false", "the demonstration button released");
+    await page.keyboard.down("f");
+    await nextFrame(page);
+    await nextFrame(page);
+    await page.screenshot({ path: join(artifacts, "trainee-stroke.png") });
+    await page.keyboard.up("f");
+    await machine.close();
+  });
+
   await test("layouts_fit_1280x800_and_1024x640_without_scrolling", async () => {
     await trainee.bringToFront();
     for (const [width, height] of [[1280, 800], [1024, 640]]) {

@@ -25,7 +25,7 @@ import {
   type SceneSummary,
 } from "./gen/cathlab/v1/simulator_pb.js";
 import { showFrames } from "./frames.js";
-import { doseLine, hudLines } from "./hud.js";
+import { doseLine, hudLines, reperfusionRows } from "./hud.js";
 import { drawMarker } from "./marker.js";
 import { shortName, stackLines } from "./stack.js";
 import { type ConnectionStatus, keepOpen } from "./reconnect.js";
@@ -203,7 +203,15 @@ async function main() {
         metrics = now.metrics;
         const clot = metrics?.thrombectomy;
         $("thrombectomy").hidden = clot === undefined;
+        if (clot) document.body.dataset.clot = "";
+        else delete document.body.dataset.clot;
         if (clot) $("aspiration").setAttribute("aria-pressed", String(clot.aspiration));
+        const procedure = Object.fromEntries(reperfusionRows(metrics));
+        $("hud-etici-box").hidden = procedure.eTICI === undefined;
+        $("hud-etici").textContent = procedure.eTICI ?? "—";
+        $("hud-passes-box").hidden = procedure.Passes === undefined;
+        $("hud-passes").textContent = procedure.Passes ?? "—";
+        if (metrics?.targetReached) $("demonstrate").setAttribute("aria-pressed", "false");
         if (metrics && metrics.divergenceResets > resets) {
           say("The simulation diverged and the device was put back at its start.");
         }
@@ -479,6 +487,14 @@ function controls(client: SimulatorClient, sessionId: string, instruments: numbe
   $("retrieve-stent").addEventListener("click", async () => {
     if (await command({ case: "thrombectomy", value: ThrombectomyAction.RETRIEVE_STENT })) {
       say("Retrieving: stent and microcatheter come back together.", "success");
+    }
+  });
+  const demonstrate = $("demonstrate");
+  demonstrate.addEventListener("click", async () => {
+    const on = demonstrate.getAttribute("aria-pressed") !== "true";
+    if (await command({ case: "demonstrate", value: on })) {
+      demonstrate.setAttribute("aria-pressed", String(on));
+      if (on) say("Demonstration: the scene's operator drives to the target; push or twist to take over.", "success");
     }
   });
   const aspiration = $("aspiration");

@@ -776,3 +776,95 @@ impl StrokeScript {
         self.move_to(world, inner as u32, tip, 20_000)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cathlab_hemo::{Blood, FlowSolver, Inlet, InletCondition, Outlet, Vessel};
+
+    /// A parent artery (r 1.5 mm) forking into a wide (1.0 mm) and a narrow (0.6 mm) branch,
+    /// each forking again into two 0.5 mm branches; every end drains through the same
+    /// terminal resistance.
+    fn tree() -> FlowNetwork {
+        let v = |name: &str, from, to, r| Vessel::uniform(name, from, to, 20e-3, r);
+        let vessels = vec![
+            v("parent", 0, 1, 1.5e-3),
+            v("wide", 1, 2, 1.0e-3),
+            v("narrow", 1, 3, 0.6e-3),
+            v("wide-a", 2, 4, 0.5e-3),
+            v("wide-b", 2, 5, 0.5e-3),
+            v("narrow-a", 3, 6, 0.5e-3),
+            v("narrow-b", 3, 7, 0.5e-3),
+        ];
+        let outlets = (4..8)
+            .map(|node| Outlet {
+                node,
+                resistance: 5e9,
+                pressure: 0.0,
+            })
+            .collect();
+        FlowNetwork::new(
+            8,
+            vessels,
+            Inlet {
+                node: 0,
+                condition: InletCondition::Pressure(13_000.0),
+            },
+            outlets,
+            Blood::default(),
+        )
+        .unwrap()
+    }
+
+    fn site() -> Site {
+        let occlusion = Occlusion {
+            vessel: 0,
+            from_arc: 4e-3,
+            to_arc: 12e-3,
+            permeability_m2: 1e-15,
+        };
+        Site {
+            occlusion,
+            clot: Clot::new(
+                ClotComposition {
+                    red_cell_fraction: 0.5,
+                },
+                8e-3,
+                1.5e-3,
+                SCENE_WEDGE_STRAIN,
+            ),
+            route_from_m: Some(0.0),
+            in_place: true,
+            bypass_radius_m: None,
+            crossed: false,
+            embolus: false,
+        }
+    }
+
+    /// A fragment follows the most flow until a vessel is narrower than the sphere of its
+    /// volume, and lodges there with its volume.
+    #[test]
+    fn fragments_ride_the_main_flow_and_lodge_where_they_no_longer_fit() {
+        let network = tree();
+        let open = FlowSolver::new(network.clone())
+            .unwrap()
+            .solve(None)
+            .unwrap();
+        assert!(open.vessels[1].proximal > open.vessels[2].proximal);
+        let site = site();
+        // 2 mm of the 1.5 mm clot: a sphere of 1.28 mm radius, wider than the wide branch.
+        let big = lodge(&site, 2e-3, &network, &open).unwrap();
+        assert_eq!(network.vessels[big.vessel].name, "wide");
+        let volume = site.clot.area_m2() * 2e-3;
+        let lodged = PI * 1e-3 * 1e-3 * (big.to_arc - big.from_arc);
+        assert!((lodged - volume).abs() < 1e-9 * volume);
+        // 0.1 mm: a 0.38 mm sphere fits every branch and rides the main flow to its end.
+        let small = lodge(&site, 0.1e-3, &network, &open).unwrap();
+        assert!(network.vessels[small.vessel].name.starts_with("wide-"));
+        // The occlusion it makes cuts that branch's flow.
+        let mut solver = FlowSolver::new(network.clone()).unwrap();
+        solver.set_occlusions(&[big]).unwrap();
+        let now = solver.solve(None).unwrap();
+        assert!(now.vessels[1].proximal < 0.01 * open.vessels[1].proximal);
+    }
+}
