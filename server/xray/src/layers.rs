@@ -33,6 +33,10 @@ impl LayerMaterial {
     }
 }
 
+/// Sharpest bend between a chain's segments that still gets a mitre joint (degrees); the
+/// joint's plane then makes at most half this angle with the axes' normal plane.
+pub const MITRE_LIMIT_DEG: f64 = 120.0;
+
 /// One truncated cone between two cap planes, possibly hollow: the unit all layers are made of.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TubePiece {
@@ -407,6 +411,9 @@ impl Layers {
             .flat_map(|b| [b.from_tip_m, b.from_tip_m + b.length_m])
             .collect();
         cuts.sort_by(f64::total_cmp);
+        // A band that starts where another ends gives the same cut twice: once is enough (a
+        // zero-length piece between them had no axis and drew a square of metal).
+        cuts.dedup_by(|a, b| (*a - *b).abs() < 1e-12);
         let material_at = |d: f64| {
             look.bands
                 .iter()
@@ -432,6 +439,9 @@ impl Layers {
             );
             stops.push(db);
             for w in stops.windows(2) {
+                if w[0] - w[1] < 1e-12 {
+                    continue;
+                }
                 let at = |d: f64| a + (b - a) * ((da - d) / (da - db));
                 let (material, fill) = material_at(0.5 * (w[0] + w[1]));
                 chain.push(ChainSegment {
@@ -448,18 +458,22 @@ impl Layers {
         Ok(())
     }
 
-    /// Mitres a chain: neighbours share the bisector plane of their axes.
+    /// Mitres a chain: neighbours share the bisector plane of their axes, up to a bend of
+    /// [`MITRE_LIMIT_DEG`]; sharper kinks (a device folded back on itself) get square ends.
+    /// A mitre plane nearly along the axis would clip the piece's cone far beyond its
+    /// segment: a fold drew a square of metal over the piece's whole bounding box.
     fn push_chain(&mut self, chain: &[ChainSegment]) {
         let axis = |s: &ChainSegment| (s.end - s.start).normalize();
+        let limit = (0.5 * MITRE_LIMIT_DEG).to_radians().cos();
         for (i, s) in chain.iter().enumerate() {
             let u = axis(s);
             let joint = |other: &ChainSegment| {
                 let sum = u + axis(other);
                 if sum.norm() < 1e-6 {
-                    u
-                } else {
-                    sum.normalize()
+                    return u;
                 }
+                let n = sum.normalize();
+                if n.dot(&u) < limit { u } else { n }
             };
             let start_cap = if i > 0 { -joint(&chain[i - 1]) } else { -u };
             let end_cap = if i + 1 < chain.len() {

@@ -175,6 +175,104 @@ fn mitred_chains_neither_overlap_nor_leave_gaps() {
     assert!(worst < 5e-7, "{worst}");
 }
 
+/// Regression: a wire folded back on itself (a 178° kink, as a device compressed at a
+/// catheter's tip) drew a square of metal over its pieces' bounding boxes, because the mitre
+/// plane of the kink lay almost along the axes. Past the mitre limit the joint is square:
+/// rays beside the wire cross nothing, and rays through it at most two wires' thickness.
+#[test]
+fn a_folded_wire_draws_no_metal_beside_itself() {
+    let fold = f64::to_radians(178.0);
+    let points = vec![
+        Point3::new(0.0, 0.0, 0.0),
+        Point3::new(0.0, 0.0, 0.004),
+        Point3::new(
+            0.004 * (std::f64::consts::PI - fold).sin(),
+            0.0,
+            0.004 - 0.004 * (std::f64::consts::PI - fold).cos(),
+        ),
+    ];
+    let look = DeviceAppearance {
+        bands: vec![],
+        ..DeviceAppearance::guidewire_035()
+    };
+    let mut layers = Layers::new();
+    layers.add_device(&points, &look).unwrap();
+    let r = look.outer_radius_m;
+    // Rays parallel to y, across a grid in x–z around the fold.
+    let direction = Vector3::new(0.0, 1.0, 0.0);
+    let count = |p: &Point3<f64>| layers.pieces().iter().filter(|q| q.contains(p)).count();
+    for ix in -20..=20 {
+        for iz in -10..=30 {
+            let (x, z) = (f64::from(ix) * 0.25e-3, f64::from(iz) * 0.25e-3);
+            let origin = Point3::new(x, -0.01, z);
+            let got = layers.paths_along(&origin, &direction)[1];
+            let near = points.windows(2).any(|s| {
+                let (a, b) = (s[0], s[1]);
+                let q = Point3::new(x, 0.0, z);
+                let t = ((q - a).dot(&(b - a)) / (b - a).norm_squared()).clamp(0.0, 1.0);
+                (q - (a + (b - a) * t)).norm() < 1.05 * r
+            });
+            if !near {
+                assert_eq!(got, 0.0, "metal beside the fold at x {x}, z {z}");
+            } else {
+                // The two halves overlap at the fold: at most twice the wire's thickness, and
+                // never less than the union of the pieces.
+                let (brute, _) = brute_chord(&origin, &direction, 0.02, 20_000, count);
+                assert!(
+                    got <= 4.0 * r + 1e-9,
+                    "x {x}, z {z}: {got} is more than two wires"
+                );
+                assert!(got >= brute - 2e-6, "x {x}, z {z}: {got} vs {brute}");
+            }
+        }
+    }
+}
+
+/// Regression: a tip coil ending where a marker band starts (the stent retriever's coil to
+/// 5 mm and its band from 5 mm) cut the wire twice at the same place; the zero-length piece
+/// between the cuts had no axis, an infinite chord, and drew a square over its box.
+#[test]
+fn adjoining_bands_leave_no_zero_length_piece() {
+    let points: Vec<Point3<f64>> = (0..=10)
+        .map(|i| Point3::new(0.0, 0.0, 0.002 * f64::from(i)))
+        .collect();
+    let look = DeviceAppearance {
+        bands: vec![
+            DeviceBand {
+                from_tip_m: 0.0,
+                length_m: 0.005,
+                material: LayerMaterial::Platinum,
+                fill: 0.6,
+            },
+            DeviceBand {
+                from_tip_m: 0.005,
+                length_m: 0.0008,
+                material: LayerMaterial::Platinum,
+                fill: 1.0,
+            },
+        ],
+        ..DeviceAppearance::guidewire_035()
+    };
+    let mut layers = Layers::new();
+    layers.add_device(&points, &look).unwrap();
+    for piece in layers.pieces() {
+        assert!((piece.end - piece.start).norm() > 1e-9, "{piece:?}");
+    }
+    // Beside the wire nothing; through it, the wire's diameter in one channel.
+    let r = look.outer_radius_m;
+    for iz in 0..=80 {
+        let z = 0.00025 * f64::from(iz) + 0.0001; // off the joints (shared cap planes)
+        let beside = layers.paths_along(&Point3::new(0.01, 0.0, z), &Vector3::new(0.0, 1.0, 0.0));
+        assert_eq!(beside, [0.0; 3], "z {z}");
+        let through = layers.paths_along(&Point3::new(0.0, -0.01, z), &Vector3::new(0.0, 1.0, 0.0));
+        let total: f64 = through.iter().sum();
+        assert!(
+            total.is_finite() && total <= 2.0 * r + 1e-12,
+            "z {z}: {through:?}"
+        );
+    }
+}
+
 #[test]
 fn a_straight_contrast_chain_is_one_cylinder_weighted_by_concentration() {
     let r = 2e-3;
