@@ -37,6 +37,11 @@ impl Driver {
         send(&mut self.client, &self.session, self.seq, Some(c)).await
     }
 
+    async fn thrombectomy(&mut self, action: pb::ThrombectomyAction) -> pb::CommandAck {
+        self.send(pb::command::Kind::Thrombectomy(action as i32), None)
+            .await
+    }
+
     async fn target(&mut self, instrument: u32, mm: f64) {
         self.send(
             pb::command::Kind::Insertion(pb::Insertion {
@@ -194,22 +199,14 @@ async fn thrombectomy_through_the_server_from_crossing_to_etici_3() {
     })
     .await;
     // Deployed: grip, and the bypass flow through the stent.
-    d.send(
-        pb::command::Kind::Thrombectomy(pb::ThrombectomyAction::DeployStent as i32),
-        None,
-    )
-    .await;
+    d.thrombectomy(pb::ThrombectomyAction::DeployStent).await;
     d.until(60, "the stent open across the clot", |m| {
         m.thrombectomy.as_ref().is_some_and(|t| t.grip_n > 0.05)
             && m.reperfusion.as_ref().is_some_and(|r| r.fraction > 0.05)
     })
     .await;
     // Retrieved.
-    d.send(
-        pb::command::Kind::Thrombectomy(pb::ThrombectomyAction::RetrieveStent as i32),
-        None,
-    )
-    .await;
+    d.thrombectomy(pb::ThrombectomyAction::RetrieveStent).await;
     d.until(60, "the pass", |m| {
         m.thrombectomy.as_ref().is_some_and(|t| t.passes > 0)
     })

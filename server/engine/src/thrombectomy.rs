@@ -73,14 +73,18 @@ enum Pass {
         pass: StentPass,
         stent_index: usize,
         last_inserted_m: f64,
-        receiving_tip_m: f64,
+        /// The way back to the receiving catheter's tip, and how far that is (m).
+        path: RetrievalPath,
+        catheter_at_m: f64,
     },
     Aspiration {
         site: usize,
         pass: AspirationPass,
         catheter_index: usize,
         last_inserted_m: f64,
-        guide_tip_m: f64,
+        /// The way back to the guide's tip, and how far that is (m).
+        path: RetrievalPath,
+        guide_at_m: f64,
     },
 }
 
@@ -212,11 +216,6 @@ impl Procedure {
         self.figures
     }
 
-    /// Whether a pass is under way.
-    pub fn pass_under_way(&self) -> bool {
-        self.pass.is_some()
-    }
-
     /// The clots still in the patient, as the flow takes them (bypass channels included).
     pub fn occlusions(&self) -> Vec<Occlusion> {
         self.sites
@@ -266,19 +265,9 @@ impl Procedure {
         let length = self.sites[site].clot.length_m;
         let vessel = &network.vessels[self.sites[site].occlusion.vessel];
         let pressure_drop = (now.pressure[vessel.from] - now.pressure[vessel.to]).max(0.0);
-        // The way back from the clot's proximal end to a tip at `to` along the route.
-        let path_to = |to: f64| -> Option<RetrievalPath> {
-            let (a, b) = (
-                (to / spacing_m).floor().max(0.0) as usize,
-                ((from / spacing_m).ceil() as usize).min(route.len() - 1),
-            );
-            if b <= a + 1 {
-                return Some(RetrievalPath::straight(spacing_m, radii[b]));
-            }
-            let points: Vec<_> = route[a..=b].iter().rev().copied().collect();
-            let r: Vec<_> = radii[a..=b].iter().rev().copied().collect();
-            RetrievalPath::from_centerline(&points, &r).ok()
-        };
+        // The way back from the clot's proximal end to a tip at `to` along the route, built
+        // once when a pass starts.
+        let path_to = |to: f64| way_back(route, radii, spacing_m, from, to);
         let mut outcome = None;
         match &mut self.pass {
             Some(Pass::Stent {
@@ -286,16 +275,15 @@ impl Procedure {
                 pass,
                 stent_index,
                 last_inserted_m,
-                receiving_tip_m,
+                path,
+                catheter_at_m,
             }) => {
                 let now_in = instruments[*stent_index].inserted_m;
                 let pull = *last_inserted_m - now_in;
                 *last_inserted_m = now_in;
-                if pull > 0.0
-                    && let Some(path) = path_to(*receiving_tip_m)
-                {
+                if pull > 0.0 {
                     outcome = pass
-                        .advance(pull, pull / dt, &path, (from - *receiving_tip_m).max(0.0))
+                        .advance(pull, pull / dt, path, *catheter_at_m)
                         .map(|o| (*s, o));
                 }
             }
@@ -304,7 +292,8 @@ impl Procedure {
                 pass,
                 catheter_index,
                 last_inserted_m,
-                guide_tip_m,
+                path,
+                guide_at_m,
             }) => {
                 if !self.aspiration {
                     outcome = Some((
@@ -319,22 +308,20 @@ impl Procedure {
                     let pull = *last_inserted_m - now_in;
                     *last_inserted_m = now_in;
                     if pass.ingested() || pull > 0.0 {
-                        let path = path_to(*guide_tip_m);
-                        if let Some(path) = path {
-                            outcome = pass
-                                .advance(
-                                    pull.max(0.0),
-                                    pull.max(0.0) / dt,
-                                    &path,
-                                    (from - *guide_tip_m).max(0.0),
-                                )
-                                .map(|o| (*s, o));
-                        }
+                        outcome = pass
+                            .advance(pull.max(0.0), pull.max(0.0) / dt, path, *guide_at_m)
+                            .map(|o| (*s, o));
                     }
                 }
             }
             None => {
-                self.start_passes(instruments, site, from, length, pressure_drop, &mut out);
+                self.start_passes(
+                    instruments,
+                    (site, from, length),
+                    pressure_drop,
+                    &path_to,
+                    &mut out,
+                );
             }
         }
         if let Some((s, o)) = outcome {
@@ -373,10 +360,9 @@ impl Procedure {
     fn start_passes(
         &mut self,
         instruments: &[InstrumentView],
-        site: usize,
-        from: f64,
-        length: f64,
+        (site, from, length): (usize, f64, f64),
         pressure_drop: f64,
+        way_back: &dyn Fn(f64) -> Option<RetrievalPath>,
         out: &mut ProcedureStep,
     ) {
         let to = from + length;
@@ -459,7 +445,9 @@ impl Procedure {
                     if stent_now < peak - START_PULL_M {
                         let receiving_tip = receiving(instruments, k, from)
                             .map_or(instruments[0].tip_arc_m, |(_, v)| v.tip_arc_m);
-                        if let Ok(pass) = StentPass::new(setup) {
+                        if let (Ok(pass), Some(path)) =
+                            (StentPass::new(setup), way_back(receiving_tip))
+                        {
                             out.messages.push(format!(
                                 "pass {}: retrieving the stent with the clot",
                                 self.figures.passes + 1
@@ -469,7 +457,8 @@ impl Procedure {
                                 pass,
                                 stent_index: k,
                                 last_inserted_m: peak,
-                                receiving_tip_m: receiving_tip,
+                                path,
+                                catheter_at_m: (from - receiving_tip).max(0.0),
                             });
                         }
                     }
@@ -501,6 +490,9 @@ impl Procedure {
         } else {
             0.0
         };
+        let Some(path) = way_back(guide_tip) else {
+            return;
+        };
         if let Ok(pass) = AspirationPass::new(AspirationSetup {
             clot: self.sites[site].clot,
             bore_m: catheter.bore_m,
@@ -521,7 +513,8 @@ impl Procedure {
                 pass,
                 catheter_index: c,
                 last_inserted_m: catheter.inserted_m,
-                guide_tip_m: guide_tip,
+                path,
+                guide_at_m: (from - guide_tip).max(0.0),
             });
         }
     }
@@ -583,11 +576,29 @@ impl Procedure {
                 });
             }
         }
-        if !retrieved {
-            self.sites[site].bypass_radius_m = None;
-        }
         out.occlusions = Some(self.occlusions());
     }
+}
+
+/// The way back along the route (samples `spacing_m` apart, with their radii) from a clot's
+/// proximal end at `from` to a tip at `to` (m).
+fn way_back(
+    route: &[Point3<f64>],
+    radii: &[f64],
+    spacing_m: f64,
+    from: f64,
+    to: f64,
+) -> Option<RetrievalPath> {
+    let (a, b) = (
+        (to / spacing_m).floor().max(0.0) as usize,
+        ((from / spacing_m).ceil() as usize).min(route.len() - 1),
+    );
+    if b <= a + 1 {
+        return Some(RetrievalPath::straight(spacing_m, radii[b]));
+    }
+    let points: Vec<_> = route[a..=b].iter().rev().copied().collect();
+    let r: Vec<_> = radii[a..=b].iter().rev().copied().collect();
+    RetrievalPath::from_centerline(&points, &r).ok()
 }
 
 /// The catheter a stent at instrument `k` is pulled into: the innermost one outside its
