@@ -1122,3 +1122,50 @@ fn catalogue_markers_are_checked_and_named() {
         }
     }
 }
+
+/// The stent retriever's `[device.stent]` table: required for that kind, refused on any other,
+/// and its fields checked by name.
+#[test]
+fn catalogue_stent_tables_are_checked_by_name() {
+    let text = cathlab_physics::catalogue::BUILTIN_TOML;
+    let stent = &text[text.find("# ---- stent-retriever-4x20").unwrap()..];
+    assert!(
+        Catalogue::from_toml_str(stent).unwrap().entries()[0]
+            .stent
+            .is_some()
+    );
+    let start = stent.find("[device.stent]").unwrap();
+    let end = start + stent[start..].find("\n\n").unwrap();
+    let without = format!("{}{}", &stent[..start], &stent[end..]);
+    let (device, section, field) = definition_error(&without);
+    assert_eq!(
+        (device.as_str(), section.as_str(), field.as_str()),
+        ("stent-retriever-4x20", "stent", "stent")
+    );
+    for (from, to, field) in [
+        ("open_area = 0.8", "open_area = 1.5", "open_area"),
+        (
+            "reference_diameter_mm = 3.0",
+            "reference_diameter_mm = 4.5",
+            "reference_diameter_mm",
+        ),
+        ("rrf_ratio = 1.6", "rrf_ratio = 0.5", "rrf_ratio"),
+        (
+            "from_tip_mm = 5.0\ncof",
+            "from_tip_mm = 1790.0\ncof",
+            "from_tip_mm",
+        ),
+        ("cof_n_per_mm = 0.02", "cof_n_per_mm = nan", "cof_n_per_mm"),
+    ] {
+        assert!(stent.contains(from), "{from}");
+        let (_, section, got) = definition_error(&stent.replace(from, to));
+        assert_eq!((section.as_str(), got.as_str()), ("stent", field));
+    }
+    let table = &stent[start..end];
+    let (device, _, field) =
+        definition_error(&(catalogue_with("lumen_friction", "0.04") + "\n" + table + "\n"));
+    assert_eq!(
+        (device.as_str(), field.as_str()),
+        ("test-catheter", "stent")
+    );
+}
