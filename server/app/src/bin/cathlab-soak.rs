@@ -51,6 +51,12 @@ struct Cli {
     /// round's.
     #[arg(long, default_value_t = 0.10)]
     rss_tolerance: f64,
+    /// The watched session may miss this fraction of its steps (default none: the release
+    /// soak holds real time throughout). The short smoke under `cargo test` runs a debug
+    /// server on two shared cores, where one scheduling stall of tens of milliseconds is the
+    /// machine, not the server; a client that hurts a bystander misses far more.
+    #[arg(long, default_value_t = 0.0)]
+    missed_tolerance: f64,
     /// Only these actions (comma-separated; default all, at their usual weights): to find
     /// which one grows memory.
     #[arg(long, value_enum, value_delimiter = ',')]
@@ -1074,8 +1080,12 @@ async fn main() -> Result<()> {
     for f in tally.faults.lock().iter().take(10) {
         failures.push(f.clone());
     }
-    if missed > 0 {
-        failures.push(format!("the watched session missed {missed} steps"));
+    let watched_steps = last.steps.saturating_sub(first.steps).max(1);
+    if missed as f64 > cli.missed_tolerance * watched_steps as f64 {
+        failures.push(format!(
+            "the watched session missed {missed} of {watched_steps} steps (tolerance {:.2} %)",
+            100.0 * cli.missed_tolerance
+        ));
     }
     if judged.is_nan() || judged > baseline * (1.0 + cli.rss_tolerance) {
         failures.push(format!(
