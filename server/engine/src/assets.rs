@@ -142,12 +142,33 @@ impl SceneAssets {
                 ))
             }
         };
+        if let Some(x) = &a.access {
+            let graph = &self.anatomy.graph;
+            let legs = &self.route.legs;
+            let at = legs
+                .iter()
+                .position(|leg| graph.branches[leg.branch].name == x.branch);
+            if at.is_none_or(|k| k + 1 >= legs.len()) {
+                return Err(scene_error(
+                    "autopilot.access.branch",
+                    format!(
+                        "'{}' is not on the route before the target's branch",
+                        x.branch.chars().take(64).collect::<String>()
+                    ),
+                ));
+            }
+        }
         Ok(Some(TwoHandPlan {
             catheter_lag_m: a.catheter_lag_mm * 1e-3,
             catheter_track_m: a.catheter_track_mm * 1e-3,
             exchange,
             autopilot: settings(a.lookahead_mm, a.wire_reach_mm),
             finish: Finish::TrackCatheter,
+            outer_parks_m: a
+                .park_along_mm
+                .iter()
+                .map(|mm| (mm - self.spec.start.along_route_mm) * 1e-3)
+                .collect(),
         }))
     }
 }

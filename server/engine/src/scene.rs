@@ -92,6 +92,42 @@ pub struct AutopilotSpec {
     /// A wire exchange on the way.
     #[serde(default)]
     pub exchange: Option<ExchangeSpec>,
+    /// Where the instruments around the catheter park, outermost first: distance along the
+    /// route of each one's tip (mm, beyond the start, within the route). While the wire
+    /// leads they follow the catheter, each a further `catheter_lag_mm` behind, until there.
+    /// Empty: they hold where the stack places them.
+    #[serde(default)]
+    pub park_along_mm: Vec<f64>,
+    /// An access stage first: the stack brought up from the access to a branch on the
+    /// route, then its wire taken out and the instruments that lead on loaded.
+    #[serde(default)]
+    pub access: Option<AccessSpec>,
+}
+
+/// The access stage of the scripted operator: the stack's wire leads (the catheter around it
+/// following, the instruments around that following to their parks) until its tip is
+/// `into_mm` along `branch`; the catheter is tracked over it to `catheter_track_mm` behind
+/// its tip; the wire is withdrawn and taken out and the catalogue devices `load` are loaded,
+/// outermost first; then the operator drives them to the target.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AccessSpec {
+    /// A branch on the route, before the target's.
+    pub branch: String,
+    /// How far into it the wire's tip goes (mm), 1–500.
+    pub into_mm: f64,
+    /// How many of the stack's innermost instruments come out before the loading (the
+    /// access wire, and the diagnostic catheter it went up in), 1 to all but the outermost.
+    #[serde(default = "default_unload")]
+    pub unload: usize,
+    /// Catalogue identifiers loaded once those are out, outermost first.
+    pub load: Vec<String>,
+    /// How far ahead along the route the access wire's bend is aimed (mm), 1–100.
+    #[serde(default = "default_lookahead_mm")]
+    pub lookahead_mm: f64,
+    /// How far behind the access wire's tip the catheter follows (mm), 5–500.
+    #[serde(default = "default_lag_mm")]
+    pub catheter_lag_mm: f64,
 }
 
 /// A wire exchange of the scripted operator: once the wire's tip is `into_mm` along
@@ -123,6 +159,9 @@ fn default_autopilot_speed() -> f64 {
 }
 fn default_lookahead_mm() -> f64 {
     20.0
+}
+fn default_unload() -> usize {
+    1
 }
 fn default_lag_mm() -> f64 {
     50.0
@@ -1024,6 +1063,80 @@ impl SceneSpec {
                 1.0,
                 500.0,
             )?;
+            // With an access stage, the stack the operator drives to the target is the one
+            // after the loading.
+            let driven = match &a.access {
+                Some(x) => {
+                    (self.stack.len().saturating_sub(x.unload) + x.load.len()).max(self.stack.len())
+                }
+                None => self.stack.len(),
+            };
+            if a.park_along_mm.len() > driven - 2 {
+                return Err(scene_error(
+                    "autopilot.park_along_mm",
+                    format!(
+                        "{} parks for {} instruments around the catheter",
+                        a.park_along_mm.len(),
+                        driven - 2
+                    ),
+                ));
+            }
+            for (k, &mm) in a.park_along_mm.iter().enumerate() {
+                range(
+                    &format!("autopilot.park_along_mm[{k}]"),
+                    mm,
+                    self.start.along_route_mm,
+                    self.start.along_route_mm + 2000.0,
+                )?;
+            }
+            if let Some(x) = &a.access {
+                range("autopilot.access.into_mm", x.into_mm, 1.0, 500.0)?;
+                range("autopilot.access.lookahead_mm", x.lookahead_mm, 1.0, 100.0)?;
+                range(
+                    "autopilot.access.catheter_lag_mm",
+                    x.catheter_lag_mm,
+                    5.0,
+                    500.0,
+                )?;
+                if x.unload == 0 || x.unload >= self.stack.len() {
+                    return Err(scene_error(
+                        "autopilot.access.unload",
+                        format!(
+                            "{} of a stack of {}: 1 to all but the outermost",
+                            x.unload,
+                            self.stack.len()
+                        ),
+                    ));
+                }
+                let kept = self.stack.len() - x.unload;
+                let count = kept + x.load.len();
+                if x.load.is_empty() || count < 2 || count > MAX_STACK {
+                    return Err(scene_error(
+                        "autopilot.access.load",
+                        format!(
+                            "{} devices to load after the access wire: the stack would hold \
+                             {count} (2 to {MAX_STACK})",
+                            x.load.len()
+                        ),
+                    ));
+                }
+                let mut outer = self.stack[kept - 1].resolve(kept - 1)?.0;
+                for (k, id) in x.load.iter().enumerate() {
+                    let field = format!("autopilot.access.load[{k}]");
+                    let device = catalogue()
+                        .device(id)
+                        .map_err(|e| scene_error(&field, e.to_string()))?;
+                    cathlab_physics::stack::check_fit(&outer, &device)
+                        .map_err(|e| scene_error(&field, format!("does not fit: {e}")))?;
+                    outer = device;
+                }
+                if a.exchange.is_some() {
+                    return Err(scene_error(
+                        "autopilot.access",
+                        "an access stage and a wire exchange do not go together",
+                    ));
+                }
+            }
             if let Some(x) = &a.exchange {
                 range("autopilot.exchange.into_mm", x.into_mm, 0.0, 500.0)?;
                 range(

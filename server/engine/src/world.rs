@@ -15,6 +15,8 @@ use serde::{Deserialize, Serialize};
 use crate::assets::{SceneAssets, SharedWall};
 use crate::error::{EngineError, Result};
 use crate::metrics::{Event, EventKind, Metrics, ReperfusionMetric};
+
+mod operator;
 use crate::strand::{HandReaction, Strand};
 
 /// A trainee's or bridge's command, in SI units, as recorded.
@@ -62,6 +64,21 @@ pub enum Command {
         /// Index among the scene's spares.
         spare: u32,
     },
+    /// Load entry `catalogue` of the built-in device catalogue into the innermost instrument
+    /// of a stack, as its new innermost, its tip at that one's hub (a microcatheter into a
+    /// distal-access catheter); at most [`crate::scene::MAX_STACK`] instruments.
+    Load {
+        /// Catalogue entry index.
+        catalogue: u32,
+    },
+    /// As [`Command::Load`], for spare `spare` of the scene's back table.
+    LoadSpare {
+        /// Index among the scene's spares.
+        spare: u32,
+    },
+    /// Withdraw the innermost instrument of a stack to the hub of the one around it and take
+    /// it out (the access wire once the guide is up); not the outermost.
+    Unload,
     /// Fluoroscopy pedal down or up.
     Fluoroscopy(bool),
     /// Pulse rate.
@@ -386,18 +403,18 @@ pub struct World {
     /// The thrombectomy of a clotted scene with flow.
     procedure: Option<crate::thrombectomy::Procedure>,
     /// The scene's scripted operator, while it demonstrates.
-    demonstration: Option<cathlab_physics::two_hands::TwoHands<'static>>,
+    demonstration: Option<operator::SceneOperator>,
     /// The world applies its own operator's commands (they do not end a demonstration).
     operating: bool,
 }
 
-/// An exchange waiting for its instrument to be withdrawn.
+/// An exchange (or an unloading) waiting for its instrument to be withdrawn.
 #[derive(Debug, Clone)]
 struct PendingExchange {
     index: usize,
-    device: cathlab_physics::Device,
-    look: DeviceAppearance,
-    id: String,
+    /// The device that takes its place, its look and the name it goes by; `None`: the
+    /// instrument is taken out.
+    replacement: Option<(cathlab_physics::Device, DeviceAppearance, String)>,
 }
 
 /// One instrument's hand: its device's look and limits, and what held its push back.
@@ -702,6 +719,9 @@ impl World {
                     | Command::Instrument { .. }
                     | Command::Exchange { .. }
                     | Command::ExchangeSpare { .. }
+                    | Command::Load { .. }
+                    | Command::LoadSpare { .. }
+                    | Command::Unload
                     | Command::SelectDevice(_)
                     | Command::Reset
             )
@@ -759,6 +779,35 @@ impl World {
                 let label = assets.spec.spares[spare as usize].label();
                 self.exchange(index, device, look.clone(), label)?;
             }
+            Command::Load { catalogue } => {
+                let entries = crate::scene::catalogue().entries();
+                let entry = entries.get(catalogue as usize).ok_or_else(|| {
+                    EngineError::InvalidArgument {
+                        field: "load.device".into(),
+                        reason: format!(
+                            "catalogue entry {catalogue} does not exist (the catalogue has {})",
+                            entries.len()
+                        ),
+                    }
+                })?;
+                let look = crate::assets::appearance_of_entry(entry);
+                self.load(&entry.device, look, entry.id.clone())?;
+            }
+            Command::LoadSpare { spare } => {
+                let assets = self.assets.clone();
+                let (device, look) = assets.spares.get(spare as usize).ok_or_else(|| {
+                    EngineError::InvalidArgument {
+                        field: "load.spare".into(),
+                        reason: format!(
+                            "spare {spare} does not exist (the scene has {})",
+                            assets.spares.len()
+                        ),
+                    }
+                })?;
+                let label = assets.spec.spares[spare as usize].label();
+                self.load(device, look.clone(), label)?;
+            }
+            Command::Unload => self.unload()?,
             Command::SelectDevice(_) if !self.assets.spec.stack.is_empty() => {
                 return Err(EngineError::FailedPrecondition(
                     "a coaxial scene exchanges instruments (withdraw one to its hub, then \
@@ -1114,9 +1163,7 @@ impl World {
             .unwrap_or_default();
         self.exchanging = Some(PendingExchange {
             index,
-            device: device.clone(),
-            look,
-            id: id.clone(),
+            replacement: Some((device.clone(), look, id.clone())),
         });
         if !self.finish_exchange()? {
             self.event(
@@ -1156,15 +1203,24 @@ impl World {
         if stack.still_inserted(pending.index).is_some() {
             return Ok(false);
         }
+        let index = pending.index;
+        let Some((device, look, id)) = pending.replacement.clone() else {
+            let device = stack
+                .pop_instrument()
+                .map_err(|e| EngineError::FailedPrecondition(e.to_string()))?;
+            self.exchanging = None;
+            let hand = self.hands.pop().map(|h| h.catalogue_id).unwrap_or_default();
+            let was = if hand.is_empty() { device.name } else { hand };
+            self.event(
+                EventKind::Device,
+                format!("instrument {index}: {was} taken out"),
+            );
+            return Ok(true);
+        };
         stack
-            .exchange(pending.index, pending.device.clone())
+            .exchange(index, device.clone())
             .map_err(|e| EngineError::FailedPrecondition(e.to_string()))?;
-        let PendingExchange {
-            index,
-            device,
-            look,
-            id,
-        } = self.exchanging.take().expect("checked above");
+        self.exchanging = None;
         let old = std::mem::replace(
             &mut self.hands[index],
             Hand::new(id.clone(), &device, look, &self.assets.spec),
@@ -1179,6 +1235,72 @@ impl World {
             format!("instrument {index}: {was} exchanged for {id}"),
         );
         Ok(true)
+    }
+
+    /// Loads `device` (its look and the name it goes by) into the stack's innermost
+    /// instrument as the new innermost, its tip at that one's hub.
+    fn load(
+        &mut self,
+        device: &cathlab_physics::Device,
+        look: DeviceAppearance,
+        id: String,
+    ) -> Result<()> {
+        if self.exchanging.is_some() {
+            return Err(EngineError::FailedPrecondition(
+                "an exchange is under way; load once it is done".into(),
+            ));
+        }
+        let Some(stack) = self.strand.stack_mut() else {
+            return Err(EngineError::FailedPrecondition(
+                "a one-device scene selects devices; only a coaxial stack loads them".into(),
+            ));
+        };
+        let outer = stack
+            .device(stack.len() - 1)
+            .map(|d| d.name.clone())
+            .unwrap_or_default();
+        stack
+            .push_instrument(device.clone())
+            .map_err(|e| EngineError::FailedPrecondition(e.to_string()))?;
+        let index = self.hands.len();
+        self.hands
+            .push(Hand::new(id.clone(), device, look, &self.assets.spec));
+        self.event(
+            EventKind::Device,
+            format!("instrument {index}: {id} loaded into {outer}"),
+        );
+        Ok(())
+    }
+
+    /// Withdraws the innermost instrument to the hub of the one around it (step by step, as
+    /// for an exchange) and takes it out; a push on it cancels.
+    fn unload(&mut self) -> Result<()> {
+        let Some(stack) = self.strand.stack() else {
+            return Err(EngineError::FailedPrecondition(
+                "a one-device scene has nothing to take out of a stack".into(),
+            ));
+        };
+        let index = stack.len() - 1;
+        if index == 0 {
+            return Err(EngineError::FailedPrecondition(
+                "the outermost instrument cannot be taken out".into(),
+            ));
+        }
+        let name = stack
+            .device(index)
+            .map(|d| d.name.clone())
+            .unwrap_or_default();
+        self.exchanging = Some(PendingExchange {
+            index,
+            replacement: None,
+        });
+        if !self.finish_exchange()? {
+            self.event(
+                EventKind::Device,
+                format!("instrument {index}: withdrawing {name} to take it out"),
+            );
+        }
+        Ok(())
     }
 
     /// A push (a non-zero speed or a target) on an instrument being withdrawn for an exchange
@@ -1448,31 +1570,12 @@ impl World {
             if self.metrics.target_reached_at_s.is_some() {
                 return Ok(Some(self.step));
             }
-            if !self.operate(&mut hands, &mut seq)? {
+            if !self.operate_scene(&mut hands, &mut seq)? {
                 break;
             }
             self.step()?;
         }
         Ok(self.metrics.target_reached_at_s.map(|_| self.step))
-    }
-
-    /// The scene's scripted two-hand operator, at the scene's start.
-    fn scene_operator(&self) -> Result<cathlab_physics::two_hands::TwoHands<'static>> {
-        let assets = &self.assets;
-        let plan = assets.two_hand_plan()?.ok_or_else(|| {
-            EngineError::FailedPrecondition("this scene has no two-hand autopilot".into())
-        })?;
-        if self.strand.stack().is_none() {
-            return Err(EngineError::FailedPrecondition(
-                "the two-hand autopilot drives a stack".into(),
-            ));
-        }
-        Ok(cathlab_physics::two_hands::TwoHands::shared(
-            Arc::new(assets.anatomy.graph.clone()),
-            assets.route.clone(),
-            assets.spec.start.along_route_mm * 1e-3,
-            plan,
-        )?)
     }
 
     /// One decision of the operator `hands`, applied as commands numbered from `seq`
@@ -1566,7 +1669,7 @@ impl World {
             let keep = self.last_seq;
             let mut seq = keep;
             self.operating = true;
-            let going = self.operate(&mut hands, &mut seq);
+            let going = self.operate_scene(&mut hands, &mut seq);
             self.operating = false;
             self.last_seq = keep;
             !going?

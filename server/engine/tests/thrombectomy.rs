@@ -1,8 +1,11 @@
-//! The stroke case end to end in the engine (`scenes/stroke_m1_thrombectomy.toml`): the
-//! scripted two-hand operator crosses the left M1 clot with the microwire and the
-//! microcatheter; then either the stent retriever (exchanged for the microwire, pushed to the
-//! microcatheter's tip, unsheathed over the clot, retrieved into the distal-access catheter)
-//! or aspiration (the distal-access catheter at the clot's face, suction on). The session's
+//! The stroke case end to end in the engine. The whole case from the femoral access
+//! (`scenes/stroke_m1_from_access.toml`): the scripted operator brings the guide up to the
+//! cervical ICA with the distal-access catheter over a shaped 0.035" wire, takes the wire out,
+//! loads the microcatheter and the microwire and crosses the left M1 clot; then the stent
+//! retriever (exchanged for the microwire, pushed to the microcatheter's tip, unsheathed over
+//! the clot, retrieved into the distal-access catheter). From the trainee's scene
+//! (`scenes/stroke_m1_thrombectomy.toml`, the guide already in the ICA): aspiration (the
+//! distal-access catheter at the clot's face, suction on). The session's
 //! metrics carry the crossing forces, passes, first-pass effect, reperfusion time and the
 //! eTICI grade from the flow; the final run's contrast reaches beyond the clot.
 
@@ -12,21 +15,23 @@ use std::sync::{Arc, OnceLock};
 use cathlab_engine::metrics::Etici;
 use cathlab_engine::thrombectomy::StrokeScript;
 use cathlab_engine::*;
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 
 fn scenes() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes")
 }
 
+fn load(name: &str) -> Arc<SceneAssets> {
+    let text = std::fs::read_to_string(scenes().join(format!("{name}.toml"))).unwrap();
+    let spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
+    AssetCache::default().load(&spec, &scenes()).unwrap()
+}
+
+/// The trainee's scene: the guide already in the ICA.
 fn assets() -> Arc<SceneAssets> {
     static ASSETS: OnceLock<Arc<SceneAssets>> = OnceLock::new();
     ASSETS
-        .get_or_init(|| {
-            let text =
-                std::fs::read_to_string(scenes().join("stroke_m1_thrombectomy.toml")).unwrap();
-            let spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
-            AssetCache::default().load(&spec, &scenes()).unwrap()
-        })
+        .get_or_init(|| load("stroke_m1_thrombectomy"))
         .clone()
 }
 
@@ -39,7 +44,12 @@ struct Case {
 impl Case {
     /// The scene with the clot crossed: the microcatheter 6 mm beyond it, every hand still.
     fn crossed() -> Self {
-        let mut world = World::new(assets()).unwrap();
+        Self::crossed_in(assets())
+    }
+
+    /// As [`Case::crossed`] in the scene `assets`.
+    fn crossed_in(assets: Arc<SceneAssets>) -> Self {
+        let mut world = World::new(assets).unwrap();
         let mut script = StrokeScript::new(&world, "left_middle_cerebral", 1).unwrap();
         assert!(
             script.cross(&mut world).unwrap(),
@@ -111,9 +121,55 @@ impl Case {
     }
 }
 
+/// Which branch of the scene's graph `tip` (m, anatomy frame) lies in.
+fn branch_of(world: &World, tip: Vector3<f64>) -> String {
+    let graph = &world.assets().anatomy.graph;
+    let at = graph.nearest(&Point3::from(tip)).unwrap();
+    graph.branches[at.branch].name.clone()
+}
+
 #[test]
-fn thrombectomy_by_stent_retriever_from_crossing_to_etici_3() {
-    let mut case = Case::crossed();
+fn thrombectomy_from_femoral_access_by_stent_retriever_to_etici_3() {
+    let mut case = Case::crossed_in(load("stroke_m1_from_access"));
+    // The access stage: the guide went up over the diagnostic catheter and the 0.035" wire,
+    // which came out; the distal-access catheter, the microcatheter and the microwire were
+    // loaded through it.
+    let events: Vec<(u64, String)> = case
+        .world
+        .take_events()
+        .into_iter()
+        .map(|e| (e.step, e.message))
+        .collect();
+    let at = |needle: &str| {
+        events
+            .iter()
+            .find(|(_, m)| m.contains(needle))
+            .map(|(s, _)| *s)
+            .unwrap_or_else(|| panic!("{needle} in {events:?}"))
+    };
+    let wire_out = at("0.035in guidewire, 90 deg over 30 mm taken out");
+    let out = at("catheter-5f-vertebral taken out");
+    assert!(wire_out <= out);
+    let loaded = at("microwire-014-angled loaded into");
+    let reached = at("reached left_middle_cerebral");
+    assert!(out <= loaded && loaded < reached, "{events:?}");
+    let w = &case.world;
+    assert_eq!(w.strand().len(), 4);
+    assert_eq!(
+        branch_of(w, w.strand().tip_position(0).unwrap()),
+        "left_internal_carotid"
+    );
+    assert_eq!(
+        branch_of(w, w.strand().tip_position(1).unwrap()),
+        "left_internal_carotid"
+    );
+    assert_eq!(
+        branch_of(w, w.strand().tip_position(2).unwrap()),
+        "left_middle_cerebral"
+    );
+    // The guide parked where the scene says: 305 mm along the route, from a sheath 10 mm in.
+    let guide = w.strand().inserted_m(0);
+    assert!((guide - 0.295).abs() < 2e-3, "{guide}");
     let f = case.figures();
     assert!(f.crossing_force_n > 0.0, "crossing asked a force: {f:?}");
     assert!(
@@ -156,8 +212,15 @@ fn thrombectomy_by_stent_retriever_from_crossing_to_etici_3() {
         w.metrics().thrombectomy.is_some_and(|t| t.passes > 0)
     }));
     let f = case.figures();
+    let said: Vec<String> = case
+        .world
+        .take_events()
+        .into_iter()
+        .filter(|e| e.kind == EventKind::Thrombectomy)
+        .map(|e| e.message)
+        .collect();
     assert_eq!(f.passes, 1);
-    assert!(f.first_pass_effect, "{f:?}");
+    assert!(f.first_pass_effect, "{f:?} {said:?}");
     assert_eq!(f.emboli, 0);
     assert!(case.world.clots().is_empty());
     let (fraction, grade) = case.reperfusion();
@@ -175,12 +238,15 @@ fn thrombectomy_by_stent_retriever_from_crossing_to_etici_3() {
         beyond > 20.0,
         "iodine beyond the clot's site: {beyond} mg/mL"
     );
-    let events: Vec<String> = case
-        .world
-        .take_events()
+    let events: Vec<String> = said
         .into_iter()
-        .filter(|e| e.kind == EventKind::Thrombectomy)
-        .map(|e| e.message)
+        .chain(
+            case.world
+                .take_events()
+                .into_iter()
+                .filter(|e| e.kind == EventKind::Thrombectomy)
+                .map(|e| e.message),
+        )
         .collect();
     assert!(
         events.iter().any(|m| m.contains("open across the clot")),

@@ -428,6 +428,7 @@ impl CoaxialPlan {
                 }
                 None => Finish::AtWire,
             },
+            outer_parks_m: Vec::new(),
         }
     }
 }

@@ -1,7 +1,8 @@
 //! The two-hand autopilot: a scripted operator driving a coaxial stack the way one is driven
 //! in an angio suite. The innermost instrument (the wire) is steered along the route by the
 //! single-device [`Autopilot`]; the instrument around it (the catheter) follows its tip at a
-//! fixed lag; any instrument around those (a parked guide) holds. Optional: a wire exchange
+//! fixed lag; any instrument around those (a guide, a distal-access catheter) holds, or, with
+//! parks planned, follows at a further lag each until it reaches its park. Optional: a wire exchange
 //! partway (catheter parked, wire withdrawn to the hub and replaced), tracking the catheter
 //! over the wire once the wire has reached the target, and sending a microcatheter over a
 //! microwire through the catheter at the end. Deterministic; it only looks at the stack and
@@ -45,6 +46,11 @@ pub struct TwoHandPlan {
     pub autopilot: AutopilotSettings,
     /// What happens at the target.
     pub finish: Finish,
+    /// Inserted lengths (m) at which the instruments around the catheter park, outermost
+    /// first: while the wire leads, each follows the one inside it `catheter_lag_m` behind
+    /// until it reaches its park (a guide brought up from the access with the rest inside
+    /// it). Empty: they hold where they are.
+    pub outer_parks_m: Vec<f64>,
 }
 
 /// What the hands do next.
@@ -196,6 +202,26 @@ impl<'g> TwoHands<'g> {
             .map_or(0.0, |(i, _)| i as f64 * 1e-3)
     }
 
+    /// The instruments around the catheter follow its goal `goal` (inserted length, m) at a
+    /// further `catheter_lag_m` each, up to their parks; none goes back (a wire's retry does
+    /// not pull the guide). Without parks they hold (`drive` already says so).
+    fn follow_outer<W: Wall>(
+        &self,
+        stack: &Stack<W>,
+        drive: &mut [(usize, Command)],
+        catheter: usize,
+        goal: f64,
+    ) {
+        for (k, park) in self.plan.outer_parks_m.iter().enumerate().take(catheter) {
+            let now = stack.inserted_m(k).unwrap_or(0.0);
+            let lag = (catheter - k) as f64 * self.plan.catheter_lag_m;
+            let follow = (goal - lag).min(*park);
+            if follow > now {
+                drive[k] = move_to(stack, k, follow);
+            }
+        }
+    }
+
     /// Looks at `stack` (its two innermost instruments are the catheter and the wire) and says
     /// what the hands do next.
     pub fn next<W: Wall>(&mut self, stack: &Stack<W>) -> Result<TwoHandAction> {
@@ -256,6 +282,7 @@ impl<'g> TwoHands<'g> {
                 // parked while the new wire travels up to its tip and leads on.
                 let floor = self.catheter_park.unwrap_or(0.01);
                 let goal = (wire_l - self.plan.catheter_lag_m).max(floor);
+                self.follow_outer(stack, &mut drive, catheter, goal);
                 drive.push((wire, command));
                 drive.push(move_to(stack, catheter, goal));
             }
@@ -270,6 +297,7 @@ impl<'g> TwoHands<'g> {
                     };
                     return Ok(None);
                 }
+                self.follow_outer(stack, &mut drive, catheter, goal);
                 drive.push(hold(stack, wire));
                 drive.push(move_to(stack, catheter, goal));
             }
