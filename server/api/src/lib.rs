@@ -184,22 +184,25 @@ fn plain_command(kind: &pb::command::Kind) -> Result<Command, Status> {
                 )));
             }
         },
+        Kind::Load(x) => match &x.device {
+            Some(pb::load::Device::CatalogueId(id)) => Command::Load {
+                catalogue: catalogue_index(id, "command.load.catalogue_id")?,
+            },
+            Some(pb::load::Device::Spare(spare)) => Command::LoadSpare { spare: *spare },
+            None => {
+                return Err(Status::invalid_argument(
+                    "command.load.device: missing (a catalogue_id or a spare)",
+                ));
+            }
+        },
+        Kind::Unload(_) => Command::Unload,
         Kind::Exchange(x) => {
             let index = x.instrument;
             match &x.device {
-                Some(pb::exchange::Device::CatalogueId(id)) => {
-                    let entries = cathlab_engine::scene::catalogue().entries();
-                    let catalogue = entries.iter().position(|e| e.id == *id).ok_or_else(|| {
-                        Status::invalid_argument(format!(
-                            "command.exchange.catalogue_id: '{}' is not in the device catalogue",
-                            id.chars().take(64).collect::<String>()
-                        ))
-                    })?;
-                    Command::Exchange {
-                        index,
-                        catalogue: catalogue as u32,
-                    }
-                }
+                Some(pb::exchange::Device::CatalogueId(id)) => Command::Exchange {
+                    index,
+                    catalogue: catalogue_index(id, "command.exchange.catalogue_id")?,
+                },
                 Some(pb::exchange::Device::Spare(spare)) => Command::ExchangeSpare {
                     index,
                     spare: *spare,
@@ -212,6 +215,21 @@ fn plain_command(kind: &pb::command::Kind) -> Result<Command, Status> {
             }
         }
     })
+}
+
+/// The index of catalogue entry `id`; INVALID_ARGUMENT naming `field` when there is none.
+fn catalogue_index(id: &str, field: &str) -> Result<u32, Status> {
+    let entries = cathlab_engine::scene::catalogue().entries();
+    entries
+        .iter()
+        .position(|e| e.id == id)
+        .map(|k| k as u32)
+        .ok_or_else(|| {
+            Status::invalid_argument(format!(
+                "{field}: '{}' is not in the device catalogue",
+                id.chars().take(64).collect::<String>()
+            ))
+        })
 }
 
 /// A haptic bridge input as engine commands, for a scene of `instruments` instruments: the
@@ -623,6 +641,45 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn a_load_names_its_device_and_an_unload_needs_nothing() {
+        let load = |device| pb::Command {
+            kind: Some(pb::command::Kind::Load(pb::Load { device })),
+            instrument: None,
+        };
+        let err = command_from_wire(Some(&load(None))).unwrap_err();
+        assert!(err.message().starts_with("command.load.device"), "{err}");
+        let err = command_from_wire(Some(&load(Some(pb::load::Device::CatalogueId(
+            "wire-099".into(),
+        )))))
+        .unwrap_err();
+        assert!(
+            err.message()
+                .starts_with("command.load.catalogue_id: 'wire-099'"),
+            "{err}"
+        );
+        match command_from_wire(Some(&load(Some(pb::load::Device::CatalogueId(
+            "microcatheter-021-160".into(),
+        )))))
+        .unwrap()
+        {
+            Command::Load { catalogue } => {
+                let entry = &cathlab_engine::scene::catalogue().entries()[catalogue as usize];
+                assert_eq!(entry.id, "microcatheter-021-160");
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(
+            command_from_wire(Some(&load(Some(pb::load::Device::Spare(2))))).unwrap(),
+            Command::LoadSpare { spare: 2 }
+        );
+        let unload = pb::Command {
+            kind: Some(pb::command::Kind::Unload(pb::Unload {})),
+            instrument: None,
+        };
+        assert_eq!(command_from_wire(Some(&unload)).unwrap(), Command::Unload);
     }
 
     #[test]

@@ -102,6 +102,14 @@ impl std::fmt::Debug for SimulatorService {
     }
 }
 
+/// How many instruments `session` has now (its last state; a stack's loads and unloads
+/// change it, and the engine checks the index again where the command applies).
+fn instrument_count(session: &Session) -> u32 {
+    let now = session.state().borrow().instruments.len();
+    let scene = session.assets().spec.stack.len();
+    now.max(scene).max(1) as u32
+}
+
 fn random_hex(bytes: usize) -> String {
     use rand::RngExt;
     let mut rng = rand::rng();
@@ -660,7 +668,7 @@ impl Simulator for SimulatorService {
         let r = request.into_inner();
         let command = command_from_wire(r.command.as_ref())?;
         let session = self.session(&id)?;
-        let instruments = session.assets().spec.stack.len().max(1) as u32;
+        let instruments = instrument_count(&session);
         let instrument = r.command.as_ref().and_then(|c| c.instrument);
         if let Some(index) = instrument
             && index >= instruments
@@ -722,7 +730,7 @@ impl Simulator for SimulatorService {
                 // The dead-man rule: a stream that goes quiet or away leaves the device still.
                 // It zeroes the innermost's setpoints and those of every instrument a hand of
                 // this stream drove (bit i: instrument i).
-                let instruments = session.assets().spec.stack.len().max(1) as u32;
+                let instruments = instrument_count(&session);
                 let mut driven = 0u64;
                 let stop = |seq: u64, why: &str, driven: u64| {
                     tracing::info!(session = %session.id(), "control stream {why}: setpoints zeroed");

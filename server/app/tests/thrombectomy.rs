@@ -1,10 +1,11 @@
-//! The stroke case through the real server, as a client drives it: a session on
-//! `stroke_m1_thrombectomy`, the scene's operator demonstrating the crossing of the left M1
-//! clot (microwire and microcatheter), the distal-access catheter brought up, the microwire
-//! exchanged for the stent retriever, the stent deployed (the bypass shows in the eTICI),
-//! retrieved, a final DSA run; the session's metrics carry the passes, the first-pass effect,
-//! the time to reperfusion and eTICI 3. The guide's route from the femoral access to the ICA
-//! is the coaxial arch scenes' (not simulated here; the scene starts with the guide parked).
+//! The whole stroke case through the real server, as a client drives it: a session on
+//! `stroke_m1_from_access`, the scene's operator demonstrating the femoral access (the guide
+//! up to the cervical ICA over a vertebral catheter and a 0.035" wire, both taken out, the
+//! distal-access catheter, microcatheter and microwire loaded) and the crossing of the left
+//! M1 clot; the distal-access catheter brought up, the microwire exchanged for the stent
+//! retriever, the stent deployed (the bypass shows in the eTICI), retrieved, a final DSA run;
+//! the session's metrics carry the passes, the first-pass effect, the time to reperfusion and
+//! eTICI 3.
 
 mod common;
 
@@ -115,14 +116,14 @@ impl Driver {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn thrombectomy_through_the_server_from_crossing_to_etici_3() {
+async fn thrombectomy_through_the_server_from_femoral_access_to_etici_3() {
     let dir = temp_dir("thrombectomy");
     let server = ServerProcess::start(&dir.join("cathlab.sqlite"), &[]);
     let mut client = server.client().await;
     let session = client
         .create_session(pb::CreateSessionRequest {
             scene: Some(pb::create_session_request::Scene::SceneName(
-                "stroke_m1_thrombectomy".into(),
+                "stroke_m1_from_access".into(),
             )),
             label: "thrombectomy".into(),
             ..Default::default()
@@ -153,9 +154,16 @@ async fn thrombectomy_through_the_server_from_crossing_to_etici_3() {
         "{}",
         err.message()
     );
-    // The scene's operator crosses the clot: the microcatheter 6 mm beyond it.
+    // At the access: the guide, the diagnostic catheter and the wire.
+    let start = d
+        .until_state(30, "the access stack", |s| s.instruments.len() == 3)
+        .await;
+    assert_eq!(start.instruments[1].catalogue_id, "catheter-5f-vertebral");
+    // The scene's operator brings the guide up, swaps the access instruments for the
+    // distal-access catheter, microcatheter and microwire and crosses the clot: the
+    // microcatheter 9 mm beyond it.
     d.send(pb::command::Kind::Demonstrate(true), None).await;
-    d.until(120, "the microcatheter across the clot", |m| {
+    d.until(240, "the microcatheter across the clot", |m| {
         m.target_reached
     })
     .await;
@@ -164,6 +172,26 @@ async fn thrombectomy_through_the_server_from_crossing_to_etici_3() {
             s.instruments.len() == 4 && s.instruments.iter().all(|i| i.inserted_mm.is_finite())
         })
         .await;
+    let ids: Vec<&str> = crossed
+        .instruments
+        .iter()
+        .map(|i| i.catalogue_id.as_str())
+        .collect();
+    assert_eq!(
+        ids,
+        [
+            "guide-6f-071-90",
+            "distal-access-058-115",
+            "microcatheter-021-160",
+            "microwire-014-angled"
+        ]
+    );
+    // The guide in the cervical ICA: 305 mm along the route from a sheath 10 mm in.
+    assert!(
+        (crossed.instruments[0].inserted_mm - 295.0).abs() < 2.0,
+        "{}",
+        crossed.instruments[0].inserted_mm
+    );
     let micro = crossed.instruments[2].inserted_mm;
     let m = d.metrics().await;
     let t = m.thrombectomy.unwrap();
@@ -171,11 +199,11 @@ async fn thrombectomy_through_the_server_from_crossing_to_etici_3() {
         t.crossing_force_n > 0.0 && t.peak_crossing_force_n > 0.0,
         "{t:?}"
     );
-    // The distal-access catheter up to 8 mm short of the M1 (the microcatheter is 18 mm into
+    // The distal-access catheter up to 8 mm short of the M1 (the microcatheter is 21 mm into
     // it).
-    d.target(1, micro - 26.0).await;
+    d.target(1, micro - 29.0).await;
     d.until_state(30, "the distal-access catheter up", |s| {
-        (s.instruments[1].inserted_mm - (micro - 26.0)).abs() < 0.5
+        (s.instruments[1].inserted_mm - (micro - 29.0)).abs() < 0.5
     })
     .await;
     // The microwire out, the stent retriever in.
