@@ -607,6 +607,46 @@ try {
     await machine.close();
   });
 
+  await test("access_scene_takes_the_innermost_out_and_loads_another", async () => {
+    const machine = await browser.newContext({ viewport: { width: 1280, height: 800 } });
+    const page = await machine.newPage();
+    page.on("pageerror", (e) => pageErrors.push(`access: ${e.message}`));
+    const count = () => page.evaluate(() => document.querySelectorAll("#stack li").length);
+    await page.goto(`${url}/?label=e2e-access&scene=stroke_m1_from_access`);
+    await page.waitForSelector('#connection[data-status="connected"]', { timeout: 120_000 });
+    await page.waitForFunction(() => document.querySelectorAll("#stack li").length === 3, null, { timeout: 15_000 });
+    // Every control of the page is in view at 1280×800, the loading buttons among them.
+    const outside = await page.evaluate(() =>
+      [...document.querySelectorAll("#controls button, #controls input, #controls select, #hud dd")]
+        .filter((e) => e.checkVisibility())
+        .map((e) => ({ id: e.id || e.textContent?.trim().slice(0, 20), r: e.getBoundingClientRect() }))
+        .filter(({ r }) => r.bottom > innerHeight + 0.5 || r.right > innerWidth + 0.5 || r.width === 0)
+        .map(({ id }) => id),
+    );
+    assert(outside.length === 0, `out of view on the access page at 1280×800: ${outside.join(", ")}`);
+    // The access wire out: drawn back to the hub, then off the table; the hands' lists follow.
+    await page.click("#unload-go");
+    await page.waitForFunction(() => document.querySelectorAll("#stack li").length === 2, null, { timeout: 60_000 });
+    const leftOptions = await page.evaluate(() => document.querySelector("#left-instrument").options.length);
+    assert(leftOptions === 1, `the left hand's list has the guide only: ${leftOptions}`);
+    // A microcatheter loaded into the diagnostic catheter: the new innermost, in the right hand.
+    await page.selectOption("#exchange-device", "catalogue:microcatheter-021-160");
+    await page.click("#load-go");
+    await page.waitForFunction(() => document.querySelectorAll("#stack li").length === 3, null, { timeout: 15_000 });
+    const right = await page.textContent("#right-instrument");
+    assert(/microcatheter/.test(right), `the right hand holds the microcatheter: ${right}`);
+    console.log(`  stack of ${await count()}: right hand ${right}; ${await page.textContent("#message")}`);
+    // Loading a catheter too wide for the microcatheter: the server's reason on the page.
+    await page.selectOption("#exchange-device", "catalogue:distal-access-058-115");
+    await page.click("#load-go");
+    await page.waitForFunction(() => /fit/.test(document.querySelector("#message")?.textContent ?? ""), null, {
+      timeout: 10_000,
+    });
+    console.log(`  refused: ${await page.textContent("#message")}`);
+    assert((await count()) === 3, "nothing loaded");
+    await machine.close();
+  });
+
   await test("layouts_fit_1280x800_and_1024x640_without_scrolling", async () => {
     await trainee.bringToFront();
     for (const [width, height] of [[1280, 800], [1024, 640]]) {

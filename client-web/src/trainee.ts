@@ -263,19 +263,27 @@ function setUpStack(scene: SceneSummary, listed: ListScenesResponse) {
   $("left-hand").hidden = false;
   $("right-title").textContent = "Right hand";
   $("right-instrument").textContent = scene.stack[n - 1].device;
-  const left = $<HTMLSelectElement>("left-instrument");
-  for (let i = 0; i < n - 1; i++) left.add(new Option(scene.stack[i].device, String(i)));
-  // The left hand holds the instrument just outside the innermost (the catheter over the
-  // wire); a parked guide is there to be chosen.
-  left.value = String(n - 2);
+  fillHands(scene.stack.map((s) => s.device));
   $("stack-panel").hidden = false;
   $("exchange").hidden = false;
-  const which = $<HTMLSelectElement>("exchange-instrument");
-  for (let i = 1; i < n; i++) which.add(new Option(scene.stack[i].device, String(i)));
-  which.value = String(n - 1);
   const bring = $<HTMLSelectElement>("exchange-device");
   for (const [i, spare] of scene.spares.entries()) bring.add(new Option(`back table: ${spare}`, `spare:${i}`));
   for (const d of listed.catalogue) bring.add(new Option(`${d.name}`, `catalogue:${d.id}`));
+}
+
+/** The left hand's and the exchange's instrument lists for a stack of these instruments
+ *  (outermost first): the left hand holds the one just outside the innermost (the catheter
+ *  over the wire; a parked guide is there to be chosen), the exchange offers the innermost. */
+function fillHands(names: readonly string[]) {
+  const n = names.length;
+  const left = $<HTMLSelectElement>("left-instrument");
+  const which = $<HTMLSelectElement>("exchange-instrument");
+  left.replaceChildren();
+  which.replaceChildren();
+  for (let i = 0; i < n - 1; i++) left.add(new Option(names[i], String(i)));
+  for (let i = 1; i < n; i++) which.add(new Option(names[i], String(i)));
+  left.value = String(Math.max(n - 2, 0));
+  which.value = String(n - 1);
 }
 
 /** The stack panel and the hands' instrument names from a state. */
@@ -300,6 +308,13 @@ function showStack(state: DeviceState) {
     li.querySelector(".inserted")!.textContent = line.inserted;
     li.querySelector(".relative")!.textContent = `· ${line.relative}`;
     li.querySelector(".force")!.textContent = `· ${line.force}`;
+  }
+  // A device loaded or taken out: the hands' lists follow, the left hand regrips the one
+  // just outside the new innermost (the right hand always drives the innermost).
+  const leftSelect = $<HTMLSelectElement>("left-instrument");
+  if (state.instruments.length >= 2 && leftSelect.options.length !== state.instruments.length - 1) {
+    fillHands(state.instruments.map((it) => it.name));
+    leftSelect.dispatchEvent(new Event("change"));
   }
   // After an exchange the names change: keep the hands' and the exchange's labels true.
   const names = state.instruments.map((it) => shortName(it.name));
@@ -349,7 +364,9 @@ function controls(client: SimulatorClient, sessionId: string, instruments: numbe
   const held = new Set<string>();
   const leftSelect = $<HTMLSelectElement>("left-instrument");
   const left = new DriveCommands(stacked ? Number(leftSelect.value) : undefined);
-  const right = new DriveCommands(stacked ? instruments - 1 : undefined);
+  // The right hand drives the innermost, whatever the stack holds now (no instrument named:
+  // the server's innermost, after a load or an unload too).
+  const right = new DriveCommands(undefined);
   let pad: Hands = { left: IDLE, right: IDLE };
   const update = () => {
     const keys = keyboardHands(held);
@@ -470,6 +487,20 @@ function controls(client: SimulatorClient, sessionId: string, instruments: numbe
     // then puts the new one there; a push on it meanwhile cancels the exchange.
     if (await command({ case: "exchange", value: { instrument, device } })) {
       say(`Exchange: withdrawing ${outgoing} to the hub, then ${incoming} goes in.`, "success");
+    }
+  });
+  $("load-go").addEventListener("click", async () => {
+    const [kind, value] = $<HTMLSelectElement>("exchange-device").value.split(/:(.*)/s);
+    const device =
+      kind === "spare" ? { case: "spare" as const, value: Number(value) } : { case: "catalogueId" as const, value };
+    const incoming = $<HTMLSelectElement>("exchange-device").selectedOptions[0]?.text ?? "";
+    if (await command({ case: "load", value: { device } })) {
+      say(`Loaded: ${incoming}, its tip at the innermost's hub; push it in.`, "success");
+    }
+  });
+  $("unload-go").addEventListener("click", async () => {
+    if (await command({ case: "unload", value: {} })) {
+      say("Taking the innermost out: it comes back to the hub, then off the table.", "success");
     }
   });
   $<HTMLSelectElement>("device").addEventListener("change", (e) =>
