@@ -1063,32 +1063,6 @@ impl SceneSpec {
                 1.0,
                 500.0,
             )?;
-            // With an access stage, the stack the operator drives to the target is the one
-            // after the loading.
-            let driven = match &a.access {
-                Some(x) => {
-                    (self.stack.len().saturating_sub(x.unload) + x.load.len()).max(self.stack.len())
-                }
-                None => self.stack.len(),
-            };
-            if a.park_along_mm.len() > driven - 2 {
-                return Err(scene_error(
-                    "autopilot.park_along_mm",
-                    format!(
-                        "{} parks for {} instruments around the catheter",
-                        a.park_along_mm.len(),
-                        driven - 2
-                    ),
-                ));
-            }
-            for (k, &mm) in a.park_along_mm.iter().enumerate() {
-                range(
-                    &format!("autopilot.park_along_mm[{k}]"),
-                    mm,
-                    self.start.along_route_mm,
-                    self.start.along_route_mm + 2000.0,
-                )?;
-            }
             if let Some(x) = &a.access {
                 range("autopilot.access.into_mm", x.into_mm, 1.0, 500.0)?;
                 range("autopilot.access.lookahead_mm", x.lookahead_mm, 1.0, 100.0)?;
@@ -1136,6 +1110,32 @@ impl SceneSpec {
                         "an access stage and a wire exchange do not go together",
                     ));
                 }
+            }
+            // With an access stage, the stack the operator drives to the target is the one
+            // after the loading.
+            let driven = match &a.access {
+                Some(x) => {
+                    (self.stack.len().saturating_sub(x.unload) + x.load.len()).max(self.stack.len())
+                }
+                None => self.stack.len(),
+            };
+            if a.park_along_mm.len() > driven - 2 {
+                return Err(scene_error(
+                    "autopilot.park_along_mm",
+                    format!(
+                        "{} parks for {} instruments around the catheter",
+                        a.park_along_mm.len(),
+                        driven - 2
+                    ),
+                ));
+            }
+            for (k, &mm) in a.park_along_mm.iter().enumerate() {
+                range(
+                    &format!("autopilot.park_along_mm[{k}]"),
+                    mm,
+                    self.start.along_route_mm,
+                    self.start.along_route_mm + 2000.0,
+                )?;
             }
             if let Some(x) = &a.exchange {
                 range("autopilot.exchange.into_mm", x.into_mm, 0.0, 500.0)?;

@@ -1247,7 +1247,7 @@ impl World {
     ) -> Result<()> {
         if self.exchanging.is_some() {
             return Err(EngineError::FailedPrecondition(
-                "an exchange is under way; load once it is done".into(),
+                "an exchange or unloading is under way; load once it is done".into(),
             ));
         }
         let Some(stack) = self.strand.stack_mut() else {
@@ -1275,6 +1275,11 @@ impl World {
     /// Withdraws the innermost instrument to the hub of the one around it (step by step, as
     /// for an exchange) and takes it out; a push on it cancels.
     fn unload(&mut self) -> Result<()> {
+        if self.exchanging.is_some() {
+            return Err(EngineError::FailedPrecondition(
+                "an exchange or unloading is under way; take out once it is done".into(),
+            ));
+        }
         let Some(stack) = self.strand.stack() else {
             return Err(EngineError::FailedPrecondition(
                 "a one-device scene has nothing to take out of a stack".into(),
