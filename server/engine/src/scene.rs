@@ -1084,7 +1084,7 @@ impl SceneSpec {
                 }
                 let kept = self.stack.len() - x.unload;
                 let count = kept + x.load.len();
-                if x.load.is_empty() || count < 2 || count > MAX_STACK {
+                if x.load.is_empty() || !(2..=MAX_STACK).contains(&count) {
                     return Err(scene_error(
                         "autopilot.access.load",
                         format!(

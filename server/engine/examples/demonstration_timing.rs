@@ -1,0 +1,60 @@
+//! Step times of a stack scene's demonstration, window by window: the scene's scripted
+//! operator drives (through its access stage, when the scene has one) while every
+//! `World::step` is timed; each window of 1,000 steps prints its p50, p99 and worst step and
+//! where the instruments are, until the target is reached (and one window more, hands still).
+//!
+//! `cargo run --release -p cathlab-engine --example demonstration_timing -- scenes/stroke_m1_from_access.toml`
+
+use std::path::Path;
+use std::time::Instant;
+
+use cathlab_engine::{AssetCache, Command, SceneFormat, SceneSpec, World};
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let Some(scene) = std::env::args().nth(1) else {
+        return Err("usage: demonstration_timing SCENE.toml".into());
+    };
+    let path = Path::new(&scene);
+    let spec = SceneSpec::parse(&std::fs::read_to_string(path)?, SceneFormat::Toml)?;
+    let assets = AssetCache::default().load(&spec, path.parent().unwrap_or(Path::new(".")))?;
+    let mut world = World::new(assets)?;
+    world.apply(1, &Command::Demonstrate(true))?;
+    let started = Instant::now();
+    let mut after = 0;
+    for window in 0..100 {
+        let mut ms: Vec<f64> = (0..1000)
+            .map(|_| {
+                let t = Instant::now();
+                world.step().map(|_| t.elapsed().as_secs_f64() * 1e3)
+            })
+            .collect::<Result<_, _>>()?;
+        ms.sort_by(f64::total_cmp);
+        let inserted: Vec<f64> = world
+            .snapshot()
+            .instruments
+            .iter()
+            .map(|i| (i.inserted_m * 1e3).round())
+            .collect();
+        println!(
+            "steps {:>6}: p50 {:.2} ms, p99 {:.2} ms, worst {:.2} ms; inserted {inserted:?} mm",
+            (window + 1) * 1000,
+            ms[500],
+            ms[990],
+            ms[999]
+        );
+        if world.metrics().target_reached_at_s.is_some() {
+            after += 1;
+            if after == 2 {
+                break;
+            }
+        }
+    }
+    let m = world.metrics();
+    println!(
+        "target reached at {:.1} s simulated; {} steps in {:.1} s wall",
+        m.target_reached_at_s.unwrap_or(f64::NAN),
+        world.step_index(),
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
