@@ -287,6 +287,19 @@ impl Strand {
         }
     }
 
+    /// Sets the axial load on instrument `index`'s tip (N, along its tangent, negative
+    /// resisting an advance): a clot resisting a crossing tip. A stack's only.
+    pub fn set_tip_load(&mut self, index: usize, axial_n: f64) -> Result<()> {
+        match self {
+            Strand::Single(_) => Err(EngineError::FailedPrecondition(
+                "tip loads are for a coaxial stack".into(),
+            )),
+            Strand::Stack(s) => s
+                .set_tip_load(index, axial_n)
+                .map_err(|e| EngineError::FailedPrecondition(e.to_string())),
+        }
+    }
+
     /// The stack, if this is one (mutable: exchanges).
     pub fn stack_mut(&mut self) -> Option<&mut Stack<SharedWall>> {
         match self {

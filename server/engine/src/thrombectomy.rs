@@ -24,6 +24,11 @@ const SHEATHED_M: f64 = 1e-3;
 /// apposition falls from 1 at the face to 0.5 there.
 const APPOSITION_REACH_M: f64 = 1.5e-3;
 
+/// Tip speed (m/s) over which a clot's resistance to a crossing tip builds up to its full
+/// value (a regularised plastic resistance, F·tanh(v/v₀): a tip that stops feels none, so the
+/// clot does not push it back).
+const CROSSING_SPEED_M_S: f64 = 1e-3;
+
 /// Pull of an engaged stent's wire that starts a retrieval pass (m): less is the hand's play.
 const START_PULL_M: f64 = 0.2e-3;
 
@@ -127,6 +132,11 @@ pub struct Procedure {
     needs_resheath: bool,
     pass: Option<Pass>,
     figures: ProcedureFigures,
+    /// Each instrument's inserted length at the last step (m), for its speed.
+    inserted_before: Vec<f64>,
+    /// Each instrument's axial tip load from the clot it is crossing (N, negative resisting
+    /// an advance), for the beam's next step.
+    tip_loads: Vec<f64>,
 }
 
 /// Distance along the route polyline of the point nearest `p` (m), the samples `spacing_m`
@@ -198,7 +208,15 @@ impl Procedure {
             needs_resheath: false,
             pass: None,
             figures: ProcedureFigures::default(),
+            inserted_before: Vec::new(),
+            tip_loads: Vec::new(),
         }
+    }
+
+    /// Each instrument's axial tip load from the clot it crosses (N, along its tangent,
+    /// negative resisting an advance; outermost first), as of the last step.
+    pub fn tip_loads(&self) -> &[f64] {
+        &self.tip_loads
     }
 
     /// Suction on or off.
@@ -259,6 +277,7 @@ impl Procedure {
     ) -> ProcedureStep {
         let mut out = ProcedureStep::default();
         self.crossing(instruments);
+        self.resist(instruments, dt);
         let Some((site, from)) = self.site_on_route() else {
             return out;
         };
@@ -352,6 +371,51 @@ impl Procedure {
                         .max(v.axial_force_n.abs());
                 }
             }
+        }
+    }
+
+    /// The clot's resistance to the tips crossing it: a tip in a clot in place, not inside
+    /// an instrument that reaches further, opens the clot from what the instruments ahead of
+    /// it inside already opened to its own diameter, against the cavity-expansion force
+    /// ([`cathlab_thrombectomy::ClotMechanics::crossing_force_n`] of the two diameters'
+    /// difference), regularised by its speed (F·tanh(v/v₀), v₀ = 1 mm/s). Stent retrievers
+    /// and an engaged or retrieved clot take none.
+    fn resist(&mut self, instruments: &[InstrumentView], dt: f64) {
+        let n = instruments.len();
+        if self.inserted_before.len() != n {
+            self.inserted_before = instruments.iter().map(|v| v.inserted_m).collect();
+        }
+        self.tip_loads.clear();
+        self.tip_loads.resize(n, 0.0);
+        if self.engaged.is_none() && self.pass.is_none() {
+            for s in self.sites.iter().filter(|s| s.in_place && !s.embolus) {
+                let Some(from) = s.route_from_m else { continue };
+                let to = from + s.clot.length_m;
+                for (k, v) in instruments.iter().enumerate() {
+                    if v.stent.is_some() || v.tip_arc_m <= from || v.tip_arc_m > to {
+                        continue;
+                    }
+                    // Inside an instrument that reaches further: shielded.
+                    if instruments[..k].iter().any(|o| o.tip_arc_m > v.tip_arc_m) {
+                        continue;
+                    }
+                    // The channel the instruments ahead of it inside already opened.
+                    let channel = instruments[k + 1..]
+                        .iter()
+                        .filter(|i| i.tip_arc_m > v.tip_arc_m)
+                        .map(|i| i.outer_diameter_m)
+                        .fold(0.0, f64::max);
+                    let mechanics = &s.clot.mechanics;
+                    let force = (mechanics.crossing_force_n(v.outer_diameter_m)
+                        - mechanics.crossing_force_n(channel))
+                    .max(0.0);
+                    let speed = (v.inserted_m - self.inserted_before[k]) / dt.max(1e-12);
+                    self.tip_loads[k] = -force * (speed / CROSSING_SPEED_M_S).tanh();
+                }
+            }
+        }
+        for (before, v) in self.inserted_before.iter_mut().zip(instruments) {
+            *before = v.inserted_m;
         }
     }
 
@@ -850,6 +914,93 @@ mod tests {
             crossed: false,
             embolus: false,
         }
+    }
+
+    fn view(tip_arc_m: f64, inserted_m: f64, outer_diameter_m: f64) -> InstrumentView {
+        InstrumentView {
+            kind: None,
+            stent: None,
+            tip_arc_m,
+            inserted_m,
+            outer_diameter_m,
+            bore_m: 0.0,
+            axial_force_n: 0.0,
+        }
+    }
+
+    /// A tip advancing in the clot is resisted by the cavity-expansion force of its diameter
+    /// (less the channel the instruments ahead of it opened), scaled by tanh(v/v₀); a tip
+    /// inside an instrument that reaches further, a still tip, a tip outside the clot and a
+    /// stent take none.
+    #[test]
+    fn the_clot_resists_the_tips_that_open_it() {
+        let network = tree();
+        let s = site();
+        let mut p = Procedure::new(&[s.occlusion], &[0.5], &network, &[(0, 0.0, 20e-3)]);
+        let m = s.clot.mechanics;
+        let (wire, micro, guide) = (0.36e-3, 0.8e-3, 2.0e-3);
+        let dt = 0.002;
+        let at = |p: &mut Procedure, views: &[InstrumentView]| {
+            p.resist(views, dt);
+            p.tip_loads().to_vec()
+        };
+        // Guide outside the clot, microcatheter in it behind the wire, the wire in it ahead.
+        let before = [
+            view(2e-3, 0.10, guide),
+            view(6e-3, 0.20, micro),
+            view(8e-3, 0.30, wire),
+        ];
+        assert_eq!(at(&mut p, &before), [0.0, 0.0, 0.0], "nothing moved yet");
+        let v = 10e-3;
+        let moved = [
+            view(2e-3, 0.10, guide),
+            view(6e-3, 0.20 + v * dt, micro),
+            view(8e-3, 0.30 + v * dt, wire),
+        ];
+        let loads = at(&mut p, &moved);
+        let scale = (v / CROSSING_SPEED_M_S).tanh();
+        assert_eq!(loads[0], 0.0);
+        let micro_expected = -(m.crossing_force_n(micro) - m.crossing_force_n(wire)) * scale;
+        assert!(
+            (loads[1] - micro_expected).abs() < 1e-12 * micro_expected.abs(),
+            "{loads:?}"
+        );
+        let wire_expected = -m.crossing_force_n(wire) * scale;
+        assert!(
+            (loads[2] - wire_expected).abs() < 1e-12 * wire_expected.abs(),
+            "{loads:?}"
+        );
+        // Drawn back through it: resisted the other way.
+        let back = [
+            view(2e-3, 0.10, guide),
+            view(6e-3, 0.20, micro),
+            view(8e-3, 0.30, wire),
+        ];
+        let loads = at(&mut p, &back);
+        assert!(loads[1] > 0.0 && loads[2] > 0.0, "{loads:?}");
+        // The wire inside the microcatheter, which reaches further: shielded; a stent too.
+        let mut inside = [
+            view(2e-3, 0.10, guide),
+            view(9e-3, 0.21, micro),
+            view(8e-3, 0.31, wire),
+        ];
+        let loads = at(&mut p, &inside);
+        assert_eq!(loads[2], 0.0, "{loads:?}");
+        assert!(loads[1] < 0.0);
+        inside[1].stent = crate::scene::catalogue()
+            .get("stent-retriever-4x20")
+            .and_then(|e| e.stent);
+        assert!(inside[1].stent.is_some());
+        inside[1].inserted_m += 0.01;
+        let loads = at(&mut p, &inside);
+        assert_eq!(loads[1], 0.0, "a stent takes none: {loads:?}");
+        // Beyond the clot: none.
+        let beyond = [
+            view(2e-3, 0.10, guide),
+            view(15e-3, 0.30, micro),
+            view(16e-3, 0.40, wire),
+        ];
+        assert_eq!(at(&mut p, &beyond), [0.0, 0.0, 0.0]);
     }
 
     /// A fragment follows the most flow until a vessel is narrower than the sphere of its

@@ -1085,6 +1085,13 @@ impl World {
             &hemo.flow_now,
             &hemo.open_flow,
         );
+        // The clot's resistance on the tips crossing it, for the next step (a one-device
+        // scene records the crossing but does not load its beam).
+        if self.strand.stack().is_some() {
+            for (k, &load) in procedure.tip_loads().iter().enumerate() {
+                self.strand.set_tip_load(k, load)?;
+            }
+        }
         let figures = procedure.figures();
         self.metrics.thrombectomy = Some(crate::metrics::ThrombectomyMetric {
             passes: figures.passes,

@@ -109,6 +109,9 @@ struct Instrument {
     /// Identifier of the node at this instrument's tip while the tip is inside the strand
     /// (neither withdrawn nor leading).
     tip_node: Option<u64>,
+    /// Axial load on the tip (N, along its tangent, positive forward), from the next step
+    /// on: what a clot asks of a tip crossing it.
+    tip_load_n: f64,
 }
 
 /// A node of the strand.
@@ -177,6 +180,8 @@ pub struct Stack<W: Wall> {
     effort: Effort,
     /// Wall-distance bounds that spare collision points their probes.
     clearance: ClearanceCache,
+    /// Whether the model carries tip loads (cleared when none is left).
+    tip_loaded: bool,
 }
 
 /// Everything [`Stack::advance`] needs to undo a step.
@@ -331,6 +336,7 @@ impl<W: Wall> Stack<W> {
                 max_insertion_speed_m_s: spec.max_insertion_speed_m_s,
                 max_twist_rate_rad_s: spec.max_twist_rate_rad_s,
                 tip_node: None,
+                tip_load_n: 0.0,
                 device: spec.device,
             };
             let outer = states
@@ -432,6 +438,7 @@ impl<W: Wall> Stack<W> {
             coupling,
             chains: Vec::new(),
             nested_last: nested::NestedStep::default(),
+            tip_loaded: false,
             effort: Effort::FULL,
             clearance: ClearanceCache::default(),
         };
@@ -768,6 +775,7 @@ impl<W: Wall> Stack<W> {
             max_insertion_speed_m_s: speed,
             max_twist_rate_rad_s: rate,
             tip_node: None,
+            tip_load_n: 0.0,
             device,
         });
         Ok(())
@@ -796,6 +804,64 @@ impl<W: Wall> Stack<W> {
             )));
         }
         Ok(self.instruments.pop().expect("checked above").device)
+    }
+
+    /// Sets an axial load (N) on instrument `index`'s tip, along its tangent (positive
+    /// forward, negative resisting its advance), applied every step until set again: the
+    /// resistance of a clot the tip is crossing. Merged coupling only (a nested stack is a
+    /// typed error); on a withdrawn tip it waits.
+    pub fn set_tip_load(&mut self, index: usize, axial_n: f64) -> Result<()> {
+        self.check_index(index)?;
+        require_finite(|| format!("tip load of instrument {index}"), axial_n)?;
+        if self.coupling == Coupling::Nested && axial_n != 0.0 {
+            return Err(PhysicsError::Stack(
+                "tip loads are applied in merged coupling only".into(),
+            ));
+        }
+        self.instruments[index].tip_load_n = axial_n;
+        Ok(())
+    }
+
+    /// The axial tip load of instrument `index` (N), as set.
+    pub fn tip_load_n(&self, index: usize) -> Option<f64> {
+        self.instruments.get(index).map(|i| i.tip_load_n)
+    }
+
+    /// Index of the node at instrument `k`'s tip in the merged strand: its key node inside
+    /// the strand, the last node when it leads; `None` while withdrawn.
+    fn tip_node_index(&self, k: usize) -> Option<usize> {
+        let instrument = &self.instruments[k];
+        match instrument.tip_node {
+            Some(id) => self.nodes.iter().position(|n| n.id == id),
+            None => {
+                let last = self.nodes.len() - 1;
+                let snap = 0.5 * self.settings.sample_spacing_m;
+                (instrument.inserted_m > snap
+                    && instrument.inserted_m >= self.nodes[last].sigma - snap)
+                    .then_some(last)
+            }
+        }
+    }
+
+    /// Puts the instruments' tip loads on the merged model (after it is rebuilt).
+    fn apply_tip_loads(&mut self) -> Result<()> {
+        if self.instruments.iter().all(|i| i.tip_load_n == 0.0) && !self.tip_loaded {
+            return Ok(());
+        }
+        self.model.clear_loads();
+        self.tip_loaded = false;
+        for k in 0..self.instruments.len() {
+            let load = self.instruments[k].tip_load_n;
+            if load == 0.0 {
+                continue;
+            }
+            if let Some(i) = self.tip_node_index(k) {
+                let axis = self.nodes[i].rotation * Vector3::x();
+                self.model.set_load(i, axis * load, Vector3::zeros())?;
+                self.tip_loaded = true;
+            }
+        }
+        Ok(())
     }
 
     /// Whether instrument `index` may be exchanged for `device` once withdrawn: not the
@@ -859,6 +925,7 @@ impl<W: Wall> Stack<W> {
             max_insertion_speed_m_s: old.max_insertion_speed_m_s,
             max_twist_rate_rad_s: old.max_twist_rate_rad_s,
             tip_node: None,
+            tip_load_n: 0.0,
             device,
         };
         Ok(())
@@ -951,6 +1018,7 @@ impl<W: Wall> Stack<W> {
         self.move_instruments(targets)?;
         self.refine();
         self.rebuild_model()?;
+        self.apply_tip_loads()?;
         let twist =
             UnitQuaternion::from_axis_angle(&Vector3::x_axis(), self.instruments[0].twist_rad);
         self.model

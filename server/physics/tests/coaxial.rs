@@ -1169,3 +1169,51 @@ fn catalogue_stent_tables_are_checked_by_name() {
         ("test-catheter", "stent")
     );
 }
+
+/// A tip load (a clot resisting a crossing tip) reaches the hands: held still in free space,
+/// the hands push with the load (the sum of their axial forces, static balance of the strand), whether the
+/// loaded tip leads or lies inside the strand; none without it; bad loads are named.
+#[test]
+fn a_tip_load_reaches_the_hands_in_static_balance() {
+    let (tube, wire) = straight_pair();
+    let load = 0.05;
+    let hands = |stack: &mut Stack<FreeSpace>| -> f64 {
+        stack
+            .proximal_reactions()
+            .iter()
+            .map(|r| r.axial_force_n)
+            .sum()
+    };
+    for (loaded, name) in [(1, "the leading wire's tip"), (0, "the tube's tip, inside")] {
+        let mut stack = free_stack(vec![(tube.clone(), 0.06), (wire.clone(), 0.1)]);
+        for _ in 0..50 {
+            stack.step().unwrap();
+        }
+        let free = hands(&mut stack);
+        stack.set_tip_load(loaded, -load).unwrap();
+        assert_eq!(stack.tip_load_n(loaded), Some(-load));
+        for _ in 0..400 {
+            stack.step().unwrap();
+        }
+        let held = hands(&mut stack);
+        println!("{name}: hands {free:.2e} N free, {held:.6} N against a {load} N tip load");
+        assert!(free.abs() < 1e-6 * load, "{name}: {free}");
+        assert!(
+            (held - load).abs() < 0.01 * load,
+            "{name}: the hands carry {held} N of a {load} N load"
+        );
+        // Taken off: the hands are free again.
+        stack.set_tip_load(loaded, 0.0).unwrap();
+        for _ in 0..400 {
+            stack.step().unwrap();
+        }
+        let after = hands(&mut stack);
+        assert!(after.abs() < 0.01 * load, "{name}: {after}");
+    }
+    let mut stack = free_stack(vec![(tube.clone(), 0.06), (wire.clone(), 0.1)]);
+    assert!(stack.set_tip_load(2, -load).is_err());
+    assert!(stack.set_tip_load(1, f64::NAN).is_err());
+    let mut nested = coupled_stack(vec![(tube, 0.06), (wire, 0.1)], Coupling::Nested);
+    let e = nested.set_tip_load(1, -load).unwrap_err().to_string();
+    assert!(e.contains("merged"), "{e}");
+}
