@@ -515,6 +515,7 @@ fn physics_loop(mut p: PhysicsLoop) {
         if let Err(e) = outcome {
             // Only flow/contrast errors reach here (physics divergence resets inside); report
             // and stop stepping rather than stream a broken state.
+            tracing::error!(session = %p.id, "session stopped: {e}");
             let event = Event {
                 step: p.world.step_index(),
                 time_s: p.world.metrics().procedure_time_s,

@@ -1883,7 +1883,13 @@ impl World {
             self.metrics.contrast_volume_ml += dv * 1e6;
             finished = *left <= 0.0;
         }
-        hemo.steps_since_contrast += 1;
+        // Steps count only while contrast moves: the first sub-step after an idle spell
+        // spans one period, not the whole spell (which broke the CFL limit after minutes).
+        if hemo.active {
+            hemo.steps_since_contrast += 1;
+        } else {
+            hemo.steps_since_contrast = 0;
+        }
         if hemo.active && hemo.steps_since_contrast >= every {
             let span = hemo.steps_since_contrast as f64 * dt;
             hemo.steps_since_contrast = 0;

@@ -1263,3 +1263,43 @@ fn a_stack_takes_its_innermost_out_step_by_step_and_loads_devices_that_fit() {
     let outermost = world.apply(14, &Command::Unload).unwrap_err();
     assert!(outermost.to_string().contains("outermost"), "{outermost}");
 }
+
+/// Regression: the contrast's steps were counted while no contrast moved, so the first
+/// update after an idle spell advected the new bolus over the whole spell (after two minutes
+/// of a stroke case, past the CFL limit: the session stopped). The same injection after
+/// 1,000 idle steps draws the same contrast as at once.
+#[test]
+fn an_injection_after_an_idle_spell_moves_as_one_at_once() {
+    let assets = assets(&default_text());
+    let drawn = |idle: usize| {
+        let mut world = World::new(assets.clone()).unwrap();
+        for _ in 0..idle {
+            world.step().unwrap();
+        }
+        world
+            .apply(
+                1,
+                &Command::Inject {
+                    volume_ml: 2.0,
+                    rate_ml_s: 4.0,
+                },
+            )
+            .unwrap();
+        for _ in 0..40 {
+            world.step().unwrap();
+        }
+        let s = world.snapshot();
+        let length: f64 = s.contrast.iter().map(|t| (t.end - t.start).norm()).sum();
+        (s.contrast.len(), length)
+    };
+    let (now_tubes, now_length) = drawn(0);
+    let (later_tubes, later_length) = drawn(1000);
+    println!(
+        "at once: {now_tubes} tubes, {now_length:.4} m; after 2 s idle: {later_tubes}, {later_length:.4} m"
+    );
+    assert!(now_length > 0.0, "the bolus is drawn");
+    assert!(
+        (later_length - now_length).abs() <= 1e-9 + 1e-6 * now_length,
+        "{later_length} m after idling, {now_length} m at once"
+    );
+}
