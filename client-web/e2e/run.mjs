@@ -75,6 +75,18 @@ async function blocks(page, selector) {
   });
 }
 const largestChange = (a, b) => a.reduce((m, v, i) => Math.max(m, Math.abs(v - b[i])), 0);
+/** The controls and HUD figures shown on `page` that lie outside its viewport (or have no
+ *  width): their ids, or their first words. */
+async function outOfView(page) {
+  return page.evaluate(() =>
+    [...document.querySelectorAll("#controls button, #controls input, #controls select, #hud dd")]
+      .filter((e) => e.checkVisibility())
+      .map((e) => ({ id: e.id || e.textContent?.trim().slice(0, 20), r: e.getBoundingClientRect() }))
+      .filter(({ r }) => r.bottom > innerHeight + 0.5 || r.right > innerWidth + 0.5 || r.width === 0)
+      .map(({ id }) => id),
+  );
+}
+
 async function nextFrame(page, selector = "#xray") {
   const now = await page.$eval(selector, (img) => Number(img.dataset.frame ?? -1));
   await page.waitForFunction(
@@ -590,13 +602,7 @@ try {
     });
     console.log(`  demonstration: ${await page.textContent("#hud-target")}`);
     // Every control of the stroke page is in view at 1280×800.
-    const outside = await page.evaluate(() =>
-      [...document.querySelectorAll("#controls button, #controls input, #controls select, #hud dd")]
-        .filter((e) => e.checkVisibility())
-        .map((e) => ({ id: e.id || e.textContent?.trim().slice(0, 20), r: e.getBoundingClientRect() }))
-        .filter(({ r }) => r.bottom > innerHeight + 0.5 || r.right > innerWidth + 0.5 || r.width === 0)
-        .map(({ id }) => id),
-    );
+    const outside = await outOfView(page);
     assert(outside.length === 0, `out of view on the stroke page at 1280×800: ${outside.join(", ")}`);
     assert((await page.getAttribute("#demonstrate", "aria-pressed")) === "false", "the demonstration button released");
     await page.keyboard.down("f");
@@ -616,13 +622,7 @@ try {
     await page.waitForSelector('#connection[data-status="connected"]', { timeout: 120_000 });
     await page.waitForFunction(() => document.querySelectorAll("#stack li").length === 3, null, { timeout: 15_000 });
     // Every control of the page is in view at 1280×800, the loading buttons among them.
-    const outside = await page.evaluate(() =>
-      [...document.querySelectorAll("#controls button, #controls input, #controls select, #hud dd")]
-        .filter((e) => e.checkVisibility())
-        .map((e) => ({ id: e.id || e.textContent?.trim().slice(0, 20), r: e.getBoundingClientRect() }))
-        .filter(({ r }) => r.bottom > innerHeight + 0.5 || r.right > innerWidth + 0.5 || r.width === 0)
-        .map(({ id }) => id),
-    );
+    const outside = await outOfView(page);
     assert(outside.length === 0, `out of view on the access page at 1280×800: ${outside.join(", ")}`);
     // The access wire out: drawn back to the hub, then off the table; the hands' lists follow.
     await page.click("#unload-go");

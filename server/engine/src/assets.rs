@@ -68,8 +68,12 @@ pub struct SceneAssets {
     pub target_path_lps: Vec<Point3<f64>>,
     /// The C-arm at the start.
     pub carm: CArm,
-    /// The flow network (vessel i = graph branch i), when the scene has flow.
+    /// The flow network (vessel i = graph branch i; pial collaterals, when the scene has
+    /// them, after the branches), when the scene has flow.
     pub network: Option<FlowNetwork>,
+    /// The network without its collaterals, when it has some: eTICI grades the antegrade
+    /// reperfusion on it.
+    pub grading_network: Option<FlowNetwork>,
     /// The scene's clots, checked against the graph (vessel i = graph branch i).
     pub clots: Vec<Occlusion>,
 }
@@ -809,8 +813,29 @@ impl AssetCache {
                     inlet: InletCondition::Pressure(flow.pressure_mmhg * MMHG),
                     ..GraphFlowSettings::default()
                 };
-                Some(network_from_graph(graph, &settings).map_err(|e| scene_error("flow", e))?)
+                let network =
+                    network_from_graph(graph, &settings).map_err(|e| scene_error("flow", e))?;
+                Some(match &flow.collaterals {
+                    None => (network, None),
+                    Some(c) => {
+                        let donors: Vec<&str> = c.donors.iter().map(String::as_str).collect();
+                        let (with, _) = cathlab_hemo::with_pial_collaterals(
+                            &network,
+                            &c.recipient,
+                            &donors,
+                            cathlab_hemo::CollateralStatus {
+                                supply_fraction: c.supply_fraction,
+                            },
+                        )
+                        .map_err(|e| scene_error("flow.collaterals", e))?;
+                        (with, Some(network))
+                    }
+                })
             }
+        };
+        let (network, grading_network) = match network {
+            Some((n, g)) => (Some(n), g),
+            None => (None, None),
         };
         let clots = scene_clots(spec, graph)?;
         let (route_samples, route_radii): (Vec<Point3<f64>>, Vec<f64>) = graph
@@ -849,6 +874,7 @@ impl AssetCache {
             goal_along_m,
             carm,
             network,
+            grading_network,
             clots,
         };
         // The scripted operator's plan (its exchange's branch on the route, its device) is

@@ -656,6 +656,25 @@ pub struct FlowSpec {
     /// Iodine concentration of the contrast agent (mg/mL).
     #[serde(default = "default_agent")]
     pub agent_mg_per_ml: f64,
+    /// Pial collaterals feeding a territory whose artery may be occluded.
+    #[serde(default)]
+    pub collaterals: Option<CollateralSpec>,
+}
+
+/// Leptomeningeal collaterals: vessels from the ends of the donor branches to the end of the
+/// recipient branch, calibrated so that with the recipient occluded they bring
+/// `supply_fraction` of its resting flow (the collateral status: good 0.4, moderate 0.2,
+/// poor 0.05; see `cathlab_hemo::CollateralStatus`). eTICI grades the antegrade reperfusion,
+/// so it is measured on the network without them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CollateralSpec {
+    /// The branch whose territory the collaterals feed.
+    pub recipient: String,
+    /// The branches whose territories they come from.
+    pub donors: Vec<String>,
+    /// Share of the recipient's resting flow they bring with it occluded, 0.01–0.9.
+    pub supply_fraction: f64,
 }
 
 /// A clot in a vessel: where, how long, and what it is made of.
@@ -1021,6 +1040,20 @@ impl SceneSpec {
         if let Some(flow) = &self.flow {
             range("flow.pressure_mmhg", flow.pressure_mmhg, 10.0, 300.0)?;
             range("flow.agent_mg_per_ml", flow.agent_mg_per_ml, 50.0, 400.0)?;
+            if let Some(c) = &flow.collaterals {
+                range(
+                    "flow.collaterals.supply_fraction",
+                    c.supply_fraction,
+                    0.01,
+                    0.9,
+                )?;
+                if c.donors.is_empty() || c.donors.len() > 8 {
+                    return Err(scene_error(
+                        "flow.collaterals.donors",
+                        format!("{} donor branches (1 to 8)", c.donors.len()),
+                    ));
+                }
+            }
         }
         range("target.reach_mm", self.target.reach_mm, 0.0, 500.0)?;
         let l = &self.limits;

@@ -363,8 +363,12 @@ struct Hemo {
     /// The flow with every vessel open and no injection: what reperfusion is measured
     /// against.
     open_flow: FlowSolution,
-    /// The outlets the clots cut off (empty without clots).
+    /// The outlets the clots cut off (empty without clots), on the grading network.
     territory: Vec<usize>,
+    /// A scene with collaterals: the network without them and its open flow, on which
+    /// eTICI grades the antegrade reperfusion (the collaterals' retrograde filling does not
+    /// count).
+    grading: Option<(FlowSolver, FlowSolution)>,
     /// The flow with the clots now and no injection (pressures across a clot).
     flow_now: FlowSolution,
 }
@@ -406,6 +410,13 @@ pub struct World {
     demonstration: Option<operator::SceneOperator>,
     /// The world applies its own operator's commands (they do not end a demonstration).
     operating: bool,
+}
+
+/// A device a client chose: an entry of the built-in catalogue or a spare of the scene.
+#[derive(Debug, Clone, Copy)]
+enum Chosen {
+    Catalogue(u32),
+    Spare(u32),
 }
 
 /// An exchange (or an unloading) waiting for its instrument to be withdrawn.
@@ -546,13 +557,29 @@ impl World {
             Some(network) => {
                 let mut solver = FlowSolver::new(network.clone())?;
                 let open_flow = solver.solve(None)?;
-                let (flow, territory) = if assets.clots.is_empty() {
-                    (open_flow.clone(), Vec::new())
+                let flow = if assets.clots.is_empty() {
+                    open_flow.clone()
                 } else {
                     solver.set_occlusions(&assets.clots)?;
-                    let flow = solver.solve(None)?;
-                    let territory = occluded_territory(&open_flow, &flow)?;
-                    (flow, territory)
+                    solver.solve(None)?
+                };
+                let mut grading = match &assets.grading_network {
+                    None => None,
+                    Some(n) => {
+                        let mut g = FlowSolver::new(n.clone())?;
+                        let open = g.solve(None)?;
+                        g.set_occlusions(&assets.clots)?;
+                        Some((g, open))
+                    }
+                };
+                let (graded_open, graded_now) = match &mut grading {
+                    None => (open_flow.clone(), flow.clone()),
+                    Some((g, open)) => (open.clone(), g.solve(None)?),
+                };
+                let territory = if assets.clots.is_empty() {
+                    Vec::new()
+                } else {
+                    occluded_territory(&graded_open, &graded_now)?
                 };
                 let mut contrast = Contrast::new(
                     network,
@@ -562,7 +589,7 @@ impl World {
                     },
                 )?;
                 contrast.set_flow(network, &flow)?;
-                reperfusion = reperfusion_metric(&open_flow, &flow, &territory)?;
+                reperfusion = reperfusion_metric(&graded_open, &graded_now, &territory)?;
                 Some(Hemo {
                     solver,
                     contrast,
@@ -579,6 +606,7 @@ impl World {
                     linked_at_s: None,
                     open_flow,
                     territory,
+                    grading,
                     flow_now: flow,
                 })
             }
@@ -752,60 +780,20 @@ impl World {
                 self.drive(index as usize, drive)?;
             }
             Command::Exchange { index, catalogue } => {
-                let entries = crate::scene::catalogue().entries();
-                let entry = entries.get(catalogue as usize).ok_or_else(|| {
-                    EngineError::InvalidArgument {
-                        field: "exchange.device".into(),
-                        reason: format!(
-                            "catalogue entry {catalogue} does not exist (the catalogue has {})",
-                            entries.len()
-                        ),
-                    }
-                })?;
-                let look = crate::assets::appearance_of_entry(entry);
-                self.exchange(index, &entry.device, look, entry.id.clone())?;
+                let (device, look, id) = self.chosen(Chosen::Catalogue(catalogue), "exchange")?;
+                self.exchange(index, &device, look, id)?;
             }
             Command::ExchangeSpare { index, spare } => {
-                let assets = self.assets.clone();
-                let (device, look) = assets.spares.get(spare as usize).ok_or_else(|| {
-                    EngineError::InvalidArgument {
-                        field: "exchange.spare".into(),
-                        reason: format!(
-                            "spare {spare} does not exist (the scene has {})",
-                            assets.spares.len()
-                        ),
-                    }
-                })?;
-                let label = assets.spec.spares[spare as usize].label();
-                self.exchange(index, device, look.clone(), label)?;
+                let (device, look, id) = self.chosen(Chosen::Spare(spare), "exchange")?;
+                self.exchange(index, &device, look, id)?;
             }
             Command::Load { catalogue } => {
-                let entries = crate::scene::catalogue().entries();
-                let entry = entries.get(catalogue as usize).ok_or_else(|| {
-                    EngineError::InvalidArgument {
-                        field: "load.device".into(),
-                        reason: format!(
-                            "catalogue entry {catalogue} does not exist (the catalogue has {})",
-                            entries.len()
-                        ),
-                    }
-                })?;
-                let look = crate::assets::appearance_of_entry(entry);
-                self.load(&entry.device, look, entry.id.clone())?;
+                let (device, look, id) = self.chosen(Chosen::Catalogue(catalogue), "load")?;
+                self.load(&device, look, id)?;
             }
             Command::LoadSpare { spare } => {
-                let assets = self.assets.clone();
-                let (device, look) = assets.spares.get(spare as usize).ok_or_else(|| {
-                    EngineError::InvalidArgument {
-                        field: "load.spare".into(),
-                        reason: format!(
-                            "spare {spare} does not exist (the scene has {})",
-                            assets.spares.len()
-                        ),
-                    }
-                })?;
-                let label = assets.spec.spares[spare as usize].label();
-                self.load(device, look.clone(), label)?;
+                let (device, look, id) = self.chosen(Chosen::Spare(spare), "load")?;
+                self.load(&device, look, id)?;
             }
             Command::Unload => self.unload()?,
             Command::SelectDevice(_) if !self.assets.spec.stack.is_empty() => {
@@ -1244,6 +1232,47 @@ impl World {
         Ok(true)
     }
 
+    /// The device a client chose for an exchange or a load (`what`, naming the field): a
+    /// catalogue entry or a spare of the scene, with its look and the name it goes by.
+    fn chosen(
+        &self,
+        choice: Chosen,
+        what: &str,
+    ) -> Result<(cathlab_physics::Device, DeviceAppearance, String)> {
+        match choice {
+            Chosen::Catalogue(k) => {
+                let entries = crate::scene::catalogue().entries();
+                let entry =
+                    entries
+                        .get(k as usize)
+                        .ok_or_else(|| EngineError::InvalidArgument {
+                            field: format!("{what}.device"),
+                            reason: format!(
+                                "catalogue entry {k} does not exist (the catalogue has {})",
+                                entries.len()
+                            ),
+                        })?;
+                let look = crate::assets::appearance_of_entry(entry);
+                Ok((entry.device.clone(), look, entry.id.clone()))
+            }
+            Chosen::Spare(k) => {
+                let spares = &self.assets.spares;
+                let (device, look) =
+                    spares
+                        .get(k as usize)
+                        .ok_or_else(|| EngineError::InvalidArgument {
+                            field: format!("{what}.spare"),
+                            reason: format!(
+                                "spare {k} does not exist (the scene has {})",
+                                spares.len()
+                            ),
+                        })?;
+                let label = self.assets.spec.spares[k as usize].label();
+                Ok((device.clone(), look.clone(), label))
+            }
+        }
+    }
+
     /// Loads `device` (its look and the name it goes by) into the stack's innermost
     /// instrument as the new innermost, its tip at that one's hub.
     fn load(
@@ -1494,16 +1523,30 @@ impl World {
         hemo.solver.set_occlusions(clots)?;
         let now = hemo.solver.solve(None)?;
         hemo.flow_now = now.clone();
+        // Graded on the network without collaterals, when the scene has them.
+        let (open, now) = match &mut hemo.grading {
+            None => (hemo.open_flow.clone(), now),
+            Some((g, open)) => {
+                g.set_occlusions(clots)?;
+                (open.clone(), g.solve(None)?)
+            }
+        };
         if new_territory && !clots.is_empty() {
             // New clots cut off their own territory; removing them keeps the old one, whose
             // reperfusion is then measured.
-            let cut = occluded_territory(&hemo.open_flow, &now)?;
+            let cut = occluded_territory(&open, &now)?;
             if !cut.is_empty() {
                 hemo.territory = cut;
             }
         }
-        self.metrics.reperfusion = reperfusion_metric(&hemo.open_flow, &now, &hemo.territory)?;
+        self.metrics.reperfusion = reperfusion_metric(&open, &now, &hemo.territory)?;
         self.update_injection()
+    }
+
+    /// The flow with the clots now and no injection (vessel i = graph branch i, then any
+    /// collaterals), when the scene has flow.
+    pub fn flow_now(&self) -> Option<&FlowSolution> {
+        self.hemo.as_ref().map(|h| &h.flow_now)
     }
 
     /// The clots in the flow now.

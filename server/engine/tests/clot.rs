@@ -2,7 +2,9 @@
 //! in the ICA. On the rendered image the M1 beyond the clot stays as dark as without contrast
 //! while the vessel before it fills as it does without the clot; once the clot is removed,
 //! contrast reaches beyond it, and the session's metrics grade the reperfusion from eTICI 0
-//! to 3. Bad clots name their field.
+//! to 3. With pial collaterals the occluded territory keeps the collaterals' share of its
+//! flow, and eTICI still grades 0 (antegrade reperfusion only). Bad clots and collaterals
+//! name their field.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
@@ -187,4 +189,78 @@ fn bad_clots_name_their_field() {
     let spec = SceneSpec::parse(&no_flow, SceneFormat::Toml).unwrap();
     let e = cache().load(&spec, &scenes()).unwrap_err().to_string();
     assert!(e.contains("clots[0].branch") && e.contains("[flow]"), "{e}");
+}
+
+const COLLATERALS: &str = "
+[flow.collaterals]
+recipient = \"left_middle_cerebral\"
+donors = [\"left_anterior_cerebral_a2\", \"left_posterior_cerebral_p2\"]
+supply_fraction = 0.4
+";
+
+/// Good collaterals (0.4): with the M1 clotted, the MCA territory still gets about 40 % of
+/// its resting flow, through the collateral vessels; the network conserves flow; eTICI grades
+/// the antegrade reperfusion on the network without them: 0 with the clot, 3 without.
+#[test]
+fn collaterals_feed_the_occluded_territory_and_etici_grades_without_them() {
+    let open = World::new(assets(&scene(COLLATERALS))).unwrap();
+    let clotted = World::new(assets(&scene(&format!("{COLLATERALS}{CLOT}")))).unwrap();
+    let branches = open.assets().anatomy.graph.branches.len();
+    let network = open.assets().network.as_ref().unwrap();
+    assert_eq!(
+        network.vessels.len(),
+        branches + 2,
+        "two collateral vessels"
+    );
+    let m1 = network.vessel_id("left_middle_cerebral").unwrap();
+    let (before, after) = (
+        open.flow_now().unwrap().vessels[m1].distal,
+        clotted.flow_now().unwrap().vessels[m1].distal,
+    );
+    let collateral: f64 = clotted.flow_now().unwrap().vessels[branches..]
+        .iter()
+        .map(|v| v.proximal)
+        .sum();
+    println!(
+        "M1 flow open {before:.3e} m³/s; clotted: M1 {after:.3e}, collaterals {collateral:.3e} ({:.1} % of open)",
+        100.0 * collateral / before
+    );
+    assert!(after.abs() < 0.01 * before, "the clot stops the M1");
+    assert!(
+        (collateral / before - 0.4).abs() < 0.05,
+        "the collaterals bring their share: {}",
+        collateral / before
+    );
+    let graded = clotted.metrics().reperfusion.unwrap();
+    assert_eq!(graded.etici.label(), "0", "{graded:?}");
+    assert!(graded.fraction < 0.05, "{graded:?}");
+    let mut clotted = clotted;
+    clotted.set_clots(&[]).unwrap();
+    let reopened = clotted.metrics().reperfusion.unwrap();
+    assert_eq!(reopened.etici.label(), "3", "{reopened:?}");
+    // Bad collaterals name their field.
+    for (bad, field) in [
+        (
+            COLLATERALS.replace("0.4", "1.5"),
+            "flow.collaterals.supply_fraction",
+        ),
+        (
+            COLLATERALS.replace("left_anterior_cerebral_a2", "nowhere"),
+            "flow.collaterals",
+        ),
+        (
+            COLLATERALS.replace(
+                "[\"left_anterior_cerebral_a2\", \"left_posterior_cerebral_p2\"]",
+                "[]",
+            ),
+            "flow.collaterals.donors",
+        ),
+    ] {
+        assert_ne!(bad, COLLATERALS);
+        let e = SceneSpec::parse(&scene(&bad), SceneFormat::Toml)
+            .and_then(|spec| cache().load(&spec, &scenes()).map(|_| ()))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(field), "{field}: {e}");
+    }
 }

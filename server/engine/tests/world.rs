@@ -1021,6 +1021,24 @@ fn an_exchange_withdraws_the_wire_through_the_catheter_then_replaces_it_and_a_pu
     );
 }
 
+/// Each case's scene (a changed copy of `base`) fails to load with an error naming the
+/// field path it starts with.
+fn assert_scene_errors(base: &str, cases: &[(String, &str)]) {
+    for (text, path) in cases {
+        assert_ne!(text, base, "{path}: the case changed the scene");
+        let outcome = SceneSpec::parse(text, SceneFormat::Toml)
+            .and_then(|spec| cache().load(&spec, &scenes()).map(|_| ()));
+        match outcome {
+            Err(EngineError::Scene { path: p, reason }) => {
+                println!("{p}: {reason}");
+                assert!(p.starts_with(path), "{path}: got {p} ({reason})");
+                assert!(!reason.is_empty());
+            }
+            other => panic!("{path}: {other:?}"),
+        }
+    }
+}
+
 #[test]
 fn a_stack_scene_names_bad_spares_autopilot_and_target_instrument() {
     let rva = std::fs::read_to_string(scenes().join("arch_to_cow_rva_coaxial.toml")).unwrap();
@@ -1046,19 +1064,7 @@ fn a_stack_scene_names_bad_spares_autopilot_and_target_instrument() {
             "autopilot.exchange.branch",
         ),
     ];
-    for (text, path) in cases {
-        assert_ne!(text, rva, "{path}: the case changed the scene");
-        let outcome = SceneSpec::parse(&text, SceneFormat::Toml)
-            .and_then(|spec| cache().load(&spec, &scenes()).map(|_| ()));
-        match outcome {
-            Err(EngineError::Scene { path: p, reason }) => {
-                println!("{p}: {reason}");
-                assert!(p.starts_with(path), "{path}: got {p} ({reason})");
-                assert!(!reason.is_empty());
-            }
-            other => panic!("{path}: {other:?}"),
-        }
-    }
+    assert_scene_errors(&rva, &cases);
 }
 
 #[test]
@@ -1107,19 +1113,7 @@ fn an_access_stage_names_its_bad_fields() {
             "autopilot.access.branch",
         ),
     ];
-    for (text, path) in cases {
-        assert_ne!(text, access, "{path}: the case changed the scene");
-        let outcome = SceneSpec::parse(&text, SceneFormat::Toml)
-            .and_then(|spec| cache().load(&spec, &scenes()).map(|_| ()));
-        match outcome {
-            Err(EngineError::Scene { path: p, reason }) => {
-                println!("{p}: {reason}");
-                assert!(p.starts_with(path), "{path}: got {p} ({reason})");
-                assert!(!reason.is_empty());
-            }
-            other => panic!("{path}: {other:?}"),
-        }
-    }
+    assert_scene_errors(&access, &cases);
 }
 
 #[test]
