@@ -12,6 +12,8 @@ use super::{Command, EngineError, Result, World};
 pub(super) struct SceneOperator {
     stage: Stage,
     hands: TwoHands<'static>,
+    /// The scene's vessel graph, cloned once for every stage's hands.
+    graph: Arc<cathlab_anatomy::VesselGraph>,
 }
 
 /// Where the operator is.
@@ -75,12 +77,14 @@ impl World {
                 plan.finish = Finish::TrackCatheter;
                 Ok(SceneOperator {
                     stage: Stage::Access,
-                    hands: TwoHands::shared(graph, path, start, plan)?,
+                    hands: TwoHands::shared(graph.clone(), path, start, plan)?,
+                    graph,
                 })
             }
             _ => Ok(SceneOperator {
                 stage: Stage::Target,
-                hands: TwoHands::shared(graph, assets.route.clone(), start, plan)?,
+                hands: TwoHands::shared(graph.clone(), assets.route.clone(), start, plan)?,
+                graph,
             }),
         }
     }
@@ -178,7 +182,7 @@ impl World {
                         )
                     })?;
                     op.hands = TwoHands::shared(
-                        Arc::new(assets.anatomy.graph.clone()),
+                        op.graph.clone(),
                         assets.route.clone(),
                         assets.spec.start.along_route_mm * 1e-3,
                         plan,
