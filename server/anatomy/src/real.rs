@@ -2,6 +2,7 @@
 //! vessel graph through centred lumen paths from an access point. The bundled
 //! `data/anatomy/arch-to-cow` anatomy loads with [`load_arch_to_cow`].
 
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use nalgebra::Point3;
@@ -134,9 +135,8 @@ pub fn assemble(
 /// cross-section there, 12 mm from the wall).
 pub const ARCH_TO_COW_ACCESS_M: [f64; 3] = [-0.300, 0.060, -0.068];
 
-/// Loads the arch-to-circle-of-Willis anatomy from a directory holding `vessels.obj` (mm)
-/// and `centerlines/*.mrk.json`.
-pub fn load_arch_to_cow(dir: &Path) -> Result<Anatomy> {
+/// The arch-to-cow directory's surface (mm → m) and its curves, named by their files.
+fn read_arch_to_cow(dir: &Path) -> Result<(TriangleMesh, Vec<Centerline>, String)> {
     let surface_path = dir.join("vessels.obj");
     let mesh = obj::load(&surface_path, LengthUnit::Mm)?;
     let mut curve_files: Vec<_> = std::fs::read_dir(dir.join("centerlines"))
@@ -168,10 +168,39 @@ pub fn load_arch_to_cow(dir: &Path) -> Result<Anatomy> {
             c.name = stem.to_owned();
         }
     }
-    assemble(
-        mesh,
-        curves,
-        Point3::from(ARCH_TO_COW_ACCESS_M),
-        &surface_path.display().to_string(),
-    )
+    Ok((mesh, curves, surface_path.display().to_string()))
+}
+
+/// Loads the arch-to-circle-of-Willis anatomy from a directory holding `vessels.obj` (mm)
+/// and `centerlines/*.mrk.json`.
+pub fn load_arch_to_cow(dir: &Path) -> Result<Anatomy> {
+    let (mesh, curves, source) = read_arch_to_cow(dir)?;
+    assemble(mesh, curves, Point3::from(ARCH_TO_COW_ACCESS_M), &source)
+}
+
+/// The patient's left and superior directions in the arch-to-cow surface's frame.
+pub const ARCH_TO_COW_LEFT_SUPERIOR: [[f64; 3]; 2] = [[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]];
+
+/// [`load_arch_to_cow`] with every curve ending `trim_m` (m) earlier (at the first point at
+/// least that far back along it), and where each curve now ends, by name: what the head's
+/// vessels computed from the surface join.
+pub fn load_arch_to_cow_trimmed(
+    dir: &Path,
+    trim_m: f64,
+) -> Result<(Anatomy, BTreeMap<String, Point3<f64>>)> {
+    let (mesh, mut curves, source) = read_arch_to_cow(dir)?;
+    let mut ends = BTreeMap::new();
+    for c in &mut curves {
+        let mut back = 0.0;
+        let mut keep = c.points.len();
+        while keep > 2 && back < trim_m {
+            back += (c.points[keep - 1] - c.points[keep - 2]).norm();
+            keep -= 1;
+        }
+        c.points.truncate(keep);
+        c.radii.truncate(keep);
+        ends.insert(c.name.clone(), c.points[keep - 1]);
+    }
+    let anatomy = assemble(mesh, curves, Point3::from(ARCH_TO_COW_ACCESS_M), &source)?;
+    Ok((anatomy, ends))
 }

@@ -6,6 +6,7 @@
 //! y posterior, z superior), as DICOM uses.
 
 pub mod case;
+pub mod circle_of_willis;
 pub mod dicom;
 pub mod error;
 pub mod preview;

@@ -25,6 +25,9 @@ pub struct SurfaceCenterlineSettings {
     pub skeleton: SkeletonSettings,
     /// Cross-section refinement passes.
     pub refinement_passes: usize,
+    /// Only this box of the surface (m, the surface's frame: lowest and highest corner); the
+    /// vessels it cuts end at its faces. `None`: the whole surface.
+    pub region: Option<[Point3<f64>; 2]>,
 }
 
 impl Default for SurfaceCenterlineSettings {
@@ -34,6 +37,7 @@ impl Default for SurfaceCenterlineSettings {
             max_voxels: 32_000_000,
             skeleton: SkeletonSettings::default(),
             refinement_passes: 2,
+            region: None,
         }
     }
 }
@@ -52,8 +56,34 @@ pub struct SurfaceCenterlines {
 /// The lumen of `lumen` on a grid of voxel `h` over its bounding box (plus two voxels): 1
 /// for voxel centres inside by parity along z columns, else 0.
 pub fn voxelize(lumen: &Lumen, h: f64) -> Result<ScalarVolume> {
+    voxelize_within(lumen, h, None)
+}
+
+/// The surface's bounding box, within `region` where one is given (m); `None` when they do
+/// not overlap.
+fn clipped_box(lumen: &Lumen, region: Option<[Point3<f64>; 2]>) -> Option<[Point3<f64>; 2]> {
+    let (mut lo, mut hi) = lumen.mesh().bounding_box();
+    if let Some([a, b]) = region {
+        for axis in 0..3 {
+            lo[axis] = lo[axis].max(a[axis].min(b[axis]));
+            hi[axis] = hi[axis].min(a[axis].max(b[axis]));
+        }
+    }
+    (0..3).all(|a| lo[a] < hi[a]).then_some([lo, hi])
+}
+
+/// [`voxelize`] over the part of the surface's bounding box inside `region` (m): the parity
+/// of each column still counts every crossing of the whole surface, so a vessel cut by the
+/// box is filled up to the box's face.
+pub fn voxelize_within(
+    lumen: &Lumen,
+    h: f64,
+    region: Option<[Point3<f64>; 2]>,
+) -> Result<ScalarVolume> {
     let mesh = lumen.mesh();
-    let (lo, hi) = mesh.bounding_box();
+    let [lo, hi] = clipped_box(lumen, region).ok_or_else(|| {
+        ImagingError::Segmentation("the region does not overlap the surface".into())
+    })?;
     let origin = lo.coords - Vector3::repeat(2.0 * h);
     let dims = [0, 1, 2].map(|a| ((hi[a] - lo[a]) / h).ceil() as usize + 5);
     let (nx, ny, nz) = (dims[0], dims[1], dims[2]);
@@ -150,7 +180,9 @@ pub fn centerlines_from_surface(
     access: &Point3<f64>,
     settings: &SurfaceCenterlineSettings,
 ) -> Result<SurfaceCenterlines> {
-    let (lo, hi) = lumen.mesh().bounding_box();
+    let [lo, hi] = clipped_box(lumen, settings.region).ok_or_else(|| {
+        ImagingError::Segmentation("the region does not overlap the surface".into())
+    })?;
     let extent = hi - lo;
     let h = match settings.voxel_m {
         Some(h) if h.is_finite() && h > 0.0 => h,
@@ -176,7 +208,7 @@ pub fn centerlines_from_surface(
             settings.max_voxels
         )));
     }
-    let image = voxelize(lumen, h)?;
+    let image = voxelize_within(lumen, h, settings.region)?;
     let dims = image.dims;
     let mask: Vec<bool> = image.values.iter().map(|&v| v >= 0.5).collect();
     // The root: the lumen voxel nearest the access point, within ten voxels.
