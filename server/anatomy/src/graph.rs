@@ -9,6 +9,9 @@ use serde::{Deserialize, Serialize};
 use crate::components::count_components;
 use crate::error::{AnatomyError, Result};
 
+/// How many times its length a communicating artery counts in [`VesselGraph::path_to`].
+pub const COMMUNICATING_ROUTE_WEIGHT: f64 = 20.0;
+
 /// Distance (m) within which branch end points are taken to be the same junction.
 pub const NODE_MERGE_TOLERANCE_M: f64 = 1e-6;
 
@@ -421,7 +424,10 @@ impl VesselGraph {
     }
 
     /// Shortest route along centerlines from the graph point nearest `from` to the distal
-    /// end of the branch named `target` (Dijkstra over junctions).
+    /// end of the branch named `target` (Dijkstra over junctions). A communicating artery
+    /// counts [`COMMUNICATING_ROUTE_WEIGHT`] times its length, so that routes into the head
+    /// go up the artery that feeds the target, as catheters do, and cross the circle of
+    /// Willis only where nothing else leads.
     pub fn path_to(&self, from: &Point3<f64>, target: &str) -> Result<VesselPath> {
         let target_id = self.branch_id(target)?;
         let start = self.nearest(from).ok_or_else(|| AnatomyError::NoPath {
@@ -475,7 +481,13 @@ impl VesselGraph {
                 } else {
                     continue;
                 };
-                let d = dist[node] + b.length();
+                let weight = match b.kind {
+                    VesselKind::AnteriorCommunicating | VesselKind::PosteriorCommunicating => {
+                        COMMUNICATING_ROUTE_WEIGHT
+                    }
+                    _ => 1.0,
+                };
+                let d = dist[node] + b.length() * weight;
                 if d < dist[other] {
                     dist[other] = d;
                     via[other] = Some((id, node));
@@ -519,7 +531,7 @@ impl VesselGraph {
         });
         legs.reverse();
         legs.retain(|l| (l.to_arc - l.from_arc).abs() > 0.0 || l.branch == target_id);
-        let length = dist[entry] + target_branch.length();
+        let length = legs.iter().map(|l| (l.to_arc - l.from_arc).abs()).sum();
         Ok(VesselPath { legs, length })
     }
 

@@ -187,3 +187,52 @@ fn bad_parameters_and_branches_are_refused_by_name() {
         "zero length",
     );
 }
+
+/// Two ways from the access to a target: up a 30 mm carotid, or over a 5 mm vertebral and a
+/// 5 mm communicating artery. The route takes the carotid, unless the short way is an
+/// ordinary vessel or the only way.
+#[test]
+fn routes_cross_a_communicating_artery_only_where_nothing_else_leads() {
+    use cathlab_anatomy::graph::{BranchSpec, Side, VesselGraph};
+    let mm = |x: f64, y: f64| Point3::new(x * 1e-3, y * 1e-3, 0.0);
+    let build = |short_way: VesselKind, with_carotid: bool| {
+        let mut g = VesselGraph::new();
+        let mut vessels = vec![
+            ("vertebral", VesselKind::Vertebral, vec![mm(0.0, 0.0), mm(0.0, 5.0)]),
+            ("short_way", short_way, vec![mm(0.0, 5.0), mm(0.0, 10.0)]),
+            ("target", VesselKind::MiddleCerebral, vec![mm(0.0, 10.0), mm(0.0, 20.0)]),
+        ];
+        if with_carotid {
+            vessels.push((
+                "carotid",
+                VesselKind::InternalCarotid,
+                vec![mm(0.0, 0.0), mm(10.0, 0.0), mm(10.0, 10.0), mm(0.0, 10.0)],
+            ));
+        }
+        for (name, kind, points) in vessels {
+            g.add_branch(BranchSpec {
+                name: name.into(),
+                kind,
+                side: Side::Left,
+                radii: vec![1e-3; points.len()],
+                points,
+            })
+            .unwrap();
+        }
+        let path = g.path_to(&mm(0.0, 0.0), "target").unwrap();
+        let legs: Vec<String> = path
+            .legs
+            .iter()
+            .map(|l| g.branches[l.branch].name.clone())
+            .collect();
+        (legs, path.length)
+    };
+    let (legs, length) = build(VesselKind::Other, true);
+    assert_eq!(legs, ["vertebral", "short_way", "target"]);
+    assert!((length - 20e-3).abs() < 1e-12);
+    let (legs, length) = build(VesselKind::PosteriorCommunicating, true);
+    assert_eq!(legs, ["carotid", "target"]);
+    assert!((length - 40e-3).abs() < 1e-12, "the length is the real one");
+    let (legs, _) = build(VesselKind::PosteriorCommunicating, false);
+    assert_eq!(legs, ["vertebral", "short_way", "target"]);
+}

@@ -372,7 +372,7 @@ impl AssetCache {
     /// MetaImage data files included, without loading anything; the error names the field.
     pub fn check_files(&self, spec: &SceneSpec, base: &Path) -> Result<()> {
         match &spec.anatomy {
-            AnatomySpec::ArchToCow { dir } => {
+            AnatomySpec::ArchToCow { dir, .. } => {
                 self.resolve(base, dir, "anatomy.dir")?;
             }
             AnatomySpec::CtSegmentation { volume, .. } => {
@@ -506,7 +506,7 @@ impl AssetCache {
     ) -> Result<(Arc<Anatomy>, Matrix3<f64>)> {
         // The file the anatomy names, resolved (and checked) once.
         let file = match spec {
-            AnatomySpec::ArchToCow { dir } => Some(self.resolve(base, dir, "anatomy.dir")?),
+            AnatomySpec::ArchToCow { dir, .. } => Some(self.resolve(base, dir, "anatomy.dir")?),
             AnatomySpec::CtSegmentation { volume, .. } => {
                 Some(self.resolve(base, volume, "anatomy.volume")?)
             }
@@ -522,8 +522,10 @@ impl AssetCache {
         };
         let shown = file.as_deref().unwrap_or(Path::new("")).display();
         let (key, to_lps) = match spec {
-            AnatomySpec::ArchToCow { .. } => (
-                format!("arch_to_cow:{shown}"),
+            AnatomySpec::ArchToCow {
+                circle_of_willis, ..
+            } => (
+                format!("arch_to_cow:{shown}:{circle_of_willis}"),
                 Matrix3::from_fn(|r, c| ARCH_TO_COW_TO_LPS[r][c]),
             ),
             AnatomySpec::NeuroPhantom { seed, tortuosity } => {
@@ -553,9 +555,15 @@ impl AssetCache {
             return Ok((found.value.clone(), to_lps));
         }
         let anatomy = match spec {
-            AnatomySpec::ArchToCow { .. } => {
+            AnatomySpec::ArchToCow {
+                circle_of_willis, ..
+            } => {
                 let dir = file.as_deref().unwrap_or(Path::new(""));
-                load_arch_to_cow(dir).map_err(|e| unreadable("anatomy.dir", dir, e))?
+                if *circle_of_willis {
+                    arch_to_cow_with_circle(dir)?
+                } else {
+                    load_arch_to_cow(dir).map_err(|e| unreadable("anatomy.dir", dir, e))?
+                }
             }
             AnatomySpec::NeuroPhantom { seed, tortuosity } => {
                 use cathlab_anatomy::phantom::{NeuroPhantomParams, neuro_phantom};
@@ -882,6 +890,48 @@ impl AssetCache {
         assets.two_hand_plan()?;
         Ok(assets)
     }
+}
+
+/// How far the given curves of the arch-to-cow anatomy are cut back for the computed circle
+/// of Willis to continue them (m): below the carotids' communicating segments.
+const CIRCLE_TRIM_M: f64 = 20e-3;
+
+/// The arch-to-cow anatomy with its circle of Willis computed from the surface and named.
+fn arch_to_cow_with_circle(dir: &Path) -> Result<Anatomy> {
+    use cathlab_anatomy::real::{ARCH_TO_COW_LEFT_SUPERIOR, load_arch_to_cow_trimmed};
+    use cathlab_imaging::circle_of_willis::{CircleInflows, CircleSettings, circle_of_willis};
+    let (mut anatomy, ends) = load_arch_to_cow_trimmed(dir, CIRCLE_TRIM_M)
+        .map_err(|e| unreadable("anatomy.dir", dir, e))?;
+    let end = |name: &str| {
+        ends.get(name).copied().ok_or_else(|| {
+            scene_error(
+                "anatomy.circle_of_willis",
+                format!("the anatomy has no {name} curve for the circle to continue"),
+            )
+        })
+    };
+    let [left, superior] = ARCH_TO_COW_LEFT_SUPERIOR.map(Vector3::from);
+    let circle = circle_of_willis(
+        &anatomy.lumen,
+        &CircleInflows {
+            left_internal_carotid: end("LCCA")?,
+            right_internal_carotid: end("RCCA")?,
+            left_vertebral: end("LVA")?,
+            right_vertebral: end("RVA")?,
+            left,
+            superior,
+        },
+        &CircleSettings::default(),
+    )
+    .map_err(|e| scene_error("anatomy.circle_of_willis", e))?;
+    for branch in circle.branches {
+        anatomy
+            .graph
+            .add_branch(branch)
+            .map_err(|e| unreadable("anatomy.dir", dir, e))?;
+    }
+    anatomy.graph.landmarks.extend(circle.landmarks);
+    Ok(anatomy)
 }
 
 /// A file a scene named could not be read: the detail goes to the log, the client hears only

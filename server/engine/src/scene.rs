@@ -239,6 +239,12 @@ pub enum AnatomySpec {
     ArchToCow {
         /// The directory (relative to the scene file).
         dir: PathBuf,
+        /// Adds the circle of Willis computed from the surface
+        /// (`cathlab_imaging::circle_of_willis`, about 2 s): the given curves end 20 mm
+        /// earlier and the named head arteries (`left_internal_carotid`,
+        /// `left_middle_cerebral`, `basilar`, …) continue them.
+        #[serde(default)]
+        circle_of_willis: bool,
     },
     /// Vessels segmented from a CT angiography volume at load (`cathlab segment`'s
     /// pipeline with its default settings): the vessel tree that holds the seed, its
