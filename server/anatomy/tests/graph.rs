@@ -198,9 +198,17 @@ fn routes_cross_a_communicating_artery_only_where_nothing_else_leads() {
     let build = |short_way: VesselKind, with_carotid: bool| {
         let mut g = VesselGraph::new();
         let mut vessels = vec![
-            ("vertebral", VesselKind::Vertebral, vec![mm(0.0, 0.0), mm(0.0, 5.0)]),
+            (
+                "vertebral",
+                VesselKind::Vertebral,
+                vec![mm(0.0, 0.0), mm(0.0, 5.0)],
+            ),
             ("short_way", short_way, vec![mm(0.0, 5.0), mm(0.0, 10.0)]),
-            ("target", VesselKind::MiddleCerebral, vec![mm(0.0, 10.0), mm(0.0, 20.0)]),
+            (
+                "target",
+                VesselKind::MiddleCerebral,
+                vec![mm(0.0, 10.0), mm(0.0, 20.0)],
+            ),
         ];
         if with_carotid {
             vessels.push((

@@ -1,7 +1,7 @@
 //! Step times of a stack scene's demonstration, window by window: the scene's scripted
 //! operator drives (through its access stage, when the scene has one) while every
 //! `World::step` is timed; each window of 1,000 steps prints its p50, p99 and worst step and
-//! where the instruments are, until the target is reached (and one window more, hands still).
+//! where the instruments are, and the world's events, until the target is reached (and one window more, hands still).
 //!
 //! `cargo run --release -p cathlab-engine --example demonstration_timing -- scenes/stroke_m1_from_access.toml`
 
@@ -17,6 +17,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let path = Path::new(&scene);
     let spec = SceneSpec::parse(&std::fs::read_to_string(path)?, SceneFormat::Toml)?;
     let assets = AssetCache::default().load(&spec, path.parent().unwrap_or(Path::new(".")))?;
+    let graph = assets.anatomy.graph.clone();
+    let from_lps = assets.to_lps.transpose();
     let mut world = World::new(assets)?;
     world.apply(1, &Command::Demonstrate(true))?;
     let started = Instant::now();
@@ -29,19 +31,36 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             })
             .collect::<Result<_, _>>()?;
         ms.sort_by(f64::total_cmp);
-        let inserted: Vec<f64> = world
-            .snapshot()
+        let snapshot = world.snapshot();
+        let inserted: Vec<f64> = snapshot
             .instruments
             .iter()
             .map(|i| (i.inserted_m * 1e3).round())
             .collect();
+        let tips: Vec<String> = snapshot
+            .instruments
+            .iter()
+            .filter_map(|i| i.tip)
+            .filter_map(|t| graph.nearest(&(from_lps * t).into()))
+            .map(|l| {
+                format!(
+                    "{}@{:.0}",
+                    graph.branches[l.branch].name,
+                    l.arc_length * 1e3
+                )
+            })
+            .collect();
         println!(
-            "steps {:>6}: p50 {:.2} ms, p99 {:.2} ms, worst {:.2} ms; inserted {inserted:?} mm",
+            "steps {:>6}: p50 {:.2} ms, p99 {:.2} ms, worst {:.2} ms; inserted {inserted:?} mm; tips {}",
             (window + 1) * 1000,
             ms[500],
             ms[990],
-            ms[999]
+            ms[999],
+            tips.join(" ")
         );
+        for e in world.take_events() {
+            println!("    {:.2} s {:?}: {}", e.time_s, e.kind, e.message);
+        }
         if world.metrics().target_reached_at_s.is_some() {
             after += 1;
             if after == 2 {

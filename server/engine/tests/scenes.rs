@@ -69,6 +69,7 @@ fn every_scene_loads_and_every_two_hand_autopilot_reaches_its_target() {
         coaxial.push(spec.name.clone());
     }
     for name in [
+        "arch_to_cow_basilar",
         "arch_to_cow_lcca_coaxial",
         "arch_to_cow_rva_coaxial",
         "neuro_phantom_m1",
