@@ -1297,3 +1297,44 @@ fn an_injection_after_an_idle_spell_moves_as_one_at_once() {
         "{later_length} m after idling, {now_length} m at once"
     );
 }
+
+/// An anatomy folder whose vertebral curve is missing cannot give the circle of Willis its
+/// four inflows: the scene is refused naming `anatomy.circle_of_willis`, and the same folder
+/// without the circle still loads.
+#[test]
+fn a_circle_of_willis_without_its_four_inflows_is_refused_by_name() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/anatomy/arch-to-cow");
+    let dir = std::env::temp_dir().join(format!("cathlab-cow-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(dir.join("centerlines")).unwrap();
+    std::fs::copy(data.join("vessels.obj"), dir.join("vessels.obj")).unwrap();
+    for curve in ["LCCA", "RCCA", "RVA"] {
+        let name = format!("centerlines/{curve}.mrk.json");
+        std::fs::copy(data.join(&name), dir.join(&name)).unwrap();
+    }
+    let base = std::fs::read_to_string(scenes().join("arch_to_cow_basilar.toml")).unwrap();
+    let text = base
+        .replace(
+            "dir = \"../data/anatomy/arch-to-cow\"",
+            &format!("dir = {:?}", dir.display().to_string()),
+        )
+        .replace("branch = \"LVA\"", "branch = \"RVA\"");
+    assert_scene_errors(&base, &[(text.clone(), "anatomy.circle_of_willis")]);
+    let without = text
+        .replace("circle_of_willis = true", "circle_of_willis = false")
+        .replace(
+            "isocenter_branch = \"basilar\"",
+            "isocenter_branch = \"RVA\"",
+        )
+        .replace("branch = \"basilar\"", "branch = \"RVA\"")
+        .replace(
+            "branch = \"RVA\"\ninto_mm",
+            "branch = \"arch_to_RCCA+RVA\"\ninto_mm",
+        )
+        .replace("into_mm = 120.0", "into_mm = 10.0");
+    let spec = SceneSpec::parse(&without, SceneFormat::Toml).unwrap();
+    if let Err(e) = cache().load(&spec, &scenes()) {
+        panic!("without the circle: {e}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
