@@ -1731,7 +1731,15 @@ impl World {
         };
         if done {
             self.hold_all()?;
-            self.event(EventKind::Device, "demonstration done: every hand holds");
+            if hands.stalled() && self.metrics.target_reached_at_s.is_none() {
+                self.event(
+                    EventKind::Device,
+                    "demonstration stopped short of the target: the leading instrument \
+                     stalled (pushed in without getting further) and every hand holds",
+                );
+            } else {
+                self.event(EventKind::Device, "demonstration done: every hand holds");
+            }
         } else {
             self.demonstration = Some(hands);
         }

@@ -61,6 +61,13 @@ pub struct AutopilotSettings {
     pub reach_m: f64,
     /// Spacing of the route samples (m).
     pub route_spacing_m: f64,
+    /// Stalled: this much pushed in (m, forward motion summed) without the tip getting 1 mm
+    /// further along the route (the device prolapses or buckles behind a bend it cannot take,
+    /// or strays into the same side branch again and again). The pilot pulls this length
+    /// back out and tries again at the next aim.
+    pub stall_slack_m: f64,
+    /// After this many stalls the pilot gives up and holds ([`AutopilotPhase::Stalled`]).
+    pub max_stalls: usize,
 }
 
 impl Default for AutopilotSettings {
@@ -72,6 +79,8 @@ impl Default for AutopilotSettings {
             stray_depth_m: 0.01,
             reach_m: 0.05,
             route_spacing_m: 1e-3,
+            stall_slack_m: 0.06,
+            max_stalls: 3,
         }
     }
 }
@@ -85,6 +94,8 @@ pub enum AutopilotPhase {
     Retreating,
     /// The tip is `reach_m` into the target branch; the command holds still.
     Reached,
+    /// Stalled `max_stalls` times: given up, the command holds still.
+    Stalled,
 }
 
 /// Re-aim offsets tried on successive retries (rad): straight at the route, then a quarter
@@ -108,6 +119,12 @@ pub struct Autopilot<'g> {
     twist_target_rad: f64,
     retreat_until_m: f64,
     retries: usize,
+    /// Furthest route sample the tip has been nearest to.
+    furthest: Option<usize>,
+    /// Pushed in since (forward motion only, m), and the inserted length last seen (m).
+    pushed_since_m: f64,
+    last_inserted_m: Option<f64>,
+    stalls: usize,
 }
 
 /// The vessel graph a scripted operator follows: borrowed, or shared (for an operator that
@@ -154,6 +171,7 @@ impl<'g> Autopilot<'g> {
         require_positive(|| "lookahead_m".into(), settings.lookahead_m)?;
         require_positive(|| "retreat_m".into(), settings.retreat_m)?;
         require_positive(|| "route_spacing_m".into(), settings.route_spacing_m)?;
+        require_positive(|| "stall_slack_m".into(), settings.stall_slack_m)?;
         if !(0.0..path.length).contains(&start_along_m) {
             return Err(PhysicsError::OutOfRange {
                 what: "autopilot start along the path (m)".into(),
@@ -173,6 +191,10 @@ impl<'g> Autopilot<'g> {
             twist_target_rad: 0.0,
             retreat_until_m: 0.0,
             retries: 0,
+            furthest: None,
+            pushed_since_m: 0.0,
+            last_inserted_m: None,
+            stalls: 0,
         })
     }
 
@@ -192,9 +214,14 @@ impl<'g> Autopilot<'g> {
         self.phase
     }
 
-    /// How many times the tip strayed into a side branch and was pulled back.
+    /// How many times the tip strayed into a side branch or stalled and was pulled back.
     pub fn retries(&self) -> usize {
         self.retries
+    }
+
+    /// How many times the device stalled (pushed `stall_slack_m` in without progress).
+    pub fn stalls(&self) -> usize {
+        self.stalls
     }
 
     /// Looks at the device and returns the next command.
@@ -208,7 +235,10 @@ impl<'g> Autopilot<'g> {
         if Some(location.branch) == target && location.arc_length >= self.settings.reach_m {
             self.phase = AutopilotPhase::Reached;
         }
-        if self.phase == AutopilotPhase::Reached {
+        if matches!(
+            self.phase,
+            AutopilotPhase::Reached | AutopilotPhase::Stalled
+        ) {
             return hold(navigation);
         }
         let (index, distance) = self
@@ -245,9 +275,33 @@ impl<'g> Autopilot<'g> {
             self.retreat_until_m = navigation.inserted_m() - self.settings.retreat_m;
             self.retries += 1;
         }
-        if self.phase == AutopilotPhase::Retreating
-            && navigation.inserted_m() <= self.retreat_until_m
+        // Stalled: pushed in `stall_slack_m` (forward motion only, so that straying and
+        // pulling back counts too) since the tip last got a millimetre further along.
+        let inserted = navigation.inserted_m();
+        if let Some(last) = self.last_inserted_m {
+            self.pushed_since_m += (inserted - last).max(0.0);
+        }
+        self.last_inserted_m = Some(inserted);
+        let step = ((1e-3 / self.settings.route_spacing_m).ceil() as usize).max(1);
+        if self.furthest.is_none_or(|best| index >= best + step) {
+            self.furthest = Some(index);
+            self.pushed_since_m = 0.0;
+        }
+        if self.phase == AutopilotPhase::Advancing
+            && self.pushed_since_m > self.settings.stall_slack_m
         {
+            self.stalls += 1;
+            self.pushed_since_m = 0.0;
+            if self.stalls >= self.settings.max_stalls {
+                self.phase = AutopilotPhase::Stalled;
+                return hold(navigation);
+            }
+            // Pull what was pushed in for nothing back out, and try the next aim.
+            self.retries += 1;
+            self.phase = AutopilotPhase::Retreating;
+            self.retreat_until_m = inserted - self.settings.stall_slack_m;
+        }
+        if self.phase == AutopilotPhase::Retreating && inserted <= self.retreat_until_m {
             self.phase = AutopilotPhase::Advancing;
         }
         let speed = match self.phase {
@@ -275,4 +329,102 @@ pub fn route_entry(route: &[(Point3<f64>, f64)]) -> (Vector3<f64>, Vector3<f64>)
     let start = route[0].0;
     let ahead = route[10.min(route.len() - 1)].0;
     (start.coords, (ahead - start).normalize())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::navigation::Insertion;
+    use cathlab_anatomy::phantom::y_bifurcation;
+
+    /// A device whose tip runs along `route` (1 mm samples) with its insertion up to
+    /// `wall_m` and no further (the rest of what is pushed in piles up behind it).
+    struct Stuck {
+        route: Vec<Point3<f64>>,
+        inserted: f64,
+        wall_m: f64,
+    }
+
+    impl Steered for Stuck {
+        fn tip_position(&self) -> Vector3<f64> {
+            let i = (self.inserted.clamp(0.0, self.wall_m) * 1e3) as usize;
+            self.route[i.min(self.route.len() - 1)].coords
+        }
+        fn tip_axis(&self) -> Vector3<f64> {
+            Vector3::z()
+        }
+        fn tip_bend_direction(&self) -> Option<Vector3<f64>> {
+            None
+        }
+        fn twist_rad(&self) -> f64 {
+            0.0
+        }
+        fn inserted_m(&self) -> f64 {
+            self.inserted
+        }
+    }
+
+    /// Drives `device` at the commanded speed for at most `steps` steps of 1 ms; the deepest
+    /// it was pushed in (m).
+    fn drive(pilot: &mut Autopilot, device: &mut Stuck, steps: usize) -> f64 {
+        let mut peak = device.inserted;
+        for _ in 0..steps {
+            let command = pilot.command(device);
+            if let Insertion::Velocity(v) = command.insertion {
+                device.inserted += v * 1e-3;
+            }
+            peak = peak.max(device.inserted);
+            if matches!(
+                pilot.phase(),
+                AutopilotPhase::Stalled | AutopilotPhase::Reached
+            ) {
+                break;
+            }
+        }
+        peak
+    }
+
+    #[test]
+    fn a_device_that_stops_advancing_is_pulled_back_and_given_up_after_its_stalls() {
+        let graph = y_bifurcation(3e-3, 2e-3, 20e-3, 15e-3, 0.5).unwrap();
+        let path = graph.path_to(&graph.landmarks["access"], "left").unwrap();
+        let route: Vec<Point3<f64>> = graph
+            .sample_path(&path, 1e-3)
+            .into_iter()
+            .map(|(p, _)| p)
+            .collect();
+        let settings = AutopilotSettings {
+            reach_m: 0.01,
+            ..AutopilotSettings::default()
+        };
+        let mut pilot = Autopilot::new(&graph, path.clone(), 0.0, settings).unwrap();
+        // Stuck 10 mm in: each try pushes the stall slack (60 mm) past the furthest point,
+        // pulls back the retreat distance (15 mm) behind where it was, and tries again; the
+        // third stall gives up.
+        let mut device = Stuck {
+            route: route.clone(),
+            inserted: 0.0,
+            wall_m: 0.01,
+        };
+        let peak = drive(&mut pilot, &mut device, 100_000);
+        assert_eq!(pilot.phase(), AutopilotPhase::Stalled);
+        assert_eq!(pilot.stalls(), settings.max_stalls);
+        assert_eq!(pilot.retries(), settings.max_stalls - 1);
+        assert!(
+            (peak - (0.01 + settings.stall_slack_m)).abs() < 2e-3,
+            "pushed {peak} m in"
+        );
+        // Given up, it holds.
+        assert_eq!(pilot.command(&device).insertion, Insertion::Velocity(0.0));
+        // A device that keeps advancing never stalls: it reaches the target.
+        let mut pilot = Autopilot::new(&graph, path, 0.0, settings).unwrap();
+        let mut free = Stuck {
+            route,
+            inserted: 0.0,
+            wall_m: 1.0,
+        };
+        drive(&mut pilot, &mut free, 100_000);
+        assert_eq!(pilot.phase(), AutopilotPhase::Reached);
+        assert_eq!(pilot.stalls(), 0);
+    }
 }

@@ -193,6 +193,12 @@ impl<'g> TwoHands<'g> {
         self.retries + self.pilot.retries()
     }
 
+    /// Whether the wire's pilot gave up after stalling (the plan is done short of the
+    /// target).
+    pub fn stalled(&self) -> bool {
+        self.pilot.phase() == AutopilotPhase::Stalled
+    }
+
     /// Distance along the route from its start of the route sample nearest to `p` (m).
     fn along_route(&self, p: &Vector3<f64>) -> f64 {
         self.route
@@ -269,6 +275,11 @@ impl<'g> TwoHands<'g> {
                         self.phase = TwoHandPhase::Track;
                         return Ok(None);
                     }
+                }
+                if self.pilot.phase() == AutopilotPhase::Stalled {
+                    // Given up: every hand holds.
+                    self.phase = TwoHandPhase::Done;
+                    return Ok(None);
                 }
                 if self.pilot.phase() == AutopilotPhase::Reached {
                     self.wire_reached = true;

@@ -30,6 +30,13 @@ enum Stage {
     Target,
 }
 
+impl SceneOperator {
+    /// Whether the operator gave up short of the target (the leading wire stalled).
+    pub(super) fn stalled(&self) -> bool {
+        matches!(self.stage, Stage::Access | Stage::Target) && self.hands.stalled()
+    }
+}
+
 impl World {
     /// The scene's scripted operator from where the stack is: the access stage while the
     /// stack is still the scene's own (same instruments), else the drive to the target.
@@ -97,6 +104,9 @@ impl World {
                 Stage::Access => {
                     if self.operate(&mut op.hands, seq)? {
                         return Ok(true);
+                    }
+                    if op.hands.stalled() {
+                        return Ok(false); // short of the access branch: no swap
                     }
                     op.stage = Stage::Swap {
                         unloaded: 0,
