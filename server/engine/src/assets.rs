@@ -898,32 +898,13 @@ const CIRCLE_TRIM_M: f64 = 20e-3;
 
 /// The arch-to-cow anatomy with its circle of Willis computed from the surface and named.
 fn arch_to_cow_with_circle(dir: &Path) -> Result<Anatomy> {
-    use cathlab_anatomy::real::{ARCH_TO_COW_LEFT_SUPERIOR, load_arch_to_cow_trimmed};
+    use cathlab_anatomy::real::load_arch_to_cow_trimmed;
     use cathlab_imaging::circle_of_willis::{CircleInflows, CircleSettings, circle_of_willis};
     let (mut anatomy, ends) = load_arch_to_cow_trimmed(dir, CIRCLE_TRIM_M)
         .map_err(|e| unreadable("anatomy.dir", dir, e))?;
-    let end = |name: &str| {
-        ends.get(name).copied().ok_or_else(|| {
-            scene_error(
-                "anatomy.circle_of_willis",
-                format!("the anatomy has no {name} curve for the circle to continue"),
-            )
-        })
-    };
-    let [left, superior] = ARCH_TO_COW_LEFT_SUPERIOR.map(Vector3::from);
-    let circle = circle_of_willis(
-        &anatomy.lumen,
-        &CircleInflows {
-            left_internal_carotid: end("LCCA")?,
-            right_internal_carotid: end("RCCA")?,
-            left_vertebral: end("LVA")?,
-            right_vertebral: end("RVA")?,
-            left,
-            superior,
-        },
-        &CircleSettings::default(),
-    )
-    .map_err(|e| scene_error("anatomy.circle_of_willis", e))?;
+    let circle = CircleInflows::arch_to_cow(&ends)
+        .and_then(|inflows| circle_of_willis(&anatomy.lumen, &inflows, &CircleSettings::default()))
+        .map_err(|e| scene_error("anatomy.circle_of_willis", e))?;
     for branch in circle.branches {
         anatomy
             .graph

@@ -5,31 +5,20 @@
 
 use std::path::Path;
 
-use cathlab_anatomy::real::{ARCH_TO_COW_LEFT_SUPERIOR, load_arch_to_cow_trimmed};
+use cathlab_anatomy::real::load_arch_to_cow_trimmed;
 use cathlab_imaging::circle_of_willis::{CircleInflows, CircleSettings, circle_of_willis};
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 use plotters::prelude::*;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let root_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let (anatomy, ends) =
         load_arch_to_cow_trimmed(&root_dir.join("data/anatomy/arch-to-cow"), 20e-3)?;
-    let [l, s] = ARCH_TO_COW_LEFT_SUPERIOR;
-    let (left, superior) = (Vector3::from(l), Vector3::from(s));
+    let inflows = CircleInflows::arch_to_cow(&ends)?;
+    let (left, superior) = (inflows.left, inflows.superior);
     let anterior = left.cross(&superior);
     let started = std::time::Instant::now();
-    let circle = circle_of_willis(
-        &anatomy.lumen,
-        &CircleInflows {
-            left_internal_carotid: ends["LCCA"],
-            right_internal_carotid: ends["RCCA"],
-            left_vertebral: ends["LVA"],
-            right_vertebral: ends["RVA"],
-            left,
-            superior,
-        },
-        &CircleSettings::default(),
-    )?;
+    let circle = circle_of_willis(&anatomy.lumen, &inflows, &CircleSettings::default())?;
     println!(
         "{} arteries named in {:.1} s ({:.1} mm voxels, {} loop(s) rejoined, {:.0} mm of centerline unnamed)",
         circle.branches.len(),

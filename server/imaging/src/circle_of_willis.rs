@@ -15,6 +15,7 @@ use std::collections::BTreeMap;
 
 use cathlab_anatomy::Lumen;
 use cathlab_anatomy::graph::{BranchSpec, Side, VesselGraph, VesselKind};
+use cathlab_anatomy::real::ARCH_TO_COW_LEFT_SUPERIOR;
 use nalgebra::{Point3, Vector3};
 use petgraph::algo::{astar, dijkstra};
 use petgraph::graph::{NodeIndex, UnGraph};
@@ -39,6 +40,30 @@ pub struct CircleInflows {
     pub left: Vector3<f64>,
     /// The patient's superior (any length).
     pub superior: Vector3<f64>,
+}
+
+impl CircleInflows {
+    /// The inflows of the bundled arch-to-cow anatomy: the ends of its LCCA, RCCA, LVA and
+    /// RVA curves (as `cathlab_anatomy::real::load_arch_to_cow_trimmed` gives them) and its
+    /// axes.
+    pub fn arch_to_cow(ends: &BTreeMap<String, Point3<f64>>) -> Result<Self> {
+        let end = |name: &str| {
+            ends.get(name).copied().ok_or_else(|| {
+                fail(format!(
+                    "the anatomy has no {name} curve for the circle to continue"
+                ))
+            })
+        };
+        let [left, superior] = ARCH_TO_COW_LEFT_SUPERIOR.map(Vector3::from);
+        Ok(Self {
+            left_internal_carotid: end("LCCA")?,
+            right_internal_carotid: end("RCCA")?,
+            left_vertebral: end("LVA")?,
+            right_vertebral: end("RVA")?,
+            left,
+            superior,
+        })
+    }
 }
 
 /// How finely the circle is computed.

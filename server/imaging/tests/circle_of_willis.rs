@@ -9,7 +9,7 @@ use cathlab_anatomy::graph::{BranchSpec, VesselGraph};
 use cathlab_anatomy::io::slicer;
 use cathlab_anatomy::lumen::GridSettings;
 use cathlab_anatomy::phantom::{NeuroPhantomParams, neuro_phantom};
-use cathlab_anatomy::real::{ARCH_TO_COW_LEFT_SUPERIOR, load_arch_to_cow_trimmed};
+use cathlab_anatomy::real::load_arch_to_cow_trimmed;
 use cathlab_anatomy::surface::{SurfaceSettings, lumen_surface};
 use cathlab_anatomy::{Branch, Lumen};
 use cathlab_imaging::circle_of_willis::{
@@ -199,22 +199,10 @@ fn the_phantoms_circle_of_willis_is_named_as_it_was_built() {
 fn the_arch_to_cow_circle_of_willis_is_named_from_its_surface() {
     let trim = 20e-3;
     let (anatomy, ends) = load_arch_to_cow_trimmed(&data_dir(), trim).unwrap();
-    let [l, s] = ARCH_TO_COW_LEFT_SUPERIOR;
-    let (left, superior) = (Vector3::from(l), Vector3::from(s));
+    let inflows = CircleInflows::arch_to_cow(&ends).unwrap();
+    let (left, superior) = (inflows.left, inflows.superior);
     let anterior = left.cross(&superior);
-    let circle = circle_of_willis(
-        &anatomy.lumen,
-        &CircleInflows {
-            left_internal_carotid: ends["LCCA"],
-            right_internal_carotid: ends["RCCA"],
-            left_vertebral: ends["LVA"],
-            right_vertebral: ends["RVA"],
-            left,
-            superior,
-        },
-        &CircleSettings::default(),
-    )
-    .unwrap();
+    let circle = circle_of_willis(&anatomy.lumen, &inflows, &CircleSettings::default()).unwrap();
     let mut names: Vec<&str> = circle.branches.iter().map(|b| b.name.as_str()).collect();
     names.sort();
     println!("{names:?}");
