@@ -62,9 +62,9 @@ pub struct AutopilotSettings {
     /// Spacing of the route samples (m).
     pub route_spacing_m: f64,
     /// Stalled: this much pushed in (m, forward motion summed) without the tip getting 1 mm
-    /// further along the route (the device prolapses or buckles behind a bend it cannot take,
-    /// or strays into the same side branch again and again). The pilot pulls this length
-    /// back out and tries again at the next aim.
+    /// further along the route and without straying (the device prolapses or buckles behind
+    /// a bend it cannot take). The pilot pulls this length back out and tries again at the
+    /// next aim.
     pub stall_slack_m: f64,
     /// After this many stalls the pilot gives up and holds ([`AutopilotPhase::Stalled`]).
     pub max_stalls: usize,
@@ -79,7 +79,7 @@ impl Default for AutopilotSettings {
             stray_depth_m: 0.01,
             reach_m: 0.05,
             route_spacing_m: 1e-3,
-            stall_slack_m: 0.06,
+            stall_slack_m: 0.15,
             max_stalls: 3,
         }
     }
@@ -271,12 +271,15 @@ impl<'g> Autopilot<'g> {
         let strayed =
             !on_route && distance > radius && location.arc_length > self.settings.stray_depth_m;
         if strayed && self.phase == AutopilotPhase::Advancing {
+            // The stray rule handles this try: what was pushed into the side branch is no
+            // stall.
+            self.pushed_since_m = 0.0;
             self.phase = AutopilotPhase::Retreating;
             self.retreat_until_m = navigation.inserted_m() - self.settings.retreat_m;
             self.retries += 1;
         }
-        // Stalled: pushed in `stall_slack_m` (forward motion only, so that straying and
-        // pulling back counts too) since the tip last got a millimetre further along.
+        // Stalled: pushed in `stall_slack_m` (forward motion summed) since the tip last got a
+        // millimetre further along or strayed.
         let inserted = navigation.inserted_m();
         if let Some(last) = self.last_inserted_m {
             self.pushed_since_m += (inserted - last).max(0.0);
