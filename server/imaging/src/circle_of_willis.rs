@@ -19,6 +19,7 @@ use cathlab_anatomy::real::ARCH_TO_COW_LEFT_SUPERIOR;
 use nalgebra::{Point3, Vector3};
 use petgraph::algo::{astar, dijkstra};
 use petgraph::graph::{NodeIndex, UnGraph};
+use petgraph::unionfind::UnionFind;
 use petgraph::visit::EdgeRef;
 
 use crate::error::{ImagingError, Result};
@@ -300,36 +301,20 @@ pub fn circle_of_willis(
         inflow[k] = snap(&points, &entries[k], names[k])?;
     }
     // The circle: what stays joined to all four inflows once they are cut.
-    let mut cut = points.clone();
-    for &v in &inflow {
-        let edges: Vec<_> = cut.edges(v).map(|e| e.id()).collect();
-        for e in edges {
-            cut.remove_edge(e);
+    let mut joined = UnionFind::<usize>::new(points.node_count());
+    for e in points.edge_references() {
+        if !inflow.contains(&e.source()) && !inflow.contains(&e.target()) {
+            joined.union(e.source().index(), e.target().index());
         }
     }
-    let mut component = vec![usize::MAX; cut.node_count()];
-    let mut count = 0;
-    for start in cut.node_indices() {
-        if component[start.index()] != usize::MAX {
-            continue;
-        }
-        let mut stack = vec![start];
-        component[start.index()] = count;
-        while let Some(v) = stack.pop() {
-            for w in cut.neighbors(v) {
-                if component[w.index()] == usize::MAX {
-                    component[w.index()] = count;
-                    stack.push(w);
-                }
-            }
-        }
-        count += 1;
-    }
-    let circle = (0..count)
+    let component = |v: NodeIndex| joined.find(v.index());
+    let circle = points
+        .neighbors(inflow[0])
+        .map(component)
         .find(|&c| {
             inflow
                 .iter()
-                .all(|&v| points.neighbors(v).any(|w| component[w.index()] == c))
+                .all(|&v| points.neighbors(v).any(|w| component(w) == c))
         })
         .ok_or_else(|| {
             fail(
@@ -340,7 +325,7 @@ pub fn circle_of_willis(
     let centre = Point3::from(entries.iter().map(|p| p.coords).sum::<Vector3<f64>>() / 4.0);
     let mut ends: Vec<NodeIndex> = points
         .node_indices()
-        .filter(|&v| component[v.index()] == circle && points.edges(v).count() == 1)
+        .filter(|&v| component(v) == circle && points.edges(v).count() == 1)
         .collect();
     let offset = |v: NodeIndex| points[v].p - centre;
     let mut take = |score: &dyn Fn(NodeIndex) -> f64, what: &str| -> Result<NodeIndex> {

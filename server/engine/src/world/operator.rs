@@ -31,9 +31,10 @@ enum Stage {
 }
 
 impl SceneOperator {
-    /// Whether the operator gave up short of the target (the leading wire stalled).
+    /// Whether the operator gave up short of the target (the leading wire stalled; the
+    /// hands of a stage that finished never did).
     pub(super) fn stalled(&self) -> bool {
-        matches!(self.stage, Stage::Access | Stage::Target) && self.hands.stalled()
+        self.hands.stalled()
     }
 }
 
