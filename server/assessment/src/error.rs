@@ -6,6 +6,9 @@ pub enum AssessmentError {
     /// The samples cannot be assessed (too few, time not increasing, a value not finite).
     #[error("samples: {0}")]
     Samples(String),
+    /// The scene's assessment section is wrong (a phase, a benchmark).
+    #[error("assessment: {0}")]
+    Spec(String),
     /// A setting is out of its range.
     #[error("{what} is {value}, must be {range}")]
     Setting {

@@ -49,13 +49,24 @@ pub fn idle_time_s(trace: &Trace) -> f64 {
 /// Time in which no hand moved faster than `speed_m_s` in insertion or `twist_rad_s` in
 /// twist (s).
 pub fn idle_time_with(trace: &Trace, speed_m_s: f64, twist_rad_s: f64) -> f64 {
+    let s = trace.samples();
+    idle_intervals(trace, speed_m_s, twist_rad_s)
+        .iter()
+        .zip(s.windows(2))
+        .filter(|(still, _)| **still)
+        .map(|(_, w)| w[1].time_s - w[0].time_s)
+        .sum()
+}
+
+/// For each interval between consecutive samples, whether no hand moved faster than
+/// `speed_m_s` in insertion or `twist_rad_s` in twist.
+pub fn idle_intervals(trace: &Trace, speed_m_s: f64, twist_rad_s: f64) -> Vec<bool> {
     trace
         .samples()
         .windows(2)
-        .filter_map(|w| {
+        .map(|w| {
             let dt = w[1].time_s - w[0].time_s;
-            let still = w[0]
-                .inserted_m
+            w[0].inserted_m
                 .iter()
                 .zip(&w[1].inserted_m)
                 .all(|(a, b)| (b - a).abs() <= speed_m_s * dt)
@@ -63,10 +74,9 @@ pub fn idle_time_with(trace: &Trace, speed_m_s: f64, twist_rad_s: f64) -> f64 {
                     .twist_rad
                     .iter()
                     .zip(&w[1].twist_rad)
-                    .all(|(a, b)| (b - a).abs() <= twist_rad_s * dt);
-            still.then_some(dt)
+                    .all(|(a, b)| (b - a).abs() <= twist_rad_s * dt)
         })
-        .sum()
+        .collect()
 }
 
 /// The leading tip's speed between samples (m/s) and the sampling interval, for

@@ -25,7 +25,7 @@ impl VesselClass {
 }
 
 /// One moment of a session.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Sample {
     /// Simulated time (s).
     pub time_s: f64,
@@ -39,6 +39,31 @@ pub struct Sample {
     pub twist_rad: Vec<f64>,
     /// Total wall contact force in each vessel class (N), in [`VesselClass::ALL`] order.
     pub wall_force_n: [f64; 3],
+    /// The X-ray tube is exposing (fluoroscopy pedal down or a DSA run).
+    #[serde(default)]
+    pub fluoroscopy: bool,
+    /// Contrast agent injected so far (mL).
+    #[serde(default)]
+    pub contrast_ml: f64,
+    /// Cumulative air kerma at the interventional reference point (mGy).
+    #[serde(default)]
+    pub air_kerma_mgy: f64,
+    /// Cumulative kerma–area product (Gy·cm²).
+    #[serde(default)]
+    pub kap_gy_cm2: f64,
+    /// How far the leading tip is off the route, into a branch the route does not take (m;
+    /// 0 on the route).
+    #[serde(default)]
+    pub off_route_m: f64,
+    /// The vessel the leading tip is in (its branch's name).
+    #[serde(default)]
+    pub vessel: String,
+    /// The vessel's class.
+    #[serde(default)]
+    pub vessel_class: Option<VesselClass>,
+    /// Times so far an instrument passed the tip of the one inside it while that one led.
+    #[serde(default)]
+    pub passed_inner_tip: u32,
 }
 
 /// A session's samples, in time order.
@@ -64,10 +89,14 @@ impl Trace {
                 && s.tip_m.iter().all(|v| v.is_finite())
                 && s.inserted_m.iter().all(|v| v.is_finite())
                 && s.twist_rad.iter().all(|v| v.is_finite())
-                && s.wall_force_n.iter().all(|v| v.is_finite() && *v >= 0.0);
+                && s.wall_force_n.iter().all(|v| v.is_finite() && *v >= 0.0)
+                && [s.contrast_ml, s.air_kerma_mgy, s.kap_gy_cm2, s.off_route_m]
+                    .iter()
+                    .all(|v| v.is_finite() && *v >= 0.0);
             if !finite {
                 return Err(AssessmentError::Samples(format!(
-                    "sample {i} has a value that is not finite (or a negative force)"
+                    "sample {i} has a value that is not finite (or a negative force, dose, \
+                     volume or distance)"
                 )));
             }
             if s.inserted_m.len() != instruments || s.twist_rad.len() != instruments {

@@ -15,6 +15,7 @@ fn sample(time_s: f64, tip_m: [f64; 3], along_route_m: f64, inserted_m: f64) -> 
         inserted_m: vec![inserted_m],
         twist_rad: vec![0.0],
         wall_force_n: [0.0; 3],
+        ..Sample::default()
     }
 }
 
