@@ -80,9 +80,9 @@ fn each_error_committed_on_purpose_is_found_once_where_and_when_it_happened() {
 
     // Hands still for 6 s under fluoroscopy (1–7 s), then a still spell of 3 s that is not.
     let mut s = clean();
-    for i in 10..=70 {
-        s[i].inserted_m = vec![0.01];
-        s[i].tip_m = [0.01, 0.0, 0.0];
+    for x in &mut s[10..=70] {
+        x.inserted_m = vec![0.01];
+        x.tip_m = [0.01, 0.0, 0.0];
     }
     let errors = detect_errors(&Trace::new(s).unwrap(), &ErrorThresholds::default()).unwrap();
     assert_eq!(errors.len(), 1, "{errors:?}");

@@ -66,6 +66,25 @@ pub struct SceneSpec {
     /// that its target can be reached).
     #[serde(default)]
     pub autopilot: Option<AutopilotSpec>,
+    /// How sessions on the scene are assessed: phases, error thresholds, expert benchmark.
+    #[serde(default)]
+    pub assessment: AssessmentSpec,
+}
+
+/// How a scene's sessions are assessed (see `docs/assessment.md`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AssessmentSpec {
+    /// The procedure's phases in order; none: one phase per vessel of the route, then "at
+    /// target".
+    pub phases: Vec<cathlab_assessment::PhaseSpec>,
+    /// Where errors begin.
+    pub errors: cathlab_assessment::ErrorThresholds,
+    /// How far from the expert values still passes.
+    pub benchmark: cathlab_assessment::BenchmarkSpec,
+    /// The expert values by metric key, from the scripted expert run
+    /// (`cargo run --release -p cathlab-engine --example expert_benchmark -- SCENE`).
+    pub expert: std::collections::BTreeMap<String, f64>,
 }
 
 /// A stack scene's scripted operator: the wire (innermost instrument) is steered along the
@@ -886,6 +905,19 @@ impl SceneSpec {
 
     /// Checks every value's range; the error names the field.
     pub fn validate(&self) -> Result<()> {
+        let a = &self.assessment;
+        a.phases
+            .iter()
+            .try_for_each(|p| p.validate())
+            .and_then(|()| a.errors.validate())
+            .and_then(|()| a.benchmark.validate())
+            .map_err(|e| scene_error("assessment", e.to_string()))?;
+        if let Some((key, value)) = a.expert.iter().find(|(_, v)| !v.is_finite()) {
+            return Err(scene_error(
+                "assessment.expert",
+                format!("`{key}` is {value}, must be finite"),
+            ));
+        }
         let range = |path: &str, value: f64, lo: f64, hi: f64| -> Result<()> {
             if value.is_finite() && value >= lo && value <= hi {
                 Ok(())

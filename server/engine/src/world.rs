@@ -1968,6 +1968,35 @@ impl World {
         Ok(())
     }
 
+    /// The imaging state the trainee set.
+    pub fn imaging(&self) -> Imaging {
+        self.imaging
+    }
+
+    /// The leading tip (anatomy frame, m).
+    pub fn leading_tip(&self) -> Vector3<f64> {
+        self.strand.leading_tip()
+    }
+
+    /// The wall contacts of the last step in the anatomy's frame: where on the device
+    /// centerline (m) and the force's magnitude (N); forceless contacts left out.
+    pub fn wall_contacts(&self) -> Vec<(Point3<f64>, f64)> {
+        let Some(step) = self.strand.last_contacts() else {
+            return Vec::new();
+        };
+        let positions = self.strand.model().positions();
+        step.contacts
+            .iter()
+            .zip(&step.response.forces)
+            .filter(|(_, f)| f.norm() > 0.0)
+            .filter_map(|(c, f)| {
+                let a = positions.get(c.element)?;
+                let b = positions.get(c.element + 1)?;
+                Some((Point3::from(a + (b - a) * c.t), f.norm()))
+            })
+            .collect()
+    }
+
     /// The world now, for clients and the renderer (LPS).
     pub fn snapshot(&self) -> Snapshot {
         let to_lps = self.assets.to_lps;
