@@ -5,6 +5,7 @@ pub mod auth;
 pub mod config;
 pub mod connections;
 pub mod heap;
+pub mod reports;
 pub mod server;
 pub mod service;
 pub mod store;

@@ -31,7 +31,8 @@ use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
 
-use crate::store::{Store, StoredSession};
+use crate::reports::{AccountRole, Caller, Reports, token_hash};
+use crate::store::{Store, StoredAccount, StoredSession};
 
 /// A boxed response stream.
 pub type ResponseStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send + 'static>>;
@@ -57,6 +58,7 @@ struct Tokens {
 pub struct SimulatorService {
     engine: Arc<Engine>,
     store: Arc<Store>,
+    reports: Arc<Reports>,
     instructor_key: Option<String>,
     tokens: RwLock<HashMap<String, Tokens>>,
     inline_scenes: InlineScenes,
@@ -188,6 +190,7 @@ impl SimulatorService {
     /// watching every session.
     pub fn new(engine: Arc<Engine>, store: Arc<Store>, instructor_key: Option<String>) -> Self {
         Self {
+            reports: Arc::new(Reports::new(engine.clone(), store.clone())),
             store,
             instructor_key: instructor_key.filter(|k| !k.is_empty()),
             tokens: RwLock::new(HashMap::new()),
@@ -244,21 +247,63 @@ impl SimulatorService {
         self
     }
 
-    fn is_instructor(&self, token: Option<&str>) -> bool {
+    fn is_instructor_key(&self, token: Option<&str>) -> bool {
         matches!((token, &self.instructor_key), (Some(t), Some(k)) if same_secret(t, k))
     }
 
-    /// Whether the caller holds the instructor key. An address that guessed wrong too often
-    /// is refused; a wrong key counts as a guess.
-    fn instructor<T>(&self, request: &Request<T>) -> Result<bool, Status> {
-        let peer = peer_of(request);
-        self.throttle.check(peer)?;
+    /// The instructor key or an instructor account's token.
+    fn is_instructor(&self, token: Option<&str>) -> bool {
+        self.is_instructor_key(token)
+            || token.is_some_and(|t| {
+                matches!(self.account_of(t), Some(a) if a.role == AccountRole::Instructor.as_str())
+            })
+    }
+
+    /// The account `token` belongs to (a store error reads as none).
+    fn account_of(&self, token: &str) -> Option<StoredAccount> {
+        self.store
+            .account_by_token_hash(&token_hash(token))
+            .ok()
+            .flatten()
+    }
+
+    /// Who the request comes from. An address that guessed wrong too often is refused.
+    fn caller<T>(&self, request: &Request<T>) -> Result<Caller, Status> {
+        self.throttle.check(peer_of(request))?;
         let token = bearer(request);
-        let ok = self.is_instructor(token.as_deref());
-        if !ok && token.is_some() {
-            self.throttle.failed(peer, "a wrong instructor key");
+        Ok(if self.is_instructor_key(token.as_deref()) {
+            Caller::InstructorKey
+        } else if let Some(account) = token.as_deref().and_then(|t| self.account_of(t)) {
+            Caller::Account(account)
+        } else {
+            Caller::Other(token)
+        })
+    }
+
+    /// Whether the caller is an instructor (the key or an instructor account). An address
+    /// that guessed wrong too often is refused; a token of nobody counts as a guess.
+    fn instructor<T>(&self, request: &Request<T>) -> Result<bool, Status> {
+        let caller = self.caller(request)?;
+        if let Caller::Other(Some(_)) = caller {
+            self.throttle
+                .failed(peer_of(request), "a wrong instructor key");
         }
-        Ok(ok)
+        Ok(caller.is_instructor())
+    }
+
+    /// A caller that may read `id`'s report, and the stored session. A wrong token counts as
+    /// a guess.
+    fn report_reader<T>(&self, request: &Request<T>, id: &str) -> Result<StoredSession, Status> {
+        checked_id(id)?;
+        let caller = self.caller(request)?;
+        let session = self.reports.session(id)?;
+        caller.may_read(&session).inspect_err(|e| {
+            if e.code() != tonic::Code::Unauthenticated && matches!(caller, Caller::Other(_)) {
+                self.throttle
+                    .failed(peer_of(request), "a token of no session or account");
+            }
+        })?;
+        Ok(session)
     }
 
     /// Checks the caller's bearer token for `session_id`: NOT_FOUND for an unknown session,
@@ -501,7 +546,12 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::CreateSessionRequest>,
     ) -> Result<Response<pb::CreateSessionResponse>, Status> {
-        let instructor = self.instructor(&request)?;
+        let caller = self.caller(&request)?;
+        let instructor = caller.is_instructor();
+        let account_id = match &caller {
+            Caller::Account(a) => Some(a.id.clone()),
+            _ => None,
+        };
         let r = request.into_inner();
         let inline = matches!(
             r.scene,
@@ -565,6 +615,8 @@ impl Simulator for SimulatorService {
                 created_unix_s: session.created_unix_s(),
                 status: "running".into(),
                 step_rate_hz: spec.fidelity.step_rate_hz,
+                account_id,
+                controller_hash: Some(token_hash(&tokens.controller)),
             })
             .map_err(store_status)?;
         self.tokens.write().insert(id.clone(), tokens.clone());
@@ -654,6 +706,14 @@ impl Simulator for SimulatorService {
         self.store.flush();
         self.tokens.write().remove(&id);
         self.holds.lock().retain(|(s, _), _| *s != id);
+        // Its report, made now in the background (opening it later finds it ready).
+        let reports = self.reports.clone();
+        let assessed = id.clone();
+        tokio::spawn(async move {
+            if let Err(e) = reports.get(&assessed).await {
+                tracing::info!(session = %assessed, "report not made at close: {}", e.message());
+            }
+        });
         Ok(Response::new(pb::CloseSessionResponse {
             info: Some(self.info_of(&session)),
         }))
@@ -1122,6 +1182,187 @@ impl Simulator for SimulatorService {
             .map_err(|_| Status::internal("the replay thread ended without an answer"))??;
         drop(cancel);
         Ok(Response::new(outcome))
+    }
+
+    async fn create_account(
+        &self,
+        request: Request<pb::CreateAccountRequest>,
+    ) -> Result<Response<pb::Account>, Status> {
+        if !self.instructor(&request)? {
+            return Err(Status::permission_denied(
+                "creating accounts needs the instructor key or an instructor's account",
+            ));
+        }
+        let r = request.into_inner();
+        let name = r.name.trim();
+        if name.is_empty() || name.len() > 100 {
+            return Err(Status::invalid_argument("name: 1 to 100 bytes"));
+        }
+        let role = AccountRole::parse(&r.role)?;
+        let token = random_hex(24);
+        let account = StoredAccount {
+            id: random_hex(8),
+            name: name.to_owned(),
+            role: role.as_str().to_owned(),
+            token_hash: token_hash(&token),
+            created_unix_s: unix_us() as f64 * 1e-6,
+        };
+        self.store.insert_account(&account).map_err(store_status)?;
+        tracing::info!(account = %account.id, role = role.as_str(), "account created");
+        Ok(Response::new(pb::Account {
+            token,
+            ..account_to_wire(&account)
+        }))
+    }
+
+    async fn list_accounts(
+        &self,
+        request: Request<pb::ListAccountsRequest>,
+    ) -> Result<Response<pb::ListAccountsResponse>, Status> {
+        if !self.instructor(&request)? {
+            return Err(Status::permission_denied(
+                "listing accounts needs the instructor role",
+            ));
+        }
+        let accounts = self.store.accounts().map_err(store_status)?;
+        Ok(Response::new(pb::ListAccountsResponse {
+            accounts: accounts.iter().map(account_to_wire).collect(),
+        }))
+    }
+
+    async fn who_am_i(
+        &self,
+        request: Request<pb::WhoAmIRequest>,
+    ) -> Result<Response<pb::Account>, Status> {
+        match self.caller(&request)? {
+            Caller::Account(a) => Ok(Response::new(account_to_wire(&a))),
+            Caller::InstructorKey => Ok(Response::new(pb::Account {
+                name: "instructor (server key)".into(),
+                role: AccountRole::Instructor.as_str().into(),
+                ..pb::Account::default()
+            })),
+            Caller::Other(token) => {
+                if token.is_some() {
+                    self.throttle
+                        .failed(peer_of(&request), "a token of no account");
+                }
+                Err(Status::unauthenticated("the token is not an account's"))
+            }
+        }
+    }
+
+    async fn get_report(
+        &self,
+        request: Request<pb::GetReportRequest>,
+    ) -> Result<Response<pb::Report>, Status> {
+        let id = request.get_ref().session_id.clone();
+        let session = self.report_reader(&request, &id)?;
+        let report = self.reports.get(&id).await?;
+        let trainee_name = match &session.account_id {
+            Some(a) => self
+                .store
+                .account(a)
+                .map_err(store_status)?
+                .map(|a| a.name)
+                .unwrap_or_default(),
+            None => session.label.clone(),
+        };
+        Ok(Response::new(pb::Report {
+            session_id: id,
+            account_id: session.account_id.unwrap_or_default(),
+            trainee_name,
+            scene_name: session.scene_name,
+            created_unix_s: session.created_unix_s,
+            json: report.json,
+        }))
+    }
+
+    async fn get_report_frame(
+        &self,
+        request: Request<pb::GetReportFrameRequest>,
+    ) -> Result<Response<pb::ReportFrame>, Status> {
+        let (id, index) = (
+            request.get_ref().session_id.clone(),
+            request.get_ref().index,
+        );
+        self.report_reader(&request, &id)?;
+        let (time_s, png) = self
+            .store
+            .report_frame(&id, index)
+            .map_err(store_status)?
+            .ok_or_else(|| {
+                Status::not_found(format!(
+                    "frame {index} of session {id:?}'s report (is the report made?)"
+                ))
+            })?;
+        Ok(Response::new(pb::ReportFrame { time_s, png }))
+    }
+
+    async fn get_history(
+        &self,
+        request: Request<pb::GetHistoryRequest>,
+    ) -> Result<Response<pb::History>, Status> {
+        let caller = self.caller(&request)?;
+        let wanted = request.get_ref().account_id.clone();
+        let account = match (&caller, wanted.is_empty()) {
+            (Caller::Account(a), true) => a.clone(),
+            (Caller::Account(a), false) if a.id == wanted => a.clone(),
+            (Caller::InstructorKey | Caller::Account(_), false) if caller.is_instructor() => {
+                checked_id(&wanted)?;
+                self.store
+                    .account(&wanted)
+                    .map_err(store_status)?
+                    .ok_or_else(|| Status::not_found(format!("account {wanted:?}")))?
+            }
+            (Caller::Account(_) | Caller::InstructorKey, false) => {
+                return Err(Status::permission_denied(
+                    "another trainee's history needs the instructor role",
+                ));
+            }
+            (Caller::InstructorKey, true) => {
+                return Err(Status::invalid_argument(
+                    "account_id: the instructor key has no history of its own; name a trainee",
+                ));
+            }
+            (Caller::Other(_), _) => {
+                return Err(Status::unauthenticated(
+                    "a history needs an account's token or the instructor role",
+                ));
+            }
+        };
+        let mut entries = Vec::new();
+        for s in self.store.sessions_of(&account.id).map_err(store_status)? {
+            let report = self.store.report(&s.id).ok().flatten();
+            let expert = serde_json::from_str::<SceneSpec>(&s.scene_json)
+                .map(|spec| spec.assessment.expert.into_iter().collect())
+                .unwrap_or_default();
+            entries.push(pb::HistoryEntry {
+                session_id: s.id,
+                scene_name: s.scene_name,
+                created_unix_s: s.created_unix_s,
+                assessed: report.is_some(),
+                within: report.as_ref().map_or(0, |r| r.within),
+                judged: report.as_ref().map_or(0, |r| r.judged),
+                metrics: report
+                    .map(|r| r.metrics.into_iter().collect())
+                    .unwrap_or_default(),
+                expert,
+            });
+        }
+        Ok(Response::new(pb::History {
+            account: Some(account_to_wire(&account)),
+            entries,
+        }))
+    }
+}
+
+fn account_to_wire(a: &StoredAccount) -> pb::Account {
+    pb::Account {
+        account_id: a.id.clone(),
+        name: a.name.clone(),
+        role: a.role.clone(),
+        token: String::new(),
+        created_unix_s: a.created_unix_s,
     }
 }
 

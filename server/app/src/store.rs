@@ -53,6 +53,41 @@ pub struct StoredSession {
     pub status: String,
     /// Physics rate (Hz).
     pub step_rate_hz: f64,
+    /// The trainee's account, if the session was created with an account token.
+    pub account_id: Option<String>,
+    /// SHA-256 of the session's controller token (hex): the trainee's key to the report of an
+    /// anonymous session after it closed.
+    pub controller_hash: Option<String>,
+}
+
+/// An account as stored (its token only as a hash).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredAccount {
+    /// Id.
+    pub id: String,
+    /// Display name.
+    pub name: String,
+    /// `trainee` or `instructor`.
+    pub role: String,
+    /// SHA-256 of the token (hex).
+    pub token_hash: String,
+    /// Unix time of creation (s).
+    pub created_unix_s: f64,
+}
+
+/// A stored report's header and scores (the JSON is read only when asked for).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredReport {
+    /// Layout version ([`cathlab_engine::report::REPORT_VERSION`] when current).
+    pub version: u32,
+    /// The report (JSON).
+    pub json: String,
+    /// Scores by metric key.
+    pub metrics: std::collections::BTreeMap<String, f64>,
+    /// Verdicts within the expert range.
+    pub within: u32,
+    /// Metrics with a benchmark.
+    pub judged: u32,
 }
 
 enum Write {
@@ -77,7 +112,27 @@ impl std::fmt::Debug for Store {
     }
 }
 
-const SCHEMA: &str = "
+/// The schema's migrations, in order: migration `i` takes a database at version `i` (SQLite's
+/// `user_version`) to `i + 1`, in one transaction. A database made before migrations existed
+/// is at version 0 with the first migration's tables: its `IF NOT EXISTS` keeps them.
+const MIGRATIONS: [&str; 2] = [SCHEMA_V1, SCHEMA_V2];
+
+const SCHEMA_V2: &str = "
+CREATE TABLE accounts (
+    id TEXT PRIMARY KEY, name TEXT NOT NULL, role TEXT NOT NULL,
+    token_hash TEXT NOT NULL UNIQUE, created_unix_s REAL NOT NULL);
+ALTER TABLE sessions ADD COLUMN account_id TEXT REFERENCES accounts(id);
+ALTER TABLE sessions ADD COLUMN controller_hash TEXT;
+CREATE INDEX sessions_by_account ON sessions (account_id, created_unix_s);
+CREATE TABLE reports (
+    session_id TEXT PRIMARY KEY, version INTEGER NOT NULL, json TEXT NOT NULL,
+    metrics TEXT NOT NULL, within INTEGER NOT NULL, judged INTEGER NOT NULL);
+CREATE TABLE report_frames (
+    session_id TEXT NOT NULL, idx INTEGER NOT NULL, time_s REAL NOT NULL, png BLOB NOT NULL,
+    PRIMARY KEY (session_id, idx));
+";
+
+const SCHEMA_V1: &str = "
 CREATE TABLE IF NOT EXISTS sessions (
     id TEXT PRIMARY KEY, label TEXT NOT NULL, scene_name TEXT NOT NULL,
     scene_json TEXT NOT NULL, base_dir TEXT NOT NULL, created_unix_s REAL NOT NULL,
@@ -92,6 +147,31 @@ CREATE TABLE IF NOT EXISTS events (
     session_id TEXT NOT NULL, step INTEGER NOT NULL, time_s REAL NOT NULL,
     kind TEXT NOT NULL, message TEXT NOT NULL);
 ";
+
+/// The schema version this build writes.
+pub const SCHEMA_VERSION: usize = MIGRATIONS.len();
+
+/// Brings the database to [`SCHEMA_VERSION`], one transaction per migration. A database of a
+/// newer version (a newer server wrote it) is refused rather than guessed at.
+fn migrate(conn: &Connection) -> rusqlite::Result<()> {
+    let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0))?;
+    if version < 0 || version as usize > MIGRATIONS.len() {
+        return Err(rusqlite::Error::InvalidParameterName(format!(
+            "schema version {version}; this server knows up to {}",
+            MIGRATIONS.len()
+        )));
+    }
+    for (i, sql) in MIGRATIONS.iter().enumerate().skip(version as usize) {
+        conn.execute_batch(&format!(
+            "BEGIN; {sql}; PRAGMA user_version = {}; COMMIT;",
+            i + 1
+        ))
+        .inspect_err(|_| {
+            let _ = conn.execute_batch("ROLLBACK");
+        })?;
+    }
+    Ok(())
+}
 
 fn open(file: &Path) -> Result<Connection, StoreError> {
     let sqlite = |source| StoreError::Sqlite {
@@ -119,7 +199,7 @@ impl Store {
             file: file.to_owned(),
             source,
         };
-        conn.execute_batch(SCHEMA).map_err(sqlite)?;
+        migrate(&conn).map_err(sqlite)?;
         conn.execute(
             "UPDATE sessions SET status = 'interrupted' WHERE status = 'running'",
             [],
@@ -313,6 +393,162 @@ impl Store {
             .pop())
     }
 
+    /// A write on a connection of its own (accounts and reports: rare, and not on the
+    /// physics threads' path).
+    fn write(&self, sql: &str, parameters: impl rusqlite::Params) -> Result<usize, StoreError> {
+        open(&self.file)?
+            .execute(sql, parameters)
+            .map_err(self.sqlite())
+    }
+
+    /// Adds an account.
+    pub fn insert_account(&self, a: &StoredAccount) -> Result<(), StoreError> {
+        self.write(
+            "INSERT INTO accounts (id, name, role, token_hash, created_unix_s)
+             VALUES (?1, ?2, ?3, ?4, ?5)",
+            params![a.id, a.name, a.role, a.token_hash, a.created_unix_s],
+        )
+        .map(|_| ())
+    }
+
+    /// The account whose token hashes to `token_hash`.
+    pub fn account_by_token_hash(
+        &self,
+        token_hash: &str,
+    ) -> Result<Option<StoredAccount>, StoreError> {
+        Ok(self
+            .rows(
+                &format!("{SELECT_ACCOUNT} WHERE token_hash = ?1"),
+                [token_hash],
+                row_to_account,
+            )?
+            .pop())
+    }
+
+    /// One account.
+    pub fn account(&self, id: &str) -> Result<Option<StoredAccount>, StoreError> {
+        Ok(self
+            .rows(
+                &format!("{SELECT_ACCOUNT} WHERE id = ?1"),
+                [id],
+                row_to_account,
+            )?
+            .pop())
+    }
+
+    /// Every account, oldest first.
+    pub fn accounts(&self) -> Result<Vec<StoredAccount>, StoreError> {
+        self.rows(
+            &format!("{SELECT_ACCOUNT} ORDER BY created_unix_s"),
+            (),
+            row_to_account,
+        )
+    }
+
+    /// An account's sessions, oldest first.
+    pub fn sessions_of(&self, account_id: &str) -> Result<Vec<StoredSession>, StoreError> {
+        self.rows(
+            &format!("{SELECT_SESSION} WHERE account_id = ?1 ORDER BY created_unix_s"),
+            [account_id],
+            row_to_session,
+        )
+    }
+
+    /// A session's stored report, if any.
+    pub fn report(&self, session_id: &str) -> Result<Option<StoredReport>, StoreError> {
+        let rows = self.rows(
+            "SELECT version, json, metrics, within, judged FROM reports WHERE session_id = ?1",
+            [session_id],
+            |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, String>(1)?,
+                    r.get::<_, String>(2)?,
+                    r.get::<_, i64>(3)?,
+                    r.get::<_, i64>(4)?,
+                ))
+            },
+        )?;
+        rows.into_iter()
+            .next()
+            .map(|(version, json, metrics, within, judged)| {
+                Ok(StoredReport {
+                    version: version.max(0) as u32,
+                    json,
+                    metrics: serde_json::from_str(&metrics).map_err(|e| {
+                        self.corrupt(format!("report scores of session {session_id}"), e)
+                    })?,
+                    within: within.max(0) as u32,
+                    judged: judged.max(0) as u32,
+                })
+            })
+            .transpose()
+    }
+
+    /// Stores a session's report and its replay frames (replacing any before), in one
+    /// transaction.
+    pub fn put_report(
+        &self,
+        session_id: &str,
+        report: &cathlab_engine::SessionReport,
+    ) -> Result<(), StoreError> {
+        let json = serde_json::to_string(report)
+            .map_err(|e| self.corrupt(format!("report of session {session_id}"), e))?;
+        let metrics: std::collections::BTreeMap<&str, f64> = report
+            .metrics
+            .iter()
+            .map(|m| (m.key.as_str(), m.value))
+            .collect();
+        let metrics = serde_json::to_string(&metrics)
+            .map_err(|e| self.corrupt(format!("report scores of session {session_id}"), e))?;
+        let within = report.verdicts.iter().filter(|v| v.within).count() as i64;
+        let mut conn = open(&self.file)?;
+        let tx = conn.transaction().map_err(self.sqlite())?;
+        let run = || -> rusqlite::Result<()> {
+            tx.execute(
+                "DELETE FROM report_frames WHERE session_id = ?1",
+                [session_id],
+            )?;
+            tx.execute(
+                "INSERT OR REPLACE INTO reports (session_id, version, json, metrics, within,
+                 judged) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                params![
+                    session_id,
+                    report.version,
+                    json,
+                    metrics,
+                    within,
+                    report.verdicts.len() as i64
+                ],
+            )?;
+            for (i, f) in report.frames.iter().enumerate() {
+                tx.execute(
+                    "INSERT INTO report_frames (session_id, idx, time_s, png)
+                     VALUES (?1, ?2, ?3, ?4)",
+                    params![session_id, i as i64, f.time_s, f.png],
+                )?;
+            }
+            Ok(())
+        };
+        run().map_err(self.sqlite())?;
+        tx.commit().map_err(self.sqlite())
+    }
+
+    /// Replay frame `index` of a session's report: (time s, PNG).
+    pub fn report_frame(
+        &self,
+        session_id: &str,
+        index: u32,
+    ) -> Result<Option<(f64, Vec<u8>)>, StoreError> {
+        Ok(self
+            .rows(
+                "SELECT time_s, png FROM report_frames WHERE session_id = ?1 AND idx = ?2",
+                params![session_id, index],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )?
+            .pop())
+    }
+
     /// How many commands a session has recorded.
     pub fn command_count(&self, id: &str) -> Result<u64, StoreError> {
         let counts = self.rows(
@@ -328,7 +564,7 @@ impl Store {
 }
 
 const SELECT_SESSION: &str = "SELECT id, label, scene_name, scene_json, base_dir, \
-    created_unix_s, status, step_rate_hz FROM sessions";
+    created_unix_s, status, step_rate_hz, account_id, controller_hash FROM sessions";
 
 fn row_to_session(r: &rusqlite::Row<'_>) -> rusqlite::Result<StoredSession> {
     Ok(StoredSession {
@@ -340,6 +576,20 @@ fn row_to_session(r: &rusqlite::Row<'_>) -> rusqlite::Result<StoredSession> {
         created_unix_s: r.get(5)?,
         status: r.get(6)?,
         step_rate_hz: r.get(7)?,
+        account_id: r.get(8)?,
+        controller_hash: r.get(9)?,
+    })
+}
+
+const SELECT_ACCOUNT: &str = "SELECT id, name, role, token_hash, created_unix_s FROM accounts";
+
+fn row_to_account(r: &rusqlite::Row<'_>) -> rusqlite::Result<StoredAccount> {
+    Ok(StoredAccount {
+        id: r.get(0)?,
+        name: r.get(1)?,
+        role: r.get(2)?,
+        token_hash: r.get(3)?,
+        created_unix_s: r.get(4)?,
     })
 }
 
@@ -402,7 +652,8 @@ fn write_batch(conn: &mut Connection, batch: &[Write]) -> rusqlite::Result<()> {
             Write::Session(s, _) => {
                 tx.execute(
                     "INSERT INTO sessions (id, label, scene_name, scene_json, base_dir,
-                     created_unix_s, status, step_rate_hz) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                     created_unix_s, status, step_rate_hz, account_id, controller_hash)
+                     VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
                     params![
                         s.id,
                         s.label,
@@ -411,7 +662,9 @@ fn write_batch(conn: &mut Connection, batch: &[Write]) -> rusqlite::Result<()> {
                         s.base_dir.to_string_lossy(),
                         s.created_unix_s,
                         s.status,
-                        s.step_rate_hz
+                        s.step_rate_hz,
+                        s.account_id,
+                        s.controller_hash
                     ],
                 )?;
             }
@@ -514,6 +767,8 @@ mod tests {
                 created_unix_s: 0.0,
                 status: "running".into(),
                 step_rate_hz: 500.0,
+                account_id: None,
+                controller_hash: None,
             })
             .unwrap();
         let conn = open(&file).unwrap();
@@ -540,5 +795,53 @@ mod tests {
         let store = Store::open(&file).unwrap();
         assert_eq!(store.session("s1").unwrap().unwrap().status, "interrupted");
         assert!(store.session("s2").unwrap().is_none());
+    }
+
+    #[test]
+    fn an_old_database_is_migrated_and_keeps_its_sessions_and_a_newer_one_is_refused() {
+        let dir = std::env::temp_dir().join(format!("cathlab-store-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("old.sqlite");
+        let _ = std::fs::remove_file(&file);
+        // As the first release left it: the first schema, user_version 0, one session.
+        let conn = Connection::open(&file).unwrap();
+        conn.execute_batch(SCHEMA_V1).unwrap();
+        conn.execute(
+            "INSERT INTO sessions VALUES ('s1', 'old', 'scene', '{}', '.', 1.0, 'closed', 500.0)",
+            [],
+        )
+        .unwrap();
+        drop(conn);
+        let store = Store::open(&file).unwrap();
+        let old = store.session("s1").unwrap().unwrap();
+        assert_eq!((old.label.as_str(), old.account_id), ("old", None));
+        let version: i64 = open(&file)
+            .unwrap()
+            .query_row("PRAGMA user_version", [], |r| r.get(0))
+            .unwrap();
+        assert_eq!(version as usize, SCHEMA_VERSION);
+        store
+            .insert_account(&StoredAccount {
+                id: "a1".into(),
+                name: "Ada".into(),
+                role: "trainee".into(),
+                token_hash: "ff".into(),
+                created_unix_s: 2.0,
+            })
+            .unwrap();
+        drop(store);
+        // Opening again changes nothing.
+        let store = Store::open(&file).unwrap();
+        assert_eq!(
+            store.account_by_token_hash("ff").unwrap().unwrap().name,
+            "Ada"
+        );
+        drop(store);
+        open(&file)
+            .unwrap()
+            .execute_batch("PRAGMA user_version = 99")
+            .unwrap();
+        let e = Store::open(&file).unwrap_err().to_string();
+        assert!(e.contains("schema version 99"), "{e}");
     }
 }
