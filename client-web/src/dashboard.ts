@@ -22,6 +22,7 @@ interface Card {
 }
 
 const cards = new Map<string, Card>();
+let accountsShown = false;
 let selected = "";
 // The key lives in the page's storage, never in its URL: an old link's `?key=` is taken and
 // scrubbed from the address bar and history.
@@ -129,6 +130,57 @@ function addCard(client: SimulatorClient, info: SessionInfo): Card {
   return card;
 }
 
+/** A link to a session's report (the report page finds the instructor key in this browser). */
+function reportLink(sessionId: string): HTMLAnchorElement {
+  const a = document.createElement("a");
+  const url = new URL("report.html", location.href);
+  url.search = "";
+  if (params.get("server")) url.searchParams.set("server", params.get("server")!);
+  url.searchParams.set("session", sessionId);
+  a.href = url.toString();
+  a.className = "report-link";
+  a.textContent = "report";
+  return a;
+}
+
+/** Trainee and instructor accounts: each with a sign-in link and, opened, their sessions and scores. */
+async function renderAccounts(client: SimulatorClient) {
+  const { accounts } = await client.listAccounts({});
+  $("accounts").replaceChildren(
+    ...accounts.map((a) => {
+      const li = document.createElement("li");
+      li.dataset.account = a.accountId;
+      const details = document.createElement("details");
+      const summary = document.createElement("summary");
+      summary.textContent = `${a.name} (${a.role})`;
+      const list = document.createElement("ol");
+      details.append(summary, list);
+      details.addEventListener("toggle", async () => {
+        if (!details.open) return;
+        try {
+          const { entries } = await client.getHistory({ accountId: a.accountId });
+          list.replaceChildren(
+            ...entries.map((e) => {
+              const item = document.createElement("li");
+              const scores = e.assessed
+                ? `${e.within} of ${e.judged} within expert range; time ${(e.metrics.procedure_time_s ?? 0).toFixed(1)} s, fluoro ${(e.metrics.fluoroscopy_time_s ?? 0).toFixed(1)} s, errors ${e.metrics.errors ?? 0}`
+                : "not assessed yet";
+              item.textContent = `${new Date(e.createdUnixS * 1000).toLocaleString()} ${e.sceneName}: ${scores} `;
+              item.append(reportLink(e.sessionId));
+              return item;
+            }),
+          );
+          if (!entries.length) list.textContent = "No sessions yet.";
+        } catch (err) {
+          list.textContent = `Cannot list the sessions: ${describe(err)}`;
+        }
+      });
+      li.append(details);
+      return li;
+    }),
+  );
+}
+
 /** The recorded sessions, newest first: closed ones and those a server restart interrupted. */
 function renderRecorded(recorded: SessionInfo[]) {
   const sorted = [...recorded].sort((a, b) => b.createdUnixS - a.createdUnixS);
@@ -140,7 +192,8 @@ function renderRecorded(recorded: SessionInfo[]) {
       const status = info.status === SessionStatus.INTERRUPTED ? "interrupted" : "closed";
       li.className = status;
       const rows = Object.fromEntries(metricRows(info.metrics));
-      li.textContent = `${sessionTitle(info)} — ${status}; ${info.commands} commands; time ${rows.Time}, fluoro ${rows.Fluoro}, target ${rows.Target}`;
+      li.textContent = `${sessionTitle(info)} — ${status}; ${info.commands} commands; time ${rows.Time}, fluoro ${rows.Fluoro}, target ${rows.Target} `;
+      li.append(reportLink(info.sessionId));
       return li;
     }),
   );
@@ -178,6 +231,12 @@ async function poll(signal: AbortSignal) {
         renderMetrics(card.element, info.metrics);
       }
       $("count").textContent = `(${cards.size})`;
+      if (!accountsShown) {
+        accountsShown = true;
+        void renderAccounts(client).catch(() => {
+          accountsShown = false;
+        });
+      }
       renderRecorded(sessions.filter((s) => s.status !== SessionStatus.RUNNING));
       if (!cards.has(selected)) select(client, cards.keys().next().value ?? "");
     } catch (e) {
@@ -226,6 +285,30 @@ void (async () => {
     // The poll reports an unreachable server.
   }
 })();
+$("new-account").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  const out = $("account-link");
+  const client = simulatorClient(base, instructorKey);
+  try {
+    const account = await client.createAccount({
+      name: $<HTMLInputElement>("account-name").value,
+      role: $<HTMLSelectElement>("account-role").value,
+    });
+    const url = new URL("index.html", location.href);
+    url.search = "";
+    if (params.get("server")) url.searchParams.set("server", params.get("server")!);
+    url.searchParams.set("account", account.token);
+    out.textContent = `${account.name}'s sign-in link (shown once; it carries their token): `;
+    const a = document.createElement("a");
+    a.href = url.toString();
+    a.textContent = url.toString();
+    a.id = "account-url";
+    out.append(a);
+    await renderAccounts(client);
+  } catch (err) {
+    out.textContent = `Cannot create the account: ${describe(err)}`;
+  }
+});
 $("new-session").addEventListener("submit", async (e) => {
   e.preventDefault();
   const link = $("new-link");

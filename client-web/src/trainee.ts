@@ -34,6 +34,16 @@ const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as 
 const params = new URLSearchParams(location.search);
 const base = serverUrl(location);
 const STORAGE = "cathlab.trainee.session";
+/** The trainee's account token (from a `?account=` link, kept in this browser, not the URL). */
+const ACCOUNT = "cathlab.account.token";
+if (params.has("account")) {
+  localStorage.setItem(ACCOUNT, params.get("account") ?? "");
+  params.delete("account");
+  const url = new URL(location.href);
+  url.searchParams.delete("account");
+  history.replaceState(null, "", url);
+}
+const accountToken = localStorage.getItem(ACCOUNT) ?? "";
 
 interface Joined {
   id: string;
@@ -56,11 +66,12 @@ async function join(): Promise<Joined> {
       sessionStorage.removeItem(STORAGE);
     }
   }
-  const anonymous = simulatorClient(base);
-  const { scenes, defaultScene } = await anonymous.listScenes({});
+  // With an account token the session is the trainee's (their history, their reports).
+  const creator = simulatorClient(base, accountToken || undefined);
+  const { scenes, defaultScene } = await creator.listScenes({});
   const scene = params.get("scene") ?? (defaultScene || scenes[0]?.name);
   if (!scene) throw new Error("the server lists no scenes");
-  const created = await anonymous.createSession({
+  const created = await creator.createSession({
     scene: { case: "sceneName", value: scene },
     label: params.get("label") ?? "trainee",
     assessment: params.get("assessment") === "1",
@@ -91,8 +102,32 @@ function say(text: string, kind: "warning" | "success" = "warning") {
   el.dataset.kind = kind;
 }
 
+/** The report of the session the trainee finished here, once finished. */
+let finishedReport = "";
+
+/** "Session finished", with the link to its report. */
+function showFinished() {
+  const el = $("message");
+  el.dataset.kind = "success";
+  el.textContent = "Session finished. ";
+  const a = document.createElement("a");
+  a.id = "report-link";
+  a.href = finishedReport;
+  a.textContent = "Open the report";
+  el.append(a);
+}
+
 /** The session is over: the message, with a way on. */
 function sessionEnded() {
+  if (finishedReport) {
+    showFinished();
+    for (const c of document.querySelectorAll<HTMLButtonElement | HTMLInputElement | HTMLSelectElement>(
+      "#controls button, #controls input, #controls select",
+    )) {
+      c.disabled = true;
+    }
+    return;
+  }
   const el = $("message");
   el.dataset.kind = "warning";
   el.textContent = "This session has ended (the server restarted or the session was closed). ";
@@ -125,6 +160,16 @@ async function main() {
   const client = simulatorClient(base, joined.token);
   document.body.dataset.session = joined.id;
   $("role").textContent = joined.readOnly ? "observer (read-only)" : "";
+  if (accountToken) {
+    simulatorClient(base, accountToken)
+      .whoAmI({})
+      .then((me) => {
+        $("account").textContent = `${me.name} (${me.role})`;
+      })
+      .catch(() => {
+        $("account").textContent = "account token not recognised";
+      });
+  }
   const info = await client.getSession({ sessionId: joined.id });
   const listed = await client.listScenes({});
   const scene = listed.scenes.find((s) => s.name === info.sceneName);
@@ -254,6 +299,22 @@ async function main() {
     return;
   }
   controls(client, joined.id, stacked ? scene!.stack.length : 1);
+  $("finish").addEventListener("click", async () => {
+    try {
+      await client.closeSession({ sessionId: joined.id });
+    } catch (e) {
+      say(`Cannot finish: ${describe(e)}`);
+      return;
+    }
+    sessionStorage.removeItem(STORAGE);
+    const report = new URL("report.html", location.href);
+    report.search = "";
+    if (params.get("server")) report.searchParams.set("server", params.get("server")!);
+    report.searchParams.set("session", joined.id);
+    report.searchParams.set("token", joined.token);
+    finishedReport = report.toString();
+    sessionEnded();
+  });
 }
 
 /** Fills the hands' instrument names, the exchange lists and shows the stack panel. */
@@ -507,6 +568,7 @@ function controls(client: SimulatorClient, sessionId: string, instruments: numbe
     command({ case: "selectDevice", value: Number((e.target as HTMLSelectElement).value) }),
   );
   $("reset").addEventListener("click", () => command({ case: "reset", value: true }));
+
   $<HTMLSelectElement>("pulse").addEventListener("change", (e) =>
     command({ case: "pulseRate", value: Number((e.target as HTMLSelectElement).value) as PulseRate }),
   );

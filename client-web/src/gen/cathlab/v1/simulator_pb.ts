@@ -20,7 +20,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cathlab/v1/simulator.proto.
  */
 export const file_cathlab_v1_simulator: GenFile = /*@__PURE__*/
-  fileDesc("ChpjYXRobGFiL3YxL3NpbXVsYXRvci5wcm90bxIKY2F0aGxhYi52MSITChFMaXN0U2NlbmVzUmVxdWVzdCKgAQoMU2NlbmVTdW1tYXJ5EgwKBG5hbWUYASABKAkSEwoLZGVzY3JpcHRpb24YAiABKAkSDwoHZGV2aWNlcxgDIAMoCRIQCghoYXNfZmxvdxgEIAEoCBIOCgZ0YXJnZXQYBSABKAkSKgoFc3RhY2sYBiADKAsyGy5jYXRobGFiLnYxLlN0YWNrSW5zdHJ1bWVudBIOCgZzcGFyZXMYByADKAkiNgoPU3RhY2tJbnN0cnVtZW50Eg4KBmRldmljZRgBIAEoCRITCgtpbnNlcnRlZF9tbRgCIAEoASKCAQoPQ2F0YWxvZ3VlRGV2aWNlEgoKAmlkGAEgASgJEgwKBG5hbWUYAiABKAkSDAoEa2luZBgDIAEoCRIRCglsZW5ndGhfbW0YBCABKAESGQoRb3V0ZXJfZGlhbWV0ZXJfbW0YBSABKAESGQoRaW5uZXJfZGlhbWV0ZXJfbW0YBiABKAEihQEKEkxpc3RTY2VuZXNSZXNwb25zZRIoCgZzY2VuZXMYASADKAsyGC5jYXRobGFiLnYxLlNjZW5lU3VtbWFyeRIuCgljYXRhbG9ndWUYAiADKAsyGy5jYXRobGFiLnYxLkNhdGFsb2d1ZURldmljZRIVCg1kZWZhdWx0X3NjZW5lGAMgASgJIoQBChRDcmVhdGVTZXNzaW9uUmVxdWVzdBIUCgpzY2VuZV9uYW1lGAEgASgJSAASFAoKc2NlbmVfdG9tbBgCIAEoCUgAEhQKCnNjZW5lX2pzb24YAyABKAlIABINCgVsYWJlbBgEIAEoCRISCgphc3Nlc3NtZW50GAUgASgIQgcKBXNjZW5lIksKCEd1aWRhbmNlEhUKDXRhcmdldF9tYXJrZXIYASABKAgSFwoPdGFyZ2V0X2Rpc3RhbmNlGAIgASgIEg8KB3Byb21wdHMYAyABKAgihAEKFUNyZWF0ZVNlc3Npb25SZXNwb25zZRISCgpzZXNzaW9uX2lkGAEgASgJEhgKEGNvbnRyb2xsZXJfdG9rZW4YAiABKAkSFgoOb2JzZXJ2ZXJfdG9rZW4YAyABKAkSJQoEaW5mbxgEIAEoCzIXLmNhdGhsYWIudjEuU2Vzc2lvbkluZm8iLwoTTGlzdFNlc3Npb25zUmVxdWVzdBIYChBpbmNsdWRlX3JlY29yZGVkGAEgASgIIkEKFExpc3RTZXNzaW9uc1Jlc3BvbnNlEikKCHNlc3Npb25zGAEgAygLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyInChFHZXRTZXNzaW9uUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIikKE0Nsb3NlU2Vzc2lvblJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSI9ChRDbG9zZVNlc3Npb25SZXNwb25zZRIlCgRpbmZvGAEgASgLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyLQAgoLU2Vzc2lvbkluZm8SEgoKc2Vzc2lvbl9pZBgBIAEoCRISCgpzY2VuZV9uYW1lGAIgASgJEg0KBWxhYmVsGAMgASgJEikKBnN0YXR1cxgEIAEoDjIZLmNhdGhsYWIudjEuU2Vzc2lvblN0YXR1cxIWCg5jcmVhdGVkX3VuaXhfcxgFIAEoARIUCgxzdGVwX3JhdGVfaHoYBiABKAESJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcxIiCgZ0aW1pbmcYCCABKAsyEi5jYXRobGFiLnYxLlRpbWluZxIQCghjb21tYW5kcxgJIAEoBBIVCg1hY3RpdmVfZGV2aWNlGAogASgNEhYKDm9ic2VydmVyX3Rva2VuGAsgASgJEiYKCGd1aWRhbmNlGAwgASgLMhQuY2F0aGxhYi52MS5HdWlkYW5jZSLPBAoHTWV0cmljcxIYChBwcm9jZWR1cmVfdGltZV9zGAEgASgBEhoKEmZsdW9yb3Njb3B5X3RpbWVfcxgCIAEoARIQCghkc2FfcnVucxgDIAEoDRIaChJjb250cmFzdF92b2x1bWVfbWwYBCABKAESGAoQbWF4X3dhbGxfZm9yY2VfbhgFIAEoARIZChFtZWFuX3dhbGxfZm9yY2VfbhgGIAEoARIaChJ0aXBfcGF0aF9sZW5ndGhfbW0YByABKAESFgoOdGFyZ2V0X3JlYWNoZWQYCCABKAgSGwoTdGFyZ2V0X3JlYWNoZWRfYXRfcxgJIAEoARINCgVzdGVwcxgKIAEoBBIZChFkaXZlcmdlbmNlX3Jlc2V0cxgLIAEoDRIXCg9vcGVyYXRvcl9yZXNldHMYDCABKA0SHAoUYXR0ZW1wdF9zdGFydGVkX2F0X3MYDSABKAESGwoTdGFyZ2V0X3JlbWFpbmluZ19tbRgOIAEoARIyCgtpbnN0cnVtZW50cxgPIAMoCzIdLmNhdGhsYWIudjEuSW5zdHJ1bWVudE1ldHJpY3MSGgoSbGVhZGluZ19pbnN0cnVtZW50GBAgASgNEhQKDGxlYWRfY2hhbmdlcxgRIAEoDRIYChBwYXNzZWRfaW5uZXJfdGlwGBIgASgNEiwKC3JlcGVyZnVzaW9uGBMgASgLMhcuY2F0aGxhYi52MS5SZXBlcmZ1c2lvbhIuCgx0aHJvbWJlY3RvbXkYFCABKAsyGC5jYXRobGFiLnYxLlRocm9tYmVjdG9teSLYAQoMVGhyb21iZWN0b215Eg4KBnBhc3NlcxgBIAEoDRIZChFmaXJzdF9wYXNzX2VmZmVjdBgCIAEoCBIOCgZlbWJvbGkYAyABKA0SGAoQY3Jvc3NpbmdfZm9yY2VfbhgEIAEoARIdChVwZWFrX2Nyb3NzaW5nX2ZvcmNlX24YBSABKAESDgoGZ3JpcF9uGAYgASgBEhIKCmFzcGlyYXRpb24YByABKAgSHAoPcmVwZXJmdXNlZF9hdF9zGAggASgBSACIAQFCEgoQX3JlcGVyZnVzZWRfYXRfcyIuCgtSZXBlcmZ1c2lvbhIQCghmcmFjdGlvbhgBIAEoARINCgVldGljaRgCIAEoCSJiChFJbnN0cnVtZW50TWV0cmljcxIaChJ0aXBfcGF0aF9sZW5ndGhfbW0YASABKAESFQoNbW92aW5nX3RpbWVfcxgCIAEoARIaChJwZWFrX2F4aWFsX2ZvcmNlX24YAyABKAEi8AEKBlRpbWluZxINCgVzdGVwcxgBIAEoBBISCgpsYXRlX3N0ZXBzGAIgASgEEhQKDG1pc3NlZF9zdGVwcxgDIAEoBBIYChBzdGVwX3RpbWVfcDUwX21zGAQgASgBEhgKEHN0ZXBfdGltZV9wOTlfbXMYBSABKAESGAoQc3RlcF90aW1lX21heF9tcxgGIAEoARIOCgZmcmFtZXMYByABKAQSGQoRZnJhbWVfdGltZV9wNTBfbXMYCCABKAESGQoRZnJhbWVfdGltZV9wOTlfbXMYCSABKAESGQoRZnJhbWVfdGltZV9tYXhfbXMYCiABKAEiTwoJSW5zZXJ0aW9uEhcKDXZlbG9jaXR5X21tX3MYASABKAFIABITCgl0YXJnZXRfbW0YAiABKAFIABIMCgRob2xkGAMgASgIQgYKBG1vZGUiSQoFVHdpc3QSFAoKcmF0ZV9kZWdfcxgBIAEoAUgAEhQKCnRhcmdldF9kZWcYAiABKAFIABIMCgRob2xkGAMgASgIQgYKBG1vZGUiNgoIQ0FybVBvc2USEwoLcHJpbWFyeV9kZWcYASABKAESFQoNc2Vjb25kYXJ5X2RlZxgCIAEoASIxCglJbmplY3Rpb24SEQoJdm9sdW1lX21sGAEgASgBEhEKCXJhdGVfbWxfcxgCIAEoASK/BAoHQ29tbWFuZBIqCglpbnNlcnRpb24YASABKAsyFS5jYXRobGFiLnYxLkluc2VydGlvbkgAEiIKBXR3aXN0GAIgASgLMhEuY2F0aGxhYi52MS5Ud2lzdEgAEhcKDXNlbGVjdF9kZXZpY2UYAyABKA1IABIVCgtmbHVvcm9zY29weRgEIAEoCEgAEisKCnB1bHNlX3JhdGUYBSABKA4yFS5jYXRobGFiLnYxLlB1bHNlUmF0ZUgAEg0KA2RzYRgGIAEoCEgAEhEKB3JvYWRtYXAYByABKAhIABIkCgRjYXJtGAggASgLMhQuY2F0aGxhYi52MS5DQXJtUG9zZUgAEicKBmluamVjdBgJIAEoCzIVLmNhdGhsYWIudjEuSW5qZWN0aW9uSAASDwoFcmVzZXQYCiABKAhIABIoCghleGNoYW5nZRgLIAEoCzIULmNhdGhsYWIudjEuRXhjaGFuZ2VIABIUCgphc3BpcmF0aW9uGA0gASgISAASNgoMdGhyb21iZWN0b215GA4gASgOMh4uY2F0aGxhYi52MS5UaHJvbWJlY3RvbXlBY3Rpb25IABIVCgtkZW1vbnN0cmF0ZRgPIAEoCEgAEiAKBGxvYWQYECABKAsyEC5jYXRobGFiLnYxLkxvYWRIABIkCgZ1bmxvYWQYESABKAsyEi5jYXRobGFiLnYxLlVubG9hZEgAEhcKCmluc3RydW1lbnQYDCABKA1IAYgBAUIGCgRraW5kQg0KC19pbnN0cnVtZW50IlEKCEV4Y2hhbmdlEhIKCmluc3RydW1lbnQYASABKA0SFgoMY2F0YWxvZ3VlX2lkGAIgASgJSAASDwoFc3BhcmUYAyABKA1IAEIICgZkZXZpY2UiOQoETG9hZBIWCgxjYXRhbG9ndWVfaWQYASABKAlIABIPCgVzcGFyZRgCIAEoDUgAQggKBmRldmljZSIICgZVbmxvYWQiWwoSU2VuZENvbW1hbmRSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSCwoDc2VxGAIgASgEEiQKB2NvbW1hbmQYAyABKAsyEy5jYXRobGFiLnYxLkNvbW1hbmQiJwoKQ29tbWFuZEFjaxILCgNzZXEYASABKAQSDAoEc3RlcBgCIAEoBCKAAQoMQ29udHJvbElucHV0EhIKCnNlc3Npb25faWQYASABKAkSCwoDc2VxGAIgASgEEhEKCXB1c2hfbW1fcxgDIAEoARITCgt0d2lzdF9kZWdfcxgEIAEoARInCgVoYW5kcxgFIAMoCzIYLmNhdGhsYWIudjEuSGFuZFNldHBvaW50IkoKDEhhbmRTZXRwb2ludBISCgppbnN0cnVtZW50GAEgASgNEhEKCXB1c2hfbW1fcxgCIAEoARITCgt0d2lzdF9kZWdfcxgDIAEoASJMCg1Db250cm9sT3V0cHV0EiYKBXN0YXRlGAEgASgLMhcuY2F0aGxhYi52MS5EZXZpY2VTdGF0ZRITCgtkdXJhYmxlX3NlcRgCIAEoBCI6ChJTdHJlYW1TdGF0ZVJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCRIQCgh0aXBfb25seRgCIAEoCCInCgRWZWMzEgkKAXgYASABKAESCQoBeRgCIAEoARIJCgF6GAMgASgBIlIKC1dhbGxDb250YWN0EiIKCHBvc2l0aW9uGAEgASgLMhAuY2F0aGxhYi52MS5WZWMzEh8KBWZvcmNlGAIgASgLMhAuY2F0aGxhYi52MS5WZWMzIsIECgtEZXZpY2VTdGF0ZRIMCgRzdGVwGAEgASgEEg4KBnRpbWVfcxgCIAEoARIQCghsYXN0X3NlcRgDIAEoBBIQCghub2Rlc19tbRgEIAMoAhIpCg90aXBfcG9zaXRpb25fbW0YBSABKAsyEC5jYXRobGFiLnYxLlZlYzMSJwoNdGlwX2RpcmVjdGlvbhgGIAEoCzIQLmNhdGhsYWIudjEuVmVjMxITCgtpbnNlcnRlZF9tbRgHIAEoARIRCgl0d2lzdF9kZWcYCCABKAESKQoIY29udGFjdHMYCSADKAsyFy5jYXRobGFiLnYxLldhbGxDb250YWN0EioKEHByb3hpbWFsX2ZvcmNlX24YCiABKAsyEC5jYXRobGFiLnYxLlZlYzMSLQoTcHJveGltYWxfdG9ycXVlX25tbRgLIAEoCzIQLmNhdGhsYWIudjEuVmVjMxIVCg1hY3RpdmVfZGV2aWNlGAwgASgNEhYKDnNlcnZlcl91bml4X3VzGA0gASgEEhUKDWF4aWFsX2ZvcmNlX24YDiABKAESGAoQYXhpYWxfdG9ycXVlX25tbRgPIAEoARIpCgpwdXNoX2xpbWl0GBAgASgOMhUuY2F0aGxhYi52MS5QdXNoTGltaXQSGgoScHVzaF9mb3JjZV9saW1pdF9uGBEgASgBEhYKDmZpZGVsaXR5X2xldmVsGBIgASgNEjAKC2luc3RydW1lbnRzGBMgAygLMhsuY2F0aGxhYi52MS5JbnN0cnVtZW50U3RhdGUiqwIKD0luc3RydW1lbnRTdGF0ZRIMCgRuYW1lGAEgASgJEhQKDGNhdGFsb2d1ZV9pZBgCIAEoCRIQCghub2Rlc19tbRgDIAMoAhITCgtpbnNlcnRlZF9tbRgEIAEoARIRCgl0d2lzdF9kZWcYBSABKAESKQoPdGlwX3Bvc2l0aW9uX21tGAYgASgLMhAuY2F0aGxhYi52MS5WZWMzEhcKD2JleW9uZF9vdXRlcl9tbRgHIAEoARIVCg1heGlhbF9mb3JjZV9uGAggASgBEhgKEGF4aWFsX3RvcnF1ZV9ubW0YCSABKAESKQoKcHVzaF9saW1pdBgKIAEoDjIVLmNhdGhsYWIudjEuUHVzaExpbWl0EhoKEnB1c2hfZm9yY2VfbGltaXRfbhgLIAEoASKLAQoTU3RyZWFtRnJhbWVzUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEisKCGVuY29kaW5nGAIgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEg0KBXdpZHRoGAMgASgNEg4KBmhlaWdodBgEIAEoDRIUCgxqcGVnX3F1YWxpdHkYBSABKA0iuAIKCVhyYXlGcmFtZRINCgVpbmRleBgBIAEoBBIOCgZ0aW1lX3MYAiABKAESDQoFd2lkdGgYAyABKA0SDgoGaGVpZ2h0GAQgASgNEisKCGVuY29kaW5nGAUgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEgwKBGRhdGEYBiABKAwSJQoEbW9kZRgHIAEoDjIXLmNhdGhsYWIudjEuSW1hZ2luZ01vZGUSDAoEaGVsZBgIIAEoCBIQCghsYXN0X3NlcRgJIAEoBBIPCgdza2lwcGVkGAogASgEEh8KF3JlZmVyZW5jZV9haXJfa2VybWFfbWd5GAsgASgBEiEKGWtlcm1hX2FyZWFfcHJvZHVjdF9neV9jbTIYDCABKAESFgoOdGFyZ2V0X291dGxpbmUYDSADKAIiKgoUU3RyZWFtTWV0cmljc1JlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSJECgVFdmVudBIMCgRzdGVwGAEgASgEEg4KBnRpbWVfcxgCIAEoARIMCgRraW5kGAMgASgJEg8KB21lc3NhZ2UYBCABKAkiYwoNU2Vzc2lvblVwZGF0ZRImCgdtZXRyaWNzGAEgASgLMhMuY2F0aGxhYi52MS5NZXRyaWNzSAASIgoFZXZlbnQYAiABKAsyES5jYXRobGFiLnYxLkV2ZW50SABCBgoEa2luZCInChFHZXRBbmF0b215UmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIjsKBkJyYW5jaBIMCgRuYW1lGAEgASgJEhEKCXBvaW50c19tbRgCIAMoAhIQCghyYWRpaV9tbRgDIAMoAiKMAQoHQW5hdG9teRIkCghicmFuY2hlcxgBIAMoCzISLmNhdGhsYWIudjEuQnJhbmNoEhMKC3ZlcnRpY2VzX21tGAIgAygCEhEKCXRyaWFuZ2xlcxgDIAMoDRIjCglhY2Nlc3NfbW0YBCABKAsyEC5jYXRobGFiLnYxLlZlYzMSDgoGdGFyZ2V0GAUgASgJIioKFFJlcGxheVNlc3Npb25SZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkirQEKDFJlcGxheVJlc3VsdBINCgVzdGVwcxgBIAEoBBIQCghjb21tYW5kcxgCIAEoDRITCgtjaGVja3BvaW50cxgDIAEoDRIPCgdtYXRjaGVkGAQgASgNEhcKD3JlY29yZGVkX2RpZ2VzdBgFIAEoCRIXCg9yZXBsYXllZF9kaWdlc3QYBiABKAkSJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcyqGAQoNU2Vzc2lvblN0YXR1cxIeChpTRVNTSU9OX1NUQVRVU19VTlNQRUNJRklFRBAAEhoKFlNFU1NJT05fU1RBVFVTX1JVTk5JTkcQARIZChVTRVNTSU9OX1NUQVRVU19DTE9TRUQQAhIeChpTRVNTSU9OX1NUQVRVU19JTlRFUlJVUFRFRBADKmEKCVB1bHNlUmF0ZRIaChZQVUxTRV9SQVRFX1VOU1BFQ0lGSUVEEAASEgoOUFVMU0VfUkFURV83XzUQARIRCg1QVUxTRV9SQVRFXzE1EAISEQoNUFVMU0VfUkFURV8zMBADKocBChJUaHJvbWJlY3RvbXlBY3Rpb24SIwofVEhST01CRUNUT01ZX0FDVElPTl9VTlNQRUNJRklFRBAAEiQKIFRIUk9NQkVDVE9NWV9BQ1RJT05fREVQTE9ZX1NURU5UEAESJgoiVEhST01CRUNUT01ZX0FDVElPTl9SRVRSSUVWRV9TVEVOVBACKk0KCVB1c2hMaW1pdBITCg9QVVNIX0xJTUlUX05PTkUQABIUChBQVVNIX0xJTUlUX0ZPUkNFEAESFQoRUFVTSF9MSU1JVF9MRU5HVEgQAiqTAQoNRnJhbWVFbmNvZGluZxIeChpGUkFNRV9FTkNPRElOR19VTlNQRUNJRklFRBAAEhcKE0ZSQU1FX0VOQ09ESU5HX1JBVzgQARIYChRGUkFNRV9FTkNPRElOR19SQVcxNhACEhYKEkZSQU1FX0VOQ09ESU5HX1BORxADEhcKE0ZSQU1FX0VOQ09ESU5HX0pQRUcQBCqBAQoLSW1hZ2luZ01vZGUSHAoYSU1BR0lOR19NT0RFX1VOU1BFQ0lGSUVEEAASHAoYSU1BR0lOR19NT0RFX0ZMVU9ST1NDT1BZEAESHAoYSU1BR0lOR19NT0RFX1NVQlRSQUNUSU9OEAISGAoUSU1BR0lOR19NT0RFX1JPQURNQVAQAzKYBwoJU2ltdWxhdG9yEksKCkxpc3RTY2VuZXMSHS5jYXRobGFiLnYxLkxpc3RTY2VuZXNSZXF1ZXN0Gh4uY2F0aGxhYi52MS5MaXN0U2NlbmVzUmVzcG9uc2USVAoNQ3JlYXRlU2Vzc2lvbhIgLmNhdGhsYWIudjEuQ3JlYXRlU2Vzc2lvblJlcXVlc3QaIS5jYXRobGFiLnYxLkNyZWF0ZVNlc3Npb25SZXNwb25zZRJRCgxMaXN0U2Vzc2lvbnMSHy5jYXRobGFiLnYxLkxpc3RTZXNzaW9uc1JlcXVlc3QaIC5jYXRobGFiLnYxLkxpc3RTZXNzaW9uc1Jlc3BvbnNlEkQKCkdldFNlc3Npb24SHS5jYXRobGFiLnYxLkdldFNlc3Npb25SZXF1ZXN0GhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbxJRCgxDbG9zZVNlc3Npb24SHy5jYXRobGFiLnYxLkNsb3NlU2Vzc2lvblJlcXVlc3QaIC5jYXRobGFiLnYxLkNsb3NlU2Vzc2lvblJlc3BvbnNlEkUKC1NlbmRDb21tYW5kEh4uY2F0aGxhYi52MS5TZW5kQ29tbWFuZFJlcXVlc3QaFi5jYXRobGFiLnYxLkNvbW1hbmRBY2sSQgoHQ29udHJvbBIYLmNhdGhsYWIudjEuQ29udHJvbElucHV0GhkuY2F0aGxhYi52MS5Db250cm9sT3V0cHV0KAEwARJICgtTdHJlYW1TdGF0ZRIeLmNhdGhsYWIudjEuU3RyZWFtU3RhdGVSZXF1ZXN0GhcuY2F0aGxhYi52MS5EZXZpY2VTdGF0ZTABEkgKDFN0cmVhbUZyYW1lcxIfLmNhdGhsYWIudjEuU3RyZWFtRnJhbWVzUmVxdWVzdBoVLmNhdGhsYWIudjEuWHJheUZyYW1lMAESTgoNU3RyZWFtTWV0cmljcxIgLmNhdGhsYWIudjEuU3RyZWFtTWV0cmljc1JlcXVlc3QaGS5jYXRobGFiLnYxLlNlc3Npb25VcGRhdGUwARJACgpHZXRBbmF0b215Eh0uY2F0aGxhYi52MS5HZXRBbmF0b215UmVxdWVzdBoTLmNhdGhsYWIudjEuQW5hdG9teRJLCg1SZXBsYXlTZXNzaW9uEiAuY2F0aGxhYi52MS5SZXBsYXlTZXNzaW9uUmVxdWVzdBoYLmNhdGhsYWIudjEuUmVwbGF5UmVzdWx0YgZwcm90bzM");
+  fileDesc("ChpjYXRobGFiL3YxL3NpbXVsYXRvci5wcm90bxIKY2F0aGxhYi52MSITChFMaXN0U2NlbmVzUmVxdWVzdCKgAQoMU2NlbmVTdW1tYXJ5EgwKBG5hbWUYASABKAkSEwoLZGVzY3JpcHRpb24YAiABKAkSDwoHZGV2aWNlcxgDIAMoCRIQCghoYXNfZmxvdxgEIAEoCBIOCgZ0YXJnZXQYBSABKAkSKgoFc3RhY2sYBiADKAsyGy5jYXRobGFiLnYxLlN0YWNrSW5zdHJ1bWVudBIOCgZzcGFyZXMYByADKAkiNgoPU3RhY2tJbnN0cnVtZW50Eg4KBmRldmljZRgBIAEoCRITCgtpbnNlcnRlZF9tbRgCIAEoASKCAQoPQ2F0YWxvZ3VlRGV2aWNlEgoKAmlkGAEgASgJEgwKBG5hbWUYAiABKAkSDAoEa2luZBgDIAEoCRIRCglsZW5ndGhfbW0YBCABKAESGQoRb3V0ZXJfZGlhbWV0ZXJfbW0YBSABKAESGQoRaW5uZXJfZGlhbWV0ZXJfbW0YBiABKAEihQEKEkxpc3RTY2VuZXNSZXNwb25zZRIoCgZzY2VuZXMYASADKAsyGC5jYXRobGFiLnYxLlNjZW5lU3VtbWFyeRIuCgljYXRhbG9ndWUYAiADKAsyGy5jYXRobGFiLnYxLkNhdGFsb2d1ZURldmljZRIVCg1kZWZhdWx0X3NjZW5lGAMgASgJIoQBChRDcmVhdGVTZXNzaW9uUmVxdWVzdBIUCgpzY2VuZV9uYW1lGAEgASgJSAASFAoKc2NlbmVfdG9tbBgCIAEoCUgAEhQKCnNjZW5lX2pzb24YAyABKAlIABINCgVsYWJlbBgEIAEoCRISCgphc3Nlc3NtZW50GAUgASgIQgcKBXNjZW5lIksKCEd1aWRhbmNlEhUKDXRhcmdldF9tYXJrZXIYASABKAgSFwoPdGFyZ2V0X2Rpc3RhbmNlGAIgASgIEg8KB3Byb21wdHMYAyABKAgihAEKFUNyZWF0ZVNlc3Npb25SZXNwb25zZRISCgpzZXNzaW9uX2lkGAEgASgJEhgKEGNvbnRyb2xsZXJfdG9rZW4YAiABKAkSFgoOb2JzZXJ2ZXJfdG9rZW4YAyABKAkSJQoEaW5mbxgEIAEoCzIXLmNhdGhsYWIudjEuU2Vzc2lvbkluZm8iLwoTTGlzdFNlc3Npb25zUmVxdWVzdBIYChBpbmNsdWRlX3JlY29yZGVkGAEgASgIIkEKFExpc3RTZXNzaW9uc1Jlc3BvbnNlEikKCHNlc3Npb25zGAEgAygLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyInChFHZXRTZXNzaW9uUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIikKE0Nsb3NlU2Vzc2lvblJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSI9ChRDbG9zZVNlc3Npb25SZXNwb25zZRIlCgRpbmZvGAEgASgLMhcuY2F0aGxhYi52MS5TZXNzaW9uSW5mbyLQAgoLU2Vzc2lvbkluZm8SEgoKc2Vzc2lvbl9pZBgBIAEoCRISCgpzY2VuZV9uYW1lGAIgASgJEg0KBWxhYmVsGAMgASgJEikKBnN0YXR1cxgEIAEoDjIZLmNhdGhsYWIudjEuU2Vzc2lvblN0YXR1cxIWCg5jcmVhdGVkX3VuaXhfcxgFIAEoARIUCgxzdGVwX3JhdGVfaHoYBiABKAESJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcxIiCgZ0aW1pbmcYCCABKAsyEi5jYXRobGFiLnYxLlRpbWluZxIQCghjb21tYW5kcxgJIAEoBBIVCg1hY3RpdmVfZGV2aWNlGAogASgNEhYKDm9ic2VydmVyX3Rva2VuGAsgASgJEiYKCGd1aWRhbmNlGAwgASgLMhQuY2F0aGxhYi52MS5HdWlkYW5jZSLPBAoHTWV0cmljcxIYChBwcm9jZWR1cmVfdGltZV9zGAEgASgBEhoKEmZsdW9yb3Njb3B5X3RpbWVfcxgCIAEoARIQCghkc2FfcnVucxgDIAEoDRIaChJjb250cmFzdF92b2x1bWVfbWwYBCABKAESGAoQbWF4X3dhbGxfZm9yY2VfbhgFIAEoARIZChFtZWFuX3dhbGxfZm9yY2VfbhgGIAEoARIaChJ0aXBfcGF0aF9sZW5ndGhfbW0YByABKAESFgoOdGFyZ2V0X3JlYWNoZWQYCCABKAgSGwoTdGFyZ2V0X3JlYWNoZWRfYXRfcxgJIAEoARINCgVzdGVwcxgKIAEoBBIZChFkaXZlcmdlbmNlX3Jlc2V0cxgLIAEoDRIXCg9vcGVyYXRvcl9yZXNldHMYDCABKA0SHAoUYXR0ZW1wdF9zdGFydGVkX2F0X3MYDSABKAESGwoTdGFyZ2V0X3JlbWFpbmluZ19tbRgOIAEoARIyCgtpbnN0cnVtZW50cxgPIAMoCzIdLmNhdGhsYWIudjEuSW5zdHJ1bWVudE1ldHJpY3MSGgoSbGVhZGluZ19pbnN0cnVtZW50GBAgASgNEhQKDGxlYWRfY2hhbmdlcxgRIAEoDRIYChBwYXNzZWRfaW5uZXJfdGlwGBIgASgNEiwKC3JlcGVyZnVzaW9uGBMgASgLMhcuY2F0aGxhYi52MS5SZXBlcmZ1c2lvbhIuCgx0aHJvbWJlY3RvbXkYFCABKAsyGC5jYXRobGFiLnYxLlRocm9tYmVjdG9teSLYAQoMVGhyb21iZWN0b215Eg4KBnBhc3NlcxgBIAEoDRIZChFmaXJzdF9wYXNzX2VmZmVjdBgCIAEoCBIOCgZlbWJvbGkYAyABKA0SGAoQY3Jvc3NpbmdfZm9yY2VfbhgEIAEoARIdChVwZWFrX2Nyb3NzaW5nX2ZvcmNlX24YBSABKAESDgoGZ3JpcF9uGAYgASgBEhIKCmFzcGlyYXRpb24YByABKAgSHAoPcmVwZXJmdXNlZF9hdF9zGAggASgBSACIAQFCEgoQX3JlcGVyZnVzZWRfYXRfcyIuCgtSZXBlcmZ1c2lvbhIQCghmcmFjdGlvbhgBIAEoARINCgVldGljaRgCIAEoCSJiChFJbnN0cnVtZW50TWV0cmljcxIaChJ0aXBfcGF0aF9sZW5ndGhfbW0YASABKAESFQoNbW92aW5nX3RpbWVfcxgCIAEoARIaChJwZWFrX2F4aWFsX2ZvcmNlX24YAyABKAEi8AEKBlRpbWluZxINCgVzdGVwcxgBIAEoBBISCgpsYXRlX3N0ZXBzGAIgASgEEhQKDG1pc3NlZF9zdGVwcxgDIAEoBBIYChBzdGVwX3RpbWVfcDUwX21zGAQgASgBEhgKEHN0ZXBfdGltZV9wOTlfbXMYBSABKAESGAoQc3RlcF90aW1lX21heF9tcxgGIAEoARIOCgZmcmFtZXMYByABKAQSGQoRZnJhbWVfdGltZV9wNTBfbXMYCCABKAESGQoRZnJhbWVfdGltZV9wOTlfbXMYCSABKAESGQoRZnJhbWVfdGltZV9tYXhfbXMYCiABKAEiTwoJSW5zZXJ0aW9uEhcKDXZlbG9jaXR5X21tX3MYASABKAFIABITCgl0YXJnZXRfbW0YAiABKAFIABIMCgRob2xkGAMgASgIQgYKBG1vZGUiSQoFVHdpc3QSFAoKcmF0ZV9kZWdfcxgBIAEoAUgAEhQKCnRhcmdldF9kZWcYAiABKAFIABIMCgRob2xkGAMgASgIQgYKBG1vZGUiNgoIQ0FybVBvc2USEwoLcHJpbWFyeV9kZWcYASABKAESFQoNc2Vjb25kYXJ5X2RlZxgCIAEoASIxCglJbmplY3Rpb24SEQoJdm9sdW1lX21sGAEgASgBEhEKCXJhdGVfbWxfcxgCIAEoASK/BAoHQ29tbWFuZBIqCglpbnNlcnRpb24YASABKAsyFS5jYXRobGFiLnYxLkluc2VydGlvbkgAEiIKBXR3aXN0GAIgASgLMhEuY2F0aGxhYi52MS5Ud2lzdEgAEhcKDXNlbGVjdF9kZXZpY2UYAyABKA1IABIVCgtmbHVvcm9zY29weRgEIAEoCEgAEisKCnB1bHNlX3JhdGUYBSABKA4yFS5jYXRobGFiLnYxLlB1bHNlUmF0ZUgAEg0KA2RzYRgGIAEoCEgAEhEKB3JvYWRtYXAYByABKAhIABIkCgRjYXJtGAggASgLMhQuY2F0aGxhYi52MS5DQXJtUG9zZUgAEicKBmluamVjdBgJIAEoCzIVLmNhdGhsYWIudjEuSW5qZWN0aW9uSAASDwoFcmVzZXQYCiABKAhIABIoCghleGNoYW5nZRgLIAEoCzIULmNhdGhsYWIudjEuRXhjaGFuZ2VIABIUCgphc3BpcmF0aW9uGA0gASgISAASNgoMdGhyb21iZWN0b215GA4gASgOMh4uY2F0aGxhYi52MS5UaHJvbWJlY3RvbXlBY3Rpb25IABIVCgtkZW1vbnN0cmF0ZRgPIAEoCEgAEiAKBGxvYWQYECABKAsyEC5jYXRobGFiLnYxLkxvYWRIABIkCgZ1bmxvYWQYESABKAsyEi5jYXRobGFiLnYxLlVubG9hZEgAEhcKCmluc3RydW1lbnQYDCABKA1IAYgBAUIGCgRraW5kQg0KC19pbnN0cnVtZW50IlEKCEV4Y2hhbmdlEhIKCmluc3RydW1lbnQYASABKA0SFgoMY2F0YWxvZ3VlX2lkGAIgASgJSAASDwoFc3BhcmUYAyABKA1IAEIICgZkZXZpY2UiOQoETG9hZBIWCgxjYXRhbG9ndWVfaWQYASABKAlIABIPCgVzcGFyZRgCIAEoDUgAQggKBmRldmljZSIICgZVbmxvYWQiWwoSU2VuZENvbW1hbmRSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSCwoDc2VxGAIgASgEEiQKB2NvbW1hbmQYAyABKAsyEy5jYXRobGFiLnYxLkNvbW1hbmQiJwoKQ29tbWFuZEFjaxILCgNzZXEYASABKAQSDAoEc3RlcBgCIAEoBCKAAQoMQ29udHJvbElucHV0EhIKCnNlc3Npb25faWQYASABKAkSCwoDc2VxGAIgASgEEhEKCXB1c2hfbW1fcxgDIAEoARITCgt0d2lzdF9kZWdfcxgEIAEoARInCgVoYW5kcxgFIAMoCzIYLmNhdGhsYWIudjEuSGFuZFNldHBvaW50IkoKDEhhbmRTZXRwb2ludBISCgppbnN0cnVtZW50GAEgASgNEhEKCXB1c2hfbW1fcxgCIAEoARITCgt0d2lzdF9kZWdfcxgDIAEoASJMCg1Db250cm9sT3V0cHV0EiYKBXN0YXRlGAEgASgLMhcuY2F0aGxhYi52MS5EZXZpY2VTdGF0ZRITCgtkdXJhYmxlX3NlcRgCIAEoBCI6ChJTdHJlYW1TdGF0ZVJlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCRIQCgh0aXBfb25seRgCIAEoCCInCgRWZWMzEgkKAXgYASABKAESCQoBeRgCIAEoARIJCgF6GAMgASgBIlIKC1dhbGxDb250YWN0EiIKCHBvc2l0aW9uGAEgASgLMhAuY2F0aGxhYi52MS5WZWMzEh8KBWZvcmNlGAIgASgLMhAuY2F0aGxhYi52MS5WZWMzIsIECgtEZXZpY2VTdGF0ZRIMCgRzdGVwGAEgASgEEg4KBnRpbWVfcxgCIAEoARIQCghsYXN0X3NlcRgDIAEoBBIQCghub2Rlc19tbRgEIAMoAhIpCg90aXBfcG9zaXRpb25fbW0YBSABKAsyEC5jYXRobGFiLnYxLlZlYzMSJwoNdGlwX2RpcmVjdGlvbhgGIAEoCzIQLmNhdGhsYWIudjEuVmVjMxITCgtpbnNlcnRlZF9tbRgHIAEoARIRCgl0d2lzdF9kZWcYCCABKAESKQoIY29udGFjdHMYCSADKAsyFy5jYXRobGFiLnYxLldhbGxDb250YWN0EioKEHByb3hpbWFsX2ZvcmNlX24YCiABKAsyEC5jYXRobGFiLnYxLlZlYzMSLQoTcHJveGltYWxfdG9ycXVlX25tbRgLIAEoCzIQLmNhdGhsYWIudjEuVmVjMxIVCg1hY3RpdmVfZGV2aWNlGAwgASgNEhYKDnNlcnZlcl91bml4X3VzGA0gASgEEhUKDWF4aWFsX2ZvcmNlX24YDiABKAESGAoQYXhpYWxfdG9ycXVlX25tbRgPIAEoARIpCgpwdXNoX2xpbWl0GBAgASgOMhUuY2F0aGxhYi52MS5QdXNoTGltaXQSGgoScHVzaF9mb3JjZV9saW1pdF9uGBEgASgBEhYKDmZpZGVsaXR5X2xldmVsGBIgASgNEjAKC2luc3RydW1lbnRzGBMgAygLMhsuY2F0aGxhYi52MS5JbnN0cnVtZW50U3RhdGUiqwIKD0luc3RydW1lbnRTdGF0ZRIMCgRuYW1lGAEgASgJEhQKDGNhdGFsb2d1ZV9pZBgCIAEoCRIQCghub2Rlc19tbRgDIAMoAhITCgtpbnNlcnRlZF9tbRgEIAEoARIRCgl0d2lzdF9kZWcYBSABKAESKQoPdGlwX3Bvc2l0aW9uX21tGAYgASgLMhAuY2F0aGxhYi52MS5WZWMzEhcKD2JleW9uZF9vdXRlcl9tbRgHIAEoARIVCg1heGlhbF9mb3JjZV9uGAggASgBEhgKEGF4aWFsX3RvcnF1ZV9ubW0YCSABKAESKQoKcHVzaF9saW1pdBgKIAEoDjIVLmNhdGhsYWIudjEuUHVzaExpbWl0EhoKEnB1c2hfZm9yY2VfbGltaXRfbhgLIAEoASKLAQoTU3RyZWFtRnJhbWVzUmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJEisKCGVuY29kaW5nGAIgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEg0KBXdpZHRoGAMgASgNEg4KBmhlaWdodBgEIAEoDRIUCgxqcGVnX3F1YWxpdHkYBSABKA0iuAIKCVhyYXlGcmFtZRINCgVpbmRleBgBIAEoBBIOCgZ0aW1lX3MYAiABKAESDQoFd2lkdGgYAyABKA0SDgoGaGVpZ2h0GAQgASgNEisKCGVuY29kaW5nGAUgASgOMhkuY2F0aGxhYi52MS5GcmFtZUVuY29kaW5nEgwKBGRhdGEYBiABKAwSJQoEbW9kZRgHIAEoDjIXLmNhdGhsYWIudjEuSW1hZ2luZ01vZGUSDAoEaGVsZBgIIAEoCBIQCghsYXN0X3NlcRgJIAEoBBIPCgdza2lwcGVkGAogASgEEh8KF3JlZmVyZW5jZV9haXJfa2VybWFfbWd5GAsgASgBEiEKGWtlcm1hX2FyZWFfcHJvZHVjdF9neV9jbTIYDCABKAESFgoOdGFyZ2V0X291dGxpbmUYDSADKAIiKgoUU3RyZWFtTWV0cmljc1JlcXVlc3QSEgoKc2Vzc2lvbl9pZBgBIAEoCSJECgVFdmVudBIMCgRzdGVwGAEgASgEEg4KBnRpbWVfcxgCIAEoARIMCgRraW5kGAMgASgJEg8KB21lc3NhZ2UYBCABKAkiYwoNU2Vzc2lvblVwZGF0ZRImCgdtZXRyaWNzGAEgASgLMhMuY2F0aGxhYi52MS5NZXRyaWNzSAASIgoFZXZlbnQYAiABKAsyES5jYXRobGFiLnYxLkV2ZW50SABCBgoEa2luZCInChFHZXRBbmF0b215UmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIjsKBkJyYW5jaBIMCgRuYW1lGAEgASgJEhEKCXBvaW50c19tbRgCIAMoAhIQCghyYWRpaV9tbRgDIAMoAiKMAQoHQW5hdG9teRIkCghicmFuY2hlcxgBIAMoCzISLmNhdGhsYWIudjEuQnJhbmNoEhMKC3ZlcnRpY2VzX21tGAIgAygCEhEKCXRyaWFuZ2xlcxgDIAMoDRIjCglhY2Nlc3NfbW0YBCABKAsyEC5jYXRobGFiLnYxLlZlYzMSDgoGdGFyZ2V0GAUgASgJIioKFFJlcGxheVNlc3Npb25SZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkirQEKDFJlcGxheVJlc3VsdBINCgVzdGVwcxgBIAEoBBIQCghjb21tYW5kcxgCIAEoDRITCgtjaGVja3BvaW50cxgDIAEoDRIPCgdtYXRjaGVkGAQgASgNEhcKD3JlY29yZGVkX2RpZ2VzdBgFIAEoCRIXCg9yZXBsYXllZF9kaWdlc3QYBiABKAkSJAoHbWV0cmljcxgHIAEoCzITLmNhdGhsYWIudjEuTWV0cmljcyIyChRDcmVhdGVBY2NvdW50UmVxdWVzdBIMCgRuYW1lGAEgASgJEgwKBHJvbGUYAiABKAkiYAoHQWNjb3VudBISCgphY2NvdW50X2lkGAEgASgJEgwKBG5hbWUYAiABKAkSDAoEcm9sZRgDIAEoCRINCgV0b2tlbhgEIAEoCRIWCg5jcmVhdGVkX3VuaXhfcxgFIAEoASIVChNMaXN0QWNjb3VudHNSZXF1ZXN0Ij0KFExpc3RBY2NvdW50c1Jlc3BvbnNlEiUKCGFjY291bnRzGAEgAygLMhMuY2F0aGxhYi52MS5BY2NvdW50Ig8KDVdob0FtSVJlcXVlc3QiJgoQR2V0UmVwb3J0UmVxdWVzdBISCgpzZXNzaW9uX2lkGAEgASgJIoABCgZSZXBvcnQSEgoKc2Vzc2lvbl9pZBgBIAEoCRISCgphY2NvdW50X2lkGAIgASgJEhQKDHRyYWluZWVfbmFtZRgDIAEoCRISCgpzY2VuZV9uYW1lGAQgASgJEhYKDmNyZWF0ZWRfdW5peF9zGAUgASgBEgwKBGpzb24YBiABKAkiOgoVR2V0UmVwb3J0RnJhbWVSZXF1ZXN0EhIKCnNlc3Npb25faWQYASABKAkSDQoFaW5kZXgYAiABKA0iKgoLUmVwb3J0RnJhbWUSDgoGdGltZV9zGAEgASgBEgsKA3BuZxgCIAEoDCInChFHZXRIaXN0b3J5UmVxdWVzdBISCgphY2NvdW50X2lkGAEgASgJIs0CCgxIaXN0b3J5RW50cnkSEgoKc2Vzc2lvbl9pZBgBIAEoCRISCgpzY2VuZV9uYW1lGAIgASgJEhYKDmNyZWF0ZWRfdW5peF9zGAMgASgBEjYKB21ldHJpY3MYBCADKAsyJS5jYXRobGFiLnYxLkhpc3RvcnlFbnRyeS5NZXRyaWNzRW50cnkSDgoGd2l0aGluGAUgASgNEg4KBmp1ZGdlZBgGIAEoDRIQCghhc3Nlc3NlZBgHIAEoCBI0CgZleHBlcnQYCCADKAsyJC5jYXRobGFiLnYxLkhpc3RvcnlFbnRyeS5FeHBlcnRFbnRyeRouCgxNZXRyaWNzRW50cnkSCwoDa2V5GAEgASgJEg0KBXZhbHVlGAIgASgBOgI4ARotCgtFeHBlcnRFbnRyeRILCgNrZXkYASABKAkSDQoFdmFsdWUYAiABKAE6AjgBIloKB0hpc3RvcnkSJAoHYWNjb3VudBgBIAEoCzITLmNhdGhsYWIudjEuQWNjb3VudBIpCgdlbnRyaWVzGAIgAygLMhguY2F0aGxhYi52MS5IaXN0b3J5RW50cnkqhgEKDVNlc3Npb25TdGF0dXMSHgoaU0VTU0lPTl9TVEFUVVNfVU5TUEVDSUZJRUQQABIaChZTRVNTSU9OX1NUQVRVU19SVU5OSU5HEAESGQoVU0VTU0lPTl9TVEFUVVNfQ0xPU0VEEAISHgoaU0VTU0lPTl9TVEFUVVNfSU5URVJSVVBURUQQAyphCglQdWxzZVJhdGUSGgoWUFVMU0VfUkFURV9VTlNQRUNJRklFRBAAEhIKDlBVTFNFX1JBVEVfN181EAESEQoNUFVMU0VfUkFURV8xNRACEhEKDVBVTFNFX1JBVEVfMzAQAyqHAQoSVGhyb21iZWN0b215QWN0aW9uEiMKH1RIUk9NQkVDVE9NWV9BQ1RJT05fVU5TUEVDSUZJRUQQABIkCiBUSFJPTUJFQ1RPTVlfQUNUSU9OX0RFUExPWV9TVEVOVBABEiYKIlRIUk9NQkVDVE9NWV9BQ1RJT05fUkVUUklFVkVfU1RFTlQQAipNCglQdXNoTGltaXQSEwoPUFVTSF9MSU1JVF9OT05FEAASFAoQUFVTSF9MSU1JVF9GT1JDRRABEhUKEVBVU0hfTElNSVRfTEVOR1RIEAIqkwEKDUZyYW1lRW5jb2RpbmcSHgoaRlJBTUVfRU5DT0RJTkdfVU5TUEVDSUZJRUQQABIXChNGUkFNRV9FTkNPRElOR19SQVc4EAESGAoURlJBTUVfRU5DT0RJTkdfUkFXMTYQAhIWChJGUkFNRV9FTkNPRElOR19QTkcQAxIXChNGUkFNRV9FTkNPRElOR19KUEVHEAQqgQEKC0ltYWdpbmdNb2RlEhwKGElNQUdJTkdfTU9ERV9VTlNQRUNJRklFRBAAEhwKGElNQUdJTkdfTU9ERV9GTFVPUk9TQ09QWRABEhwKGElNQUdJTkdfTU9ERV9TVUJUUkFDVElPThACEhgKFElNQUdJTkdfTU9ERV9ST0FETUFQEAMyvAoKCVNpbXVsYXRvchJLCgpMaXN0U2NlbmVzEh0uY2F0aGxhYi52MS5MaXN0U2NlbmVzUmVxdWVzdBoeLmNhdGhsYWIudjEuTGlzdFNjZW5lc1Jlc3BvbnNlElQKDUNyZWF0ZVNlc3Npb24SIC5jYXRobGFiLnYxLkNyZWF0ZVNlc3Npb25SZXF1ZXN0GiEuY2F0aGxhYi52MS5DcmVhdGVTZXNzaW9uUmVzcG9uc2USUQoMTGlzdFNlc3Npb25zEh8uY2F0aGxhYi52MS5MaXN0U2Vzc2lvbnNSZXF1ZXN0GiAuY2F0aGxhYi52MS5MaXN0U2Vzc2lvbnNSZXNwb25zZRJECgpHZXRTZXNzaW9uEh0uY2F0aGxhYi52MS5HZXRTZXNzaW9uUmVxdWVzdBoXLmNhdGhsYWIudjEuU2Vzc2lvbkluZm8SUQoMQ2xvc2VTZXNzaW9uEh8uY2F0aGxhYi52MS5DbG9zZVNlc3Npb25SZXF1ZXN0GiAuY2F0aGxhYi52MS5DbG9zZVNlc3Npb25SZXNwb25zZRJFCgtTZW5kQ29tbWFuZBIeLmNhdGhsYWIudjEuU2VuZENvbW1hbmRSZXF1ZXN0GhYuY2F0aGxhYi52MS5Db21tYW5kQWNrEkIKB0NvbnRyb2wSGC5jYXRobGFiLnYxLkNvbnRyb2xJbnB1dBoZLmNhdGhsYWIudjEuQ29udHJvbE91dHB1dCgBMAESSAoLU3RyZWFtU3RhdGUSHi5jYXRobGFiLnYxLlN0cmVhbVN0YXRlUmVxdWVzdBoXLmNhdGhsYWIudjEuRGV2aWNlU3RhdGUwARJICgxTdHJlYW1GcmFtZXMSHy5jYXRobGFiLnYxLlN0cmVhbUZyYW1lc1JlcXVlc3QaFS5jYXRobGFiLnYxLlhyYXlGcmFtZTABEk4KDVN0cmVhbU1ldHJpY3MSIC5jYXRobGFiLnYxLlN0cmVhbU1ldHJpY3NSZXF1ZXN0GhkuY2F0aGxhYi52MS5TZXNzaW9uVXBkYXRlMAESQAoKR2V0QW5hdG9teRIdLmNhdGhsYWIudjEuR2V0QW5hdG9teVJlcXVlc3QaEy5jYXRobGFiLnYxLkFuYXRvbXkSSwoNUmVwbGF5U2Vzc2lvbhIgLmNhdGhsYWIudjEuUmVwbGF5U2Vzc2lvblJlcXVlc3QaGC5jYXRobGFiLnYxLlJlcGxheVJlc3VsdBJGCg1DcmVhdGVBY2NvdW50EiAuY2F0aGxhYi52MS5DcmVhdGVBY2NvdW50UmVxdWVzdBoTLmNhdGhsYWIudjEuQWNjb3VudBJRCgxMaXN0QWNjb3VudHMSHy5jYXRobGFiLnYxLkxpc3RBY2NvdW50c1JlcXVlc3QaIC5jYXRobGFiLnYxLkxpc3RBY2NvdW50c1Jlc3BvbnNlEjgKBldob0FtSRIZLmNhdGhsYWIudjEuV2hvQW1JUmVxdWVzdBoTLmNhdGhsYWIudjEuQWNjb3VudBI9CglHZXRSZXBvcnQSHC5jYXRobGFiLnYxLkdldFJlcG9ydFJlcXVlc3QaEi5jYXRobGFiLnYxLlJlcG9ydBJMCg5HZXRSZXBvcnRGcmFtZRIhLmNhdGhsYWIudjEuR2V0UmVwb3J0RnJhbWVSZXF1ZXN0GhcuY2F0aGxhYi52MS5SZXBvcnRGcmFtZRJACgpHZXRIaXN0b3J5Eh0uY2F0aGxhYi52MS5HZXRIaXN0b3J5UmVxdWVzdBoTLmNhdGhsYWIudjEuSGlzdG9yeWIGcHJvdG8z");
 
 /**
  * @generated from message cathlab.v1.ListScenesRequest
@@ -2042,6 +2042,329 @@ export const ReplayResultSchema: GenMessage<ReplayResult> = /*@__PURE__*/
   messageDesc(file_cathlab_v1_simulator, 46);
 
 /**
+ * @generated from message cathlab.v1.CreateAccountRequest
+ */
+export type CreateAccountRequest = Message<"cathlab.v1.CreateAccountRequest"> & {
+  /**
+   * Display name (1–100 bytes).
+   *
+   * @generated from field: string name = 1;
+   */
+  name: string;
+
+  /**
+   * `trainee` or `instructor`.
+   *
+   * @generated from field: string role = 2;
+   */
+  role: string;
+};
+
+/**
+ * Describes the message cathlab.v1.CreateAccountRequest.
+ * Use `create(CreateAccountRequestSchema)` to create a new message.
+ */
+export const CreateAccountRequestSchema: GenMessage<CreateAccountRequest> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 47);
+
+/**
+ * @generated from message cathlab.v1.Account
+ */
+export type Account = Message<"cathlab.v1.Account"> & {
+  /**
+   * @generated from field: string account_id = 1;
+   */
+  accountId: string;
+
+  /**
+   * @generated from field: string name = 2;
+   */
+  name: string;
+
+  /**
+   * `trainee` or `instructor`.
+   *
+   * @generated from field: string role = 3;
+   */
+  role: string;
+
+  /**
+   * The bearer token: only in CreateAccount's answer (the server keeps a hash of it).
+   *
+   * @generated from field: string token = 4;
+   */
+  token: string;
+
+  /**
+   * @generated from field: double created_unix_s = 5;
+   */
+  createdUnixS: number;
+};
+
+/**
+ * Describes the message cathlab.v1.Account.
+ * Use `create(AccountSchema)` to create a new message.
+ */
+export const AccountSchema: GenMessage<Account> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 48);
+
+/**
+ * @generated from message cathlab.v1.ListAccountsRequest
+ */
+export type ListAccountsRequest = Message<"cathlab.v1.ListAccountsRequest"> & {
+};
+
+/**
+ * Describes the message cathlab.v1.ListAccountsRequest.
+ * Use `create(ListAccountsRequestSchema)` to create a new message.
+ */
+export const ListAccountsRequestSchema: GenMessage<ListAccountsRequest> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 49);
+
+/**
+ * @generated from message cathlab.v1.ListAccountsResponse
+ */
+export type ListAccountsResponse = Message<"cathlab.v1.ListAccountsResponse"> & {
+  /**
+   * @generated from field: repeated cathlab.v1.Account accounts = 1;
+   */
+  accounts: Account[];
+};
+
+/**
+ * Describes the message cathlab.v1.ListAccountsResponse.
+ * Use `create(ListAccountsResponseSchema)` to create a new message.
+ */
+export const ListAccountsResponseSchema: GenMessage<ListAccountsResponse> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 50);
+
+/**
+ * @generated from message cathlab.v1.WhoAmIRequest
+ */
+export type WhoAmIRequest = Message<"cathlab.v1.WhoAmIRequest"> & {
+};
+
+/**
+ * Describes the message cathlab.v1.WhoAmIRequest.
+ * Use `create(WhoAmIRequestSchema)` to create a new message.
+ */
+export const WhoAmIRequestSchema: GenMessage<WhoAmIRequest> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 51);
+
+/**
+ * @generated from message cathlab.v1.GetReportRequest
+ */
+export type GetReportRequest = Message<"cathlab.v1.GetReportRequest"> & {
+  /**
+   * @generated from field: string session_id = 1;
+   */
+  sessionId: string;
+};
+
+/**
+ * Describes the message cathlab.v1.GetReportRequest.
+ * Use `create(GetReportRequestSchema)` to create a new message.
+ */
+export const GetReportRequestSchema: GenMessage<GetReportRequest> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 52);
+
+/**
+ * @generated from message cathlab.v1.Report
+ */
+export type Report = Message<"cathlab.v1.Report"> & {
+  /**
+   * @generated from field: string session_id = 1;
+   */
+  sessionId: string;
+
+  /**
+   * The trainee's account (empty for a session created without one).
+   *
+   * @generated from field: string account_id = 2;
+   */
+  accountId: string;
+
+  /**
+   * @generated from field: string trainee_name = 3;
+   */
+  traineeName: string;
+
+  /**
+   * @generated from field: string scene_name = 4;
+   */
+  sceneName: string;
+
+  /**
+   * @generated from field: double created_unix_s = 5;
+   */
+  createdUnixS: number;
+
+  /**
+   * The report as JSON (SessionReport; its fields are described in docs/assessment.md):
+   * scores, verdicts, phases, errors, events, samples, replay frames' times and paths.
+   *
+   * @generated from field: string json = 6;
+   */
+  json: string;
+};
+
+/**
+ * Describes the message cathlab.v1.Report.
+ * Use `create(ReportSchema)` to create a new message.
+ */
+export const ReportSchema: GenMessage<Report> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 53);
+
+/**
+ * @generated from message cathlab.v1.GetReportFrameRequest
+ */
+export type GetReportFrameRequest = Message<"cathlab.v1.GetReportFrameRequest"> & {
+  /**
+   * @generated from field: string session_id = 1;
+   */
+  sessionId: string;
+
+  /**
+   * Index among the report's frames.
+   *
+   * @generated from field: uint32 index = 2;
+   */
+  index: number;
+};
+
+/**
+ * Describes the message cathlab.v1.GetReportFrameRequest.
+ * Use `create(GetReportFrameRequestSchema)` to create a new message.
+ */
+export const GetReportFrameRequestSchema: GenMessage<GetReportFrameRequest> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 54);
+
+/**
+ * @generated from message cathlab.v1.ReportFrame
+ */
+export type ReportFrame = Message<"cathlab.v1.ReportFrame"> & {
+  /**
+   * @generated from field: double time_s = 1;
+   */
+  timeS: number;
+
+  /**
+   * PNG, 8-bit grey.
+   *
+   * @generated from field: bytes png = 2;
+   */
+  png: Uint8Array;
+};
+
+/**
+ * Describes the message cathlab.v1.ReportFrame.
+ * Use `create(ReportFrameSchema)` to create a new message.
+ */
+export const ReportFrameSchema: GenMessage<ReportFrame> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 55);
+
+/**
+ * @generated from message cathlab.v1.GetHistoryRequest
+ */
+export type GetHistoryRequest = Message<"cathlab.v1.GetHistoryRequest"> & {
+  /**
+   * The trainee (empty: the caller's own account).
+   *
+   * @generated from field: string account_id = 1;
+   */
+  accountId: string;
+};
+
+/**
+ * Describes the message cathlab.v1.GetHistoryRequest.
+ * Use `create(GetHistoryRequestSchema)` to create a new message.
+ */
+export const GetHistoryRequestSchema: GenMessage<GetHistoryRequest> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 56);
+
+/**
+ * @generated from message cathlab.v1.HistoryEntry
+ */
+export type HistoryEntry = Message<"cathlab.v1.HistoryEntry"> & {
+  /**
+   * @generated from field: string session_id = 1;
+   */
+  sessionId: string;
+
+  /**
+   * @generated from field: string scene_name = 2;
+   */
+  sceneName: string;
+
+  /**
+   * @generated from field: double created_unix_s = 3;
+   */
+  createdUnixS: number;
+
+  /**
+   * Scores by metric key (empty while the report is not computed yet).
+   *
+   * @generated from field: map<string, double> metrics = 4;
+   */
+  metrics: { [key: string]: number };
+
+  /**
+   * Verdicts within the expert range, and how many metrics have a benchmark.
+   *
+   * @generated from field: uint32 within = 5;
+   */
+  within: number;
+
+  /**
+   * @generated from field: uint32 judged = 6;
+   */
+  judged: number;
+
+  /**
+   * Whether the report is stored (false: open the report to compute it).
+   *
+   * @generated from field: bool assessed = 7;
+   */
+  assessed: boolean;
+
+  /**
+   * The scene's expert values by metric key.
+   *
+   * @generated from field: map<string, double> expert = 8;
+   */
+  expert: { [key: string]: number };
+};
+
+/**
+ * Describes the message cathlab.v1.HistoryEntry.
+ * Use `create(HistoryEntrySchema)` to create a new message.
+ */
+export const HistoryEntrySchema: GenMessage<HistoryEntry> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 57);
+
+/**
+ * @generated from message cathlab.v1.History
+ */
+export type History = Message<"cathlab.v1.History"> & {
+  /**
+   * @generated from field: cathlab.v1.Account account = 1;
+   */
+  account?: Account | undefined;
+
+  /**
+   * @generated from field: repeated cathlab.v1.HistoryEntry entries = 2;
+   */
+  entries: HistoryEntry[];
+};
+
+/**
+ * Describes the message cathlab.v1.History.
+ * Use `create(HistorySchema)` to create a new message.
+ */
+export const HistorySchema: GenMessage<History> = /*@__PURE__*/
+  messageDesc(file_cathlab_v1_simulator, 58);
+
+/**
  * @generated from enum cathlab.v1.SessionStatus
  */
 export enum SessionStatus {
@@ -2366,6 +2689,69 @@ export const Simulator: GenService<{
     methodKind: "unary";
     input: typeof ReplaySessionRequestSchema;
     output: typeof ReplayResultSchema;
+  },
+  /**
+   * Creates a trainee or instructor account and returns its token (instructor key or an
+   * instructor's account token). Sessions created with an account token are that account's.
+   *
+   * @generated from rpc cathlab.v1.Simulator.CreateAccount
+   */
+  createAccount: {
+    methodKind: "unary";
+    input: typeof CreateAccountRequestSchema;
+    output: typeof AccountSchema;
+  },
+  /**
+   * Every account (instructors).
+   *
+   * @generated from rpc cathlab.v1.Simulator.ListAccounts
+   */
+  listAccounts: {
+    methodKind: "unary";
+    input: typeof ListAccountsRequestSchema;
+    output: typeof ListAccountsResponseSchema;
+  },
+  /**
+   * The account the caller's token belongs to.
+   *
+   * @generated from rpc cathlab.v1.Simulator.WhoAmI
+   */
+  whoAmI: {
+    methodKind: "unary";
+    input: typeof WhoAmIRequestSchema;
+    output: typeof AccountSchema;
+  },
+  /**
+   * A session's assessment report: computed from its recording (a replay) when first asked
+   * for, then stored. For the session's trainee (account or controller token) and
+   * instructors; another trainee is refused.
+   *
+   * @generated from rpc cathlab.v1.Simulator.GetReport
+   */
+  getReport: {
+    methodKind: "unary";
+    input: typeof GetReportRequestSchema;
+    output: typeof ReportSchema;
+  },
+  /**
+   * One replay frame of a session's report (a PNG), same access as GetReport.
+   *
+   * @generated from rpc cathlab.v1.Simulator.GetReportFrame
+   */
+  getReportFrame: {
+    methodKind: "unary";
+    input: typeof GetReportFrameRequestSchema;
+    output: typeof ReportFrameSchema;
+  },
+  /**
+   * A trainee's sessions with their scores, oldest first (their own; any for instructors).
+   *
+   * @generated from rpc cathlab.v1.Simulator.GetHistory
+   */
+  getHistory: {
+    methodKind: "unary";
+    input: typeof GetHistoryRequestSchema;
+    output: typeof HistorySchema;
   },
 }> = /*@__PURE__*/
   serviceDesc(file_cathlab_v1_simulator, 0);
