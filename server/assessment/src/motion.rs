@@ -55,7 +55,7 @@ pub fn idle_time_with(trace: &Trace, speed_m_s: f64, twist_rad_s: f64) -> f64 {
         .zip(s.windows(2))
         .filter(|(still, _)| **still)
         .map(|(_, w)| w[1].time_s - w[0].time_s)
-        .sum()
+        .fold(0.0, |a, b| a + b)
 }
 
 /// For each interval between consecutive samples, whether no hand moved faster than

@@ -25,7 +25,7 @@ pub use error::{EngineError, Result};
 pub use imaging::{Encoded, Encoding, SharedRenderer, encode_frame, encode_in_pool};
 pub use metrics::{Event, EventKind, Metrics};
 pub use replay::{ReplayOutcome, replay, replay_until};
-pub use report::{ReplayFrame, ReportOptions, SessionReport, assess};
+pub use report::{ReplayFrame, ReportOptions, SessionReport, assess, expert_run};
 pub use scene::{SceneCatalog, SceneFormat, SceneSpec};
 pub use session::{Checkpoint, CommandRecord, Recorder, RenderedFrame, Session, SessionSettings};
 pub use strand::Strand;

@@ -245,6 +245,48 @@ fn thin(points: &[nalgebra::Vector3<f64>], most: usize) -> Vec<[f32; 3]> {
     out
 }
 
+/// A scripted expert run of a stack scene, as a recording: fluoroscopy on and the scene's
+/// two-hand autopilot demonstrating from the start, fluoroscopy off when the target is
+/// reached. Returns the commands and the last step (the target reached, the demonstration
+/// given up, or `max_steps`).
+pub fn expert_run(
+    assets: Arc<SceneAssets>,
+    max_steps: u64,
+) -> Result<(Vec<CommandRecord>, u64)> {
+    let mut commands = vec![
+        CommandRecord {
+            ordinal: 0,
+            step: 0,
+            seq: 1,
+            command: Command::Fluoroscopy(true),
+        },
+        CommandRecord {
+            ordinal: 1,
+            step: 0,
+            seq: 2,
+            command: Command::Demonstrate(true),
+        },
+    ];
+    let mut world = World::new(assets)?;
+    for c in &commands {
+        world.apply(c.seq, &c.command)?;
+    }
+    while world.step_index() < max_steps
+        && world.metrics().target_reached_at_s.is_none()
+        && world.demonstrating()
+    {
+        world.step()?;
+    }
+    let end = world.step_index();
+    commands.push(CommandRecord {
+        ordinal: 2,
+        step: end,
+        seq: 3,
+        command: Command::Fluoroscopy(false),
+    });
+    Ok((commands, end + 1))
+}
+
 /// Assesses a recorded session: replays `commands` on `assets` to `end_step` (abandoned with
 /// [`EngineError::Cancelled`] once `cancel` is set), sampling, following the imaging for the
 /// dose and rendering replay frames.
@@ -279,6 +321,17 @@ pub fn assess(
     let mut counts = Counts::default();
     loop {
         let step = world.step_index();
+        // The step's commands first: a sample shows the state the step runs with.
+        while next_command < commands.len() && commands[next_command].step == step {
+            let c = &commands[next_command];
+            world.apply(c.seq, &c.command)?;
+            match c.command {
+                Command::Inject { .. } => counts.injections += 1,
+                Command::Roadmap(true) => counts.roadmaps += 1,
+                _ => {}
+            }
+            next_command += 1;
+        }
         if step.is_multiple_of(options.force_every_steps.max(1))
             || step.is_multiple_of(sample_every)
         {
@@ -320,16 +373,6 @@ pub fn assess(
         }
         if step >= end_step {
             break;
-        }
-        while next_command < commands.len() && commands[next_command].step == step {
-            let c = &commands[next_command];
-            world.apply(c.seq, &c.command)?;
-            match c.command {
-                Command::Inject { .. } => counts.injections += 1,
-                Command::Roadmap(true) => counts.roadmaps += 1,
-                _ => {}
-            }
-            next_command += 1;
         }
         if cancel.load(Ordering::Relaxed) {
             return Err(EngineError::Cancelled(format!(

@@ -1968,6 +1968,11 @@ impl World {
         Ok(())
     }
 
+    /// Whether the scene's scripted operator is driving (a demonstration under way).
+    pub fn demonstrating(&self) -> bool {
+        self.demonstration.is_some()
+    }
+
     /// The imaging state the trainee set.
     pub fn imaging(&self) -> Imaging {
         self.imaging

@@ -1,0 +1,74 @@
+//! The expert benchmark of stack scenes: each scene's two-hand autopilot demonstrates from the
+//! start with fluoroscopy on until the target is reached; the run is assessed like a
+//! trainee's and its scores printed as the `[assessment.expert]` table to paste into the
+//! scene file (the scores the report judges trainees against).
+//!
+//!   cargo run --release -p cathlab-engine --example expert_benchmark -- scenes/NAME.toml...
+
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+use cathlab_engine::*;
+
+fn main() -> std::result::Result<(), Box<dyn std::error::Error>> {
+    let cache = AssetCache::default();
+    for file in std::env::args().skip(1) {
+        let path = Path::new(&file);
+        let text = std::fs::read_to_string(path)?;
+        let spec = SceneSpec::parse(&text, SceneFormat::Toml)?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        let assets = cache.load(&spec, base)?;
+        let started = std::time::Instant::now();
+        let (commands, end) = expert_run(assets.clone(), 60_000)?;
+        let report = assess(
+            assets,
+            &commands,
+            end,
+            &ReportOptions::default(),
+            &AtomicBool::new(false),
+        )?;
+        println!(
+            "# {file}: expert run of {:.2} s simulated ({:.0} s wall), {} error(s)",
+            report.duration_s,
+            started.elapsed().as_secs_f64(),
+            report.errors.len()
+        );
+        for e in &report.errors {
+            println!("#   {:.1} s {}: {}", e.start_s, e.kind.as_str(), e.detail);
+        }
+        println!("[assessment.expert]");
+        for m in &report.metrics {
+            if is_expert_metric(&m.key, m.value) {
+                println!("{} = {}", m.key, significant(m.value, 4));
+            }
+        }
+        println!();
+    }
+    Ok(())
+}
+
+/// What the autopilot's run says about an expert: its time, fluoroscopy, dose, path,
+/// smoothness and forces; not its imaging (it takes no contrast, DSA or roadmap), nor its
+/// errors, idle time or time above force thresholds (judged by hand-set limits: a scripted
+/// operator's exploratory stray is no expert's standard), nor what it scores zero on.
+fn is_expert_metric(key: &str, value: f64) -> bool {
+    let excluded = [
+        "contrast_ml",
+        "injections",
+        "dsa_runs",
+        "roadmaps",
+        "errors",
+        "passed_inner_tip",
+        "idle_time_s",
+    ];
+    value != 0.0 && !excluded.contains(&key) && !key.starts_with("time_above_force")
+}
+
+/// `v` to `digits` significant digits.
+fn significant(v: f64, digits: i32) -> f64 {
+    if v == 0.0 || !v.is_finite() {
+        return v;
+    }
+    let scale = 10f64.powi(digits - 1 - v.abs().log10().floor() as i32);
+    (v * scale).round() / scale
+}
