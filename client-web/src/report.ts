@@ -148,8 +148,8 @@ function renderTimeline(report: SessionReport) {
 
 function renderCharts(report: SessionReport) {
   const s = series(report);
-  const names = report.samples[0]?.inserted_m.map((_, i) => `instrument ${i + 1}`) ?? [];
-  chart($("chart-insertion"), names, [s.time, ...s.inserted]);
+  const names = s.inserted.map((_, i) => `instrument ${i + 1}`);
+  chart($("chart-insertion"), names, [s.time, ...s.inserted] as number[][]);
   chart($("chart-speed"), ["tip speed"], [s.time, s.speed]);
   chart($("chart-force"), ["aortic", "neck", "intracranial"], [s.time, ...s.force]);
   chart($("chart-dose"), ["fluoroscopy on", "air kerma (mGy)"], [s.time, s.fluoroscopy, s.kerma]);

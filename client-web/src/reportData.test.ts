@@ -61,6 +61,14 @@ describe("the report's data", () => {
     expect(back.get("sparc")).toBe(-1.5);
   });
 
+  it("pads the instruments a stack loaded later", () => {
+    const grown = { ...report, samples: [...report.samples, { ...sample(3, 0.04, true), inserted_m: [0.04, 0.05, 0.06], twist_rad: [0, 0, 0] }] };
+    const lines = samplesCsv(grown).trim().split("\n");
+    expect(lines[0]).toContain("inserted_2_m");
+    expect(lines[1].split(",")).toHaveLength(lines[4].split(",").length);
+    expect(series(grown).inserted[2]).toEqual([null, null, null, 60]);
+  });
+
   it("exports samples with a column per instrument", () => {
     const lines = samplesCsv(report).trim().split("\n");
     expect(lines).toHaveLength(4);

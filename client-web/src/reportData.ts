@@ -111,7 +111,10 @@ export function metricsCsv(report: SessionReport): string {
 
 /** The samples as CSV (time, tip, insertion and twist per instrument, forces, imaging, dose). */
 export function samplesCsv(report: SessionReport): string {
-  const n = report.samples[0]?.inserted_m.length ?? 0;
+  // A stack's loads and unloads change the number of instruments: a column per instrument
+  // there ever was, empty while it was not in.
+  const n = instrumentCount(report);
+  const pad = (v: number[]) => Array.from({ length: n }, (_, i) => v[i] ?? null);
   const head = [
     "time_s",
     "tip_x_m",
@@ -135,8 +138,8 @@ export function samplesCsv(report: SessionReport): string {
       s.time_s,
       ...s.tip_m,
       s.along_route_m,
-      ...s.inserted_m,
-      ...s.twist_rad,
+      ...pad(s.inserted_m),
+      ...pad(s.twist_rad),
       ...s.wall_force_n,
       s.fluoroscopy ? 1 : 0,
       s.contrast_ml,
@@ -181,8 +184,8 @@ export function parseMetricsCsv(csv: string): Map<string, number> {
 /** Chart series over the samples' times (uPlot's layout: x first). */
 export interface Series {
   time: number[];
-  /** Inserted length per instrument (mm). */
-  inserted: number[][];
+  /** Inserted length per instrument (mm; null while the instrument is not in). */
+  inserted: (number | null)[][];
   /** Leading tip speed (mm/s), 0 at the first sample. */
   speed: number[];
   /** Wall force per class: aortic, cervical, intracranial (N). */
@@ -193,12 +196,19 @@ export interface Series {
   kerma: number[];
 }
 
+/** The most instruments any sample has. */
+export function instrumentCount(report: SessionReport): number {
+  return report.samples.reduce((n, s) => Math.max(n, s.inserted_m.length), 0);
+}
+
 export function series(report: SessionReport): Series {
   const s = report.samples;
-  const n = s[0]?.inserted_m.length ?? 0;
+  const n = instrumentCount(report);
   return {
     time: s.map((x) => x.time_s),
-    inserted: Array.from({ length: n }, (_, i) => s.map((x) => x.inserted_m[i] * 1e3)),
+    inserted: Array.from({ length: n }, (_, i) =>
+      s.map((x) => (x.inserted_m[i] === undefined ? null : x.inserted_m[i] * 1e3)),
+    ),
     speed: s.map((x, k) => {
       if (k === 0) return 0;
       const p = s[k - 1];

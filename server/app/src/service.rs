@@ -706,14 +706,19 @@ impl Simulator for SimulatorService {
         self.store.flush();
         self.tokens.write().remove(&id);
         self.holds.lock().retain(|(s, _), _| *s != id);
-        // Its report, made now in the background (opening it later finds it ready).
-        let reports = self.reports.clone();
-        let assessed = id.clone();
-        tokio::spawn(async move {
-            if let Err(e) = reports.get(&assessed).await {
-                tracing::info!(session = %assessed, "report not made at close: {}", e.message());
-            }
-        });
+        // A trainee's session: its report, made now in the background, so that the history
+        // and the learning curve have its scores (an anonymous session's report is made when
+        // someone asks for it).
+        let owned = matches!(self.store.session(&id), Ok(Some(s)) if s.account_id.is_some());
+        if owned {
+            let reports = self.reports.clone();
+            let assessed = id.clone();
+            tokio::spawn(async move {
+                if let Err(e) = reports.get(&assessed).await {
+                    tracing::info!(session = %assessed, "report not made at close: {}", e.message());
+                }
+            });
+        }
         Ok(Response::new(pb::CloseSessionResponse {
             info: Some(self.info_of(&session)),
         }))

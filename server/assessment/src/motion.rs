@@ -66,10 +66,13 @@ pub fn idle_intervals(trace: &Trace, speed_m_s: f64, twist_rad_s: f64) -> Vec<bo
         .windows(2)
         .map(|w| {
             let dt = w[1].time_s - w[0].time_s;
-            w[0].inserted_m
-                .iter()
-                .zip(&w[1].inserted_m)
-                .all(|(a, b)| (b - a).abs() <= speed_m_s * dt)
+            // A device loaded or taken out is no idle hand.
+            w[0].inserted_m.len() == w[1].inserted_m.len()
+                && w[0]
+                    .inserted_m
+                    .iter()
+                    .zip(&w[1].inserted_m)
+                    .all(|(a, b)| (b - a).abs() <= speed_m_s * dt)
                 && w[0]
                     .twist_rad
                     .iter()

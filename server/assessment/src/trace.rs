@@ -74,7 +74,8 @@ pub struct Trace {
 
 impl Trace {
     /// Checks the samples: at least two, time strictly increasing, every value finite, the
-    /// same number of instruments throughout, forces not negative.
+    /// one twist per insertion (the number of instruments may change: a stack's loads and
+    /// unloads), forces not negative.
     pub fn new(samples: Vec<Sample>) -> Result<Self> {
         if samples.len() < 2 {
             return Err(AssessmentError::Samples(format!(
@@ -82,7 +83,6 @@ impl Trace {
                 samples.len()
             )));
         }
-        let instruments = samples[0].inserted_m.len();
         for (i, s) in samples.iter().enumerate() {
             let finite = s.time_s.is_finite()
                 && s.along_route_m.is_finite()
@@ -99,9 +99,11 @@ impl Trace {
                      volume or distance)"
                 )));
             }
-            if s.inserted_m.len() != instruments || s.twist_rad.len() != instruments {
+            // A stack's loads and unloads change the number of instruments; each sample
+            // has one twist per insertion.
+            if s.inserted_m.len() != s.twist_rad.len() || s.inserted_m.is_empty() {
                 return Err(AssessmentError::Samples(format!(
-                    "sample {i} has {} insertions and {} twists; the first had {instruments}",
+                    "sample {i} has {} insertions and {} twists; one of each per instrument",
                     s.inserted_m.len(),
                     s.twist_rad.len()
                 )));

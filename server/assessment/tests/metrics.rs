@@ -181,11 +181,11 @@ fn bad_samples_are_named() {
                 ok.clone(),
                 Sample {
                     inserted_m: vec![0.0, 0.0],
-                    twist_rad: vec![0.0, 0.0],
+                    twist_rad: vec![0.0],
                     ..sample(1.0, [0.0; 3], 0.0, 0.0)
                 },
             ],
-            "the first had 1",
+            "2 insertions and 1 twists",
         ),
         (
             vec![ok.clone(), sample(1.0, [f64::NAN, 0.0, 0.0], 0.0, 0.0)],

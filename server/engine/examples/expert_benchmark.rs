@@ -38,30 +38,13 @@ fn main() -> std::result::Result<(), Box<dyn std::error::Error>> {
         }
         println!("[assessment.expert]");
         for m in &report.metrics {
-            if is_expert_metric(&m.key, m.value) {
+            if report::is_expert_metric(&m.key, m.value) {
                 println!("{} = {}", m.key, significant(m.value, 4));
             }
         }
         println!();
     }
     Ok(())
-}
-
-/// What the autopilot's run says about an expert: its time, fluoroscopy, dose, path,
-/// smoothness and forces; not its imaging (it takes no contrast, DSA or roadmap), nor its
-/// errors, idle time or time above force thresholds (judged by hand-set limits: a scripted
-/// operator's exploratory stray is no expert's standard), nor what it scores zero on.
-fn is_expert_metric(key: &str, value: f64) -> bool {
-    let excluded = [
-        "contrast_ml",
-        "injections",
-        "dsa_runs",
-        "roadmaps",
-        "errors",
-        "passed_inner_tip",
-        "idle_time_s",
-    ];
-    value != 0.0 && !excluded.contains(&key) && !key.starts_with("time_above_force")
 }
 
 /// `v` to `digits` significant digits.

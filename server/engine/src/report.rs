@@ -245,14 +245,28 @@ fn thin(points: &[nalgebra::Vector3<f64>], most: usize) -> Vec<[f32; 3]> {
     out
 }
 
+/// What the autopilot's run says about an expert: its time, fluoroscopy, dose, path,
+/// smoothness and forces; not its imaging (it takes no contrast, DSA or roadmap), nor its
+/// errors, idle time or time above force thresholds (judged by hand-set limits: a scripted
+/// operator's exploratory stray is no expert's standard), nor what it scores zero on.
+pub fn is_expert_metric(key: &str, value: f64) -> bool {
+    let excluded = [
+        "contrast_ml",
+        "injections",
+        "dsa_runs",
+        "roadmaps",
+        "errors",
+        "passed_inner_tip",
+        "idle_time_s",
+    ];
+    value != 0.0 && !excluded.contains(&key) && !key.starts_with("time_above_force")
+}
+
 /// A scripted expert run of a stack scene, as a recording: fluoroscopy on and the scene's
 /// two-hand autopilot demonstrating from the start, fluoroscopy off when the target is
 /// reached. Returns the commands and the last step (the target reached, the demonstration
 /// given up, or `max_steps`).
-pub fn expert_run(
-    assets: Arc<SceneAssets>,
-    max_steps: u64,
-) -> Result<(Vec<CommandRecord>, u64)> {
+pub fn expert_run(assets: Arc<SceneAssets>, max_steps: u64) -> Result<(Vec<CommandRecord>, u64)> {
     let mut commands = vec![
         CommandRecord {
             ordinal: 0,

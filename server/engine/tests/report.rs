@@ -241,3 +241,38 @@ fn a_wire_pushed_hard_into_the_basilar_commits_the_intracranial_force_error() {
     );
     assert!(value(&r, "peak_force_intracranial_n") > 0.2);
 }
+
+#[test]
+fn the_committed_expert_benchmark_is_what_the_expert_run_scores() {
+    // The scene file's [assessment.expert] table, against a fresh run of the command that
+    // wrote it (`--example expert_benchmark`, 4 significant digits).
+    let assets = load(&scene("arch_to_cow_lcca_coaxial.toml"));
+    let expert = assets.spec.assessment.expert.clone();
+    assert!(expert.len() >= 8, "{expert:?}");
+    let (commands, end) = expert_run(assets.clone(), 60_000).unwrap();
+    let r = assess(
+        assets,
+        &commands,
+        end,
+        &ReportOptions::default(),
+        &AtomicBool::new(false),
+    )
+    .unwrap();
+    let fresh: Vec<(&str, f64)> = r
+        .metrics
+        .iter()
+        .filter(|m| report::is_expert_metric(&m.key, m.value))
+        .map(|m| (m.key.as_str(), m.value))
+        .collect();
+    assert_eq!(fresh.len(), expert.len(), "{fresh:?} vs {expert:?}");
+    for (key, value) in fresh {
+        let committed = expert[key];
+        assert!(
+            (value - committed).abs() <= 1e-3 * value.abs(),
+            "{key}: the run scores {value}, the scene says {committed}"
+        );
+    }
+    // The run is within its own expert range (1.5×), and commits no error.
+    assert!(r.verdicts.iter().all(|v| v.within), "{:?}", r.verdicts);
+    assert_eq!(r.errors, vec![]);
+}
