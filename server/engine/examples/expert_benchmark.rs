@@ -33,6 +33,12 @@ fn main() -> std::result::Result<(), Box<dyn std::error::Error>> {
             started.elapsed().as_secs_f64(),
             report.errors.len()
         );
+        for p in &report.phases {
+            match (p.start_s, p.end_s) {
+                (Some(a), Some(b)) => println!("#   phase {}: {a:.1}–{b:.1} s", p.name),
+                _ => println!("#   phase {}: not reached", p.name),
+            }
+        }
         for e in &report.errors {
             println!("#   {:.1} s {}: {}", e.start_s, e.kind.as_str(), e.detail);
         }
