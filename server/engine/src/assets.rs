@@ -86,17 +86,23 @@ impl SceneAssets {
     /// the target (m; 0 once past it): the goal's distance along the route less the nearest
     /// route sample's.
     pub fn remaining_to_target_m(&self, tip: &Point3<f64>) -> f64 {
+        (self.goal_along_m - self.along_route_m(tip)).max(0.0)
+    }
+
+    /// How far along the route the route sample nearest to `point` (anatomy frame, m) lies
+    /// (m).
+    pub fn along_route_m(&self, point: &Point3<f64>) -> f64 {
         let nearest = self
             .route_samples
             .iter()
             .enumerate()
             .min_by(|a, b| {
-                (a.1 - tip)
+                (a.1 - point)
                     .norm_squared()
-                    .total_cmp(&(b.1 - tip).norm_squared())
+                    .total_cmp(&(b.1 - point).norm_squared())
             })
             .map_or(0, |(i, _)| i);
-        (self.goal_along_m - nearest as f64 * ROUTE_SPACING_M).max(0.0)
+        nearest as f64 * ROUTE_SPACING_M
     }
 }
 

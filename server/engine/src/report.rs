@@ -16,7 +16,7 @@ use cathlab_xray::{CpuRenderer, Fluoroscope, ImagingMode, Layers};
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
-use crate::assets::{ROUTE_SPACING_M, SceneAssets};
+use crate::assets::SceneAssets;
 use crate::error::{EngineError, Result};
 use crate::imaging::{Encoding, carm_of, encode_frame, layers_of};
 use crate::session::{CommandRecord, fluoroscope_settings};
@@ -536,16 +536,6 @@ fn sample_of(
 ) -> Sample {
     let assets = world.assets();
     let tip = Point3::from(world.leading_tip());
-    let nearest = assets
-        .route_samples
-        .iter()
-        .enumerate()
-        .min_by(|a, b| {
-            (a.1 - tip)
-                .norm_squared()
-                .total_cmp(&(b.1 - tip).norm_squared())
-        })
-        .map_or(0, |(i, _)| i);
     let graph = &assets.anatomy.graph;
     let location = graph.nearest(&tip);
     let branch = location.and_then(|l| graph.branches.get(l.branch));
@@ -555,7 +545,7 @@ fn sample_of(
     Sample {
         time_s: snapshot.time_s,
         tip_m: [tip.x, tip.y, tip.z],
-        along_route_m: nearest as f64 * ROUTE_SPACING_M,
+        along_route_m: assets.along_route_m(&tip),
         inserted_m: snapshot.instruments.iter().map(|i| i.inserted_m).collect(),
         twist_rad: snapshot.instruments.iter().map(|i| i.twist_rad).collect(),
         wall_force_n: forces,

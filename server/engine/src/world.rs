@@ -1986,6 +1986,15 @@ impl World {
     /// The wall contacts of the last step in the anatomy's frame: where on the device
     /// centerline (m) and the force's magnitude (N); forceless contacts left out.
     pub fn wall_contacts(&self) -> Vec<(Point3<f64>, f64)> {
+        self.contact_forces()
+            .into_iter()
+            .map(|(p, f)| (Point3::from(p), f.norm()))
+            .collect()
+    }
+
+    /// The last step's wall contacts with a force, in the anatomy's frame: the point on the
+    /// device centerline (m) and the wall's force on the device (N).
+    fn contact_forces(&self) -> Vec<(Vector3<f64>, Vector3<f64>)> {
         let Some(step) = self.strand.last_contacts() else {
             return Vec::new();
         };
@@ -1997,7 +2006,7 @@ impl World {
             .filter_map(|(c, f)| {
                 let a = positions.get(c.element)?;
                 let b = positions.get(c.element + 1)?;
-                Some((Point3::from(a + (b - a) * c.t), f.norm()))
+                Some((a + (b - a) * c.t, *f))
             })
             .collect()
     }
@@ -2014,18 +2023,12 @@ impl World {
             .map(|q| to_lps * (q * Vector3::x()))
             .unwrap_or_else(Vector3::x);
         let contacts = match self.strand.last_contacts() {
-            Some(step) => step
-                .contacts
-                .iter()
-                .zip(&step.response.forces)
-                .filter(|(_, f)| f.norm() > 0.0)
-                .filter_map(|(c, f)| {
-                    let a = positions.get(c.element)?;
-                    let b = positions.get(c.element + 1)?;
-                    Some(WallContact {
-                        position: to_lps * (a + (b - a) * c.t),
-                        force: to_lps * f,
-                    })
+            Some(_) => self
+                .contact_forces()
+                .into_iter()
+                .map(|(p, f)| WallContact {
+                    position: to_lps * p,
+                    force: to_lps * f,
                 })
                 .collect(),
             None => Vec::new(),
