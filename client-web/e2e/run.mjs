@@ -693,7 +693,9 @@ try {
     await dash.click("#accounts-box summary");
     await dash.fill("#account-name", "Rita Trainee");
     await dash.click('#new-account button[type="submit"]');
-    await dash.waitForSelector("#account-url", { timeout: 10_000 });
+    await dash.waitForFunction(() => document.querySelector("#account-link")?.textContent, null, { timeout: 30_000 });
+    const made = await dash.textContent("#account-link");
+    assert(await dash.$("#account-url"), `the account was not made: ${made}`);
     const signIn = new URL(await dash.getAttribute("#account-url", "href"));
     signIn.searchParams.set("scene", "arch_to_cow_lcca");
     const ritas = await browser.newContext({ viewport: { width: 1280, height: 900 }, acceptDownloads: true });

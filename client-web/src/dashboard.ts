@@ -105,6 +105,15 @@ function select(client: SimulatorClient, id: string) {
   );
 }
 
+/**
+ * Over plain HTTP/1.1 a browser opens at most six connections to a server, and each stream
+ * holds one for as long as it lasts: thumbnails stream for at most three cards, leaving room
+ * for the timeline stream and the page's own calls (with more, the page's buttons would wait
+ * forever). Over TLS browsers speak HTTP/2, which multiplexes: every card streams.
+ */
+const MAX_THUMBNAIL_STREAMS = location.protocol === "https:" ? Number.POSITIVE_INFINITY : 3;
+let thumbnailStreams = 0;
+
 function addCard(client: SimulatorClient, info: SessionInfo): Card {
   const element = document.createElement("article");
   element.className = "card";
@@ -126,7 +135,19 @@ function addCard(client: SimulatorClient, info: SessionInfo): Card {
   element.append(title, image, document.createElement("dl"), actions);
   $("sessions").append(element);
   const card: Card = { element, stop: new AbortController() };
-  void showFrames(client, info.sessionId, image, { size: 192, quality: 70, signal: card.stop.signal });
+  if (thumbnailStreams < MAX_THUMBNAIL_STREAMS) {
+    thumbnailStreams += 1;
+    card.stop.signal.addEventListener("abort", () => {
+      thumbnailStreams -= 1;
+    });
+    void showFrames(client, info.sessionId, image, { size: 192, quality: 70, signal: card.stop.signal });
+  } else {
+    image.hidden = true;
+    const note = document.createElement("p");
+    note.className = "muted thumbnail-off";
+    note.textContent = `No thumbnail: over plain HTTP this page streams at most ${MAX_THUMBNAIL_STREAMS} (serve over TLS for all).`;
+    image.after(note);
+  }
   return card;
 }
 

@@ -798,6 +798,46 @@ mod tests {
     }
 
     #[test]
+    fn stored_numbers_come_back_bit_for_bit() {
+        // Regression: serde_json's default parser read 0.012097896199016495 back one unit in
+        // the last place off (a stored score differed from the report's; a stored command
+        // could replay differently).
+        use cathlab_engine::world::Command;
+        let dir = std::env::temp_dir().join(format!("cathlab-store-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("bits.sqlite");
+        let _ = std::fs::remove_file(&file);
+        let store = Store::open(&file).unwrap();
+        let awkward = [
+            0.012097896199016495,
+            0.1 + 0.2,
+            1.0 / 3.0,
+            2.2250738585072014e-308,
+        ];
+        for (ordinal, v) in awkward.iter().enumerate() {
+            let record = CommandRecord {
+                ordinal: ordinal as u64,
+                step: ordinal as u64,
+                seq: 1,
+                command: Command::PushVelocity(*v),
+            };
+            Recorder::command(&store, "s1", record, None);
+        }
+        store.flush();
+        let back: Vec<u64> = store
+            .commands("s1")
+            .unwrap()
+            .iter()
+            .map(|c| match c.command {
+                Command::PushVelocity(v) => v.to_bits(),
+                _ => 0,
+            })
+            .collect();
+        let sent: Vec<u64> = awkward.iter().map(|v| v.to_bits()).collect();
+        assert_eq!(back, sent);
+    }
+
+    #[test]
     fn an_old_database_is_migrated_and_keeps_its_sessions_and_a_newer_one_is_refused() {
         let dir = std::env::temp_dir().join(format!("cathlab-store-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
