@@ -51,6 +51,32 @@ function credentials(): string[] {
   return out.filter((t): t is string => !!t);
 }
 
+function refused(e: unknown): boolean {
+  return e instanceof ConnectError && (e.code === Code.PermissionDenied || e.code === Code.Unauthenticated);
+}
+
+/**
+ * `call` with `first` (if given), then each of this browser's credentials, until one is let
+ * in: the answer and the client that got it. A refusal tries the next; any other failure is
+ * thrown at once, and when every credential is refused the last refusal is.
+ */
+async function withCredentials<T>(
+  call: (c: SimulatorClient) => Promise<T>,
+  first?: SimulatorClient,
+): Promise<{ value: T; client: SimulatorClient }> {
+  let last: unknown = new Error("no account token or instructor key in this browser");
+  const clients = credentials().map((t) => simulatorClient(base, t));
+  for (const client of first ? [first, ...clients] : clients) {
+    try {
+      return { value: await call(client), client };
+    } catch (e) {
+      if (!refused(e)) throw e;
+      last = e;
+    }
+  }
+  throw last;
+}
+
 function download(name: string, type: string, text: string) {
   const a = document.createElement("a");
   a.href = URL.createObjectURL(new Blob([text], { type }));
@@ -241,17 +267,7 @@ async function renderCurve(client: SimulatorClient, report: SessionReport, accou
   try {
     // The history needs an account or the instructor role (a session's own token is not
     // enough): the first credential of this browser that may read it.
-    let got: Awaited<ReturnType<SimulatorClient["getHistory"]>> | undefined;
-    let refused: unknown;
-    for (const c of [client, ...credentials().map((t) => simulatorClient(base, t))]) {
-      try {
-        got = await c.getHistory({ accountId });
-        break;
-      } catch (e) {
-        refused = e;
-      }
-    }
-    if (!got) throw refused;
+    const got = (await withCredentials((c) => c.getHistory({ accountId }), client)).value;
     history = got.entries.map((e) => ({
       sessionId: e.sessionId,
       createdUnixS: e.createdUnixS,
@@ -327,52 +343,43 @@ async function main() {
     fail("No session: open this page as report.html?session=ID.");
     return;
   }
-  const tokens = credentials();
-  let lastError: unknown = new Error("no account token or instructor key in this browser");
-  for (const token of tokens) {
-    const client = simulatorClient(base, token);
-    status("computing the report…", "connecting");
-    try {
-      const got = await client.getReport({ sessionId });
-      let report: SessionReport;
-      try {
-        report = parseReport(got.json);
-      } catch (e) {
-        fail(`The report of session ${sessionId} cannot be shown: ${describe(e)}`);
-        return;
-      }
-      status("ready", "connected");
-      $("report-body").hidden = false;
-      document.body.dataset.ready = "1";
-      $("title").textContent = `${got.traineeName || "Anonymous trainee"} — ${got.sceneName}`;
-      $("subtitle").textContent = `${new Date(got.createdUnixS * 1000).toLocaleString()}; ${report.duration_s.toFixed(1)} s simulated; ${report.errors.length} error(s)`;
-      renderScores(report);
-      renderTimeline(report);
-      renderCharts(report);
-      renderReplay(client, report);
-      $("export-json").addEventListener("click", () =>
-        download(`cathlab-report-${sessionId}.json`, "application/json", got.json),
-      );
-      $("export-csv").addEventListener("click", () =>
-        download(`cathlab-report-${sessionId}.csv`, "text/csv", metricsCsv(report)),
-      );
-      $("export-samples").addEventListener("click", () =>
-        download(`cathlab-samples-${sessionId}.csv`, "text/csv", samplesCsv(report)),
-      );
-      $("print").addEventListener("click", () => window.print());
-      await renderCurve(client, report, got.accountId, got.sceneName);
-      return;
-    } catch (e) {
-      lastError = e;
-      // Another credential may be the right one; a real failure of the report is not.
-      if (e instanceof ConnectError && (e.code === Code.PermissionDenied || e.code === Code.Unauthenticated)) continue;
-      break;
-    }
+  status("computing the report…", "connecting");
+  let got: Awaited<ReturnType<SimulatorClient["getReport"]>>;
+  let client: SimulatorClient;
+  try {
+    ({ value: got, client } = await withCredentials((c) => c.getReport({ sessionId })));
+  } catch (e) {
+    if (refused(e)) $("token-form").hidden = false;
+    fail(`The report of session ${sessionId} cannot be shown: ${describe(e)}`);
+    return;
   }
-  if (lastError instanceof ConnectError && (lastError.code === Code.PermissionDenied || lastError.code === Code.Unauthenticated)) {
-    $("token-form").hidden = false;
+  let report: SessionReport;
+  try {
+    report = parseReport(got.json);
+  } catch (e) {
+    fail(`The report of session ${sessionId} cannot be shown: ${describe(e)}`);
+    return;
   }
-  fail(`The report of session ${sessionId} cannot be shown: ${describe(lastError)}`);
+  status("ready", "connected");
+  $("report-body").hidden = false;
+  document.body.dataset.ready = "1";
+  $("title").textContent = `${got.traineeName || "Anonymous trainee"} — ${got.sceneName}`;
+  $("subtitle").textContent = `${new Date(got.createdUnixS * 1000).toLocaleString()}; ${report.duration_s.toFixed(1)} s simulated; ${report.errors.length} error(s)`;
+  renderScores(report);
+  renderTimeline(report);
+  renderCharts(report);
+  renderReplay(client, report);
+  $("export-json").addEventListener("click", () =>
+    download(`cathlab-report-${sessionId}.json`, "application/json", got.json),
+  );
+  $("export-csv").addEventListener("click", () =>
+    download(`cathlab-report-${sessionId}.csv`, "text/csv", metricsCsv(report)),
+  );
+  $("export-samples").addEventListener("click", () =>
+    download(`cathlab-samples-${sessionId}.csv`, "text/csv", samplesCsv(report)),
+  );
+  $("print").addEventListener("click", () => window.print());
+  await renderCurve(client, report, got.accountId, got.sceneName);
 }
 
 $("token-form").addEventListener("submit", (e) => {

@@ -318,15 +318,22 @@ impl SimulatorService {
         self.throttle.check(peer)?;
         checked_id(session_id)?;
         let known = self.tokens.read().get(session_id).cloned();
-        let role = if self.is_instructor(token) {
+        // The session's own tokens first: a controller's every command and stream is checked
+        // here, and only a token that is neither reads the account store.
+        let own = match (token, known.as_ref()) {
+            (Some(t), Some(k)) if same_secret(t, &k.controller) => Some(Role::Controller),
+            (Some(t), Some(k)) if same_secret(t, &k.observer) => Some(Role::Observer),
+            _ => None,
+        };
+        let role = if let Some(role) = own {
+            role
+        } else if self.is_instructor(token) {
             Role::Instructor
         } else {
-            let Some(tokens) = known.as_ref() else {
+            if known.is_none() {
                 return Err(Status::not_found(format!("session {session_id:?}")));
-            };
+            }
             match token {
-                Some(t) if same_secret(t, &tokens.controller) => Role::Controller,
-                Some(t) if same_secret(t, &tokens.observer) => Role::Observer,
                 Some(_) => {
                     self.throttle.failed(peer, "a token of no session");
                     return Err(Status::unauthenticated(format!(
@@ -709,13 +716,13 @@ impl Simulator for SimulatorService {
         // A trainee's session: its report, made now in the background, so that the history
         // and the learning curve have its scores (an anonymous session's report is made when
         // someone asks for it).
-        let owned = matches!(self.store.session(&id), Ok(Some(s)) if s.account_id.is_some());
-        if owned {
+        if let Ok(Some(stored)) = self.store.session(&id)
+            && stored.account_id.is_some()
+        {
             let reports = self.reports.clone();
-            let assessed = id.clone();
             tokio::spawn(async move {
-                if let Err(e) = reports.get(&assessed).await {
-                    tracing::info!(session = %assessed, "report not made at close: {}", e.message());
+                if let Err(e) = reports.get(&stored).await {
+                    tracing::info!(session = %stored.id, "report not made at close: {}", e.message());
                 }
             });
         }
@@ -1262,7 +1269,7 @@ impl Simulator for SimulatorService {
     ) -> Result<Response<pb::Report>, Status> {
         let id = request.get_ref().session_id.clone();
         let session = self.report_reader(&request, &id)?;
-        let report = self.reports.get(&id).await?;
+        let report = self.reports.get(&session).await?;
         let trainee_name = match &session.account_id {
             Some(a) => self
                 .store

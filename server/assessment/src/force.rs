@@ -49,21 +49,26 @@ impl ForceThresholds {
 
     /// Checks that every threshold is finite and > 0.
     pub fn validate(&self) -> Result<()> {
-        for (what, value) in [
+        positive_settings([
             ("aortic force threshold (N)", self.aortic_n),
             ("cervical force threshold (N)", self.cervical_n),
             ("intracranial force threshold (N)", self.intracranial_n),
-        ] {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(AssessmentError::Setting {
-                    what,
-                    value,
-                    range: "finite and > 0",
-                });
-            }
-        }
-        Ok(())
+        ])
     }
+}
+
+/// Checks that every named setting is finite and > 0; the first that is not is named.
+pub(crate) fn positive_settings<const N: usize>(settings: [(&'static str, f64); N]) -> Result<()> {
+    for (what, value) in settings {
+        if !(value.is_finite() && value > 0.0) {
+            return Err(AssessmentError::Setting {
+                what,
+                value,
+                range: "finite and > 0",
+            });
+        }
+    }
+    Ok(())
 }
 
 /// A vessel class's wall force figures.

@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{AssessmentError, Result};
 use crate::force::ForceThresholds;
 use crate::motion::{IDLE_SPEED_M_S, IDLE_TWIST_RAD_S, idle_intervals};
-use crate::trace::{Trace, VesselClass};
+use crate::trace::{Sample, Trace, VesselClass};
 
 /// What starts a phase (at most one condition; none: the session's start).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -188,20 +188,11 @@ impl ErrorThresholds {
     /// Checks every threshold: finite and > 0.
     pub fn validate(&self) -> Result<()> {
         self.forces.validate()?;
-        for (what, value) in [
+        crate::force::positive_settings([
             ("off-route depth (mm)", self.off_route_mm),
             ("idle fluoroscopy time (s)", self.idle_fluoroscopy_s),
             ("contrast budget (mL)", self.contrast_budget_ml),
-        ] {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(AssessmentError::Setting {
-                    what,
-                    value,
-                    range: "finite and > 0",
-                });
-            }
-        }
-        Ok(())
+        ])
     }
 }
 
@@ -279,6 +270,32 @@ fn stretches(n: usize, on: impl Fn(usize) -> bool) -> Vec<(usize, usize)> {
     out
 }
 
+/// One error of `kind` per stretch of samples whose `value` is above `limit`, told by the
+/// stretch's peak sample (its vessel and `detail`).
+fn over_limit(
+    s: &[Sample],
+    kind: ErrorKind,
+    value: impl Fn(&Sample) -> f64,
+    limit: f64,
+    detail: impl Fn(&Sample) -> String,
+) -> Vec<ProcedureError> {
+    stretches(s.len(), |i| value(&s[i]) > limit)
+        .into_iter()
+        .map(|(a, b)| {
+            let peak = (a..=b)
+                .max_by(|&i, &j| value(&s[i]).total_cmp(&value(&s[j])))
+                .unwrap_or(a);
+            ProcedureError {
+                kind,
+                start_s: s[a].time_s,
+                end_s: s[b].time_s,
+                vessel: s[peak].vessel.clone(),
+                detail: detail(&s[peak]),
+            }
+        })
+        .collect()
+}
+
 /// The errors committed in `trace`.
 pub fn detect_errors(trace: &Trace, thresholds: &ErrorThresholds) -> Result<Vec<ProcedureError>> {
     thresholds.validate()?;
@@ -287,44 +304,38 @@ pub fn detect_errors(trace: &Trace, thresholds: &ErrorThresholds) -> Result<Vec<
     let mut errors = Vec::new();
     // Off the route.
     let limit_m = thresholds.off_route_mm * 1e-3;
-    for (a, b) in stretches(n, |i| s[i].off_route_m > limit_m) {
-        let deepest = (a..=b)
-            .max_by(|&i, &j| s[i].off_route_m.total_cmp(&s[j].off_route_m))
-            .unwrap_or(a);
-        errors.push(ProcedureError {
-            kind: ErrorKind::OffRoute,
-            start_s: s[a].time_s,
-            end_s: s[b].time_s,
-            vessel: s[deepest].vessel.clone(),
-            detail: format!(
+    errors.extend(over_limit(
+        s,
+        ErrorKind::OffRoute,
+        |x| x.off_route_m,
+        limit_m,
+        |x| {
+            format!(
                 "the tip went {:.0} mm off the route into {} (limit {:.0} mm)",
-                s[deepest].off_route_m * 1e3,
-                name_or_unnamed(&s[deepest].vessel),
+                x.off_route_m * 1e3,
+                name_or_unnamed(&x.vessel),
                 thresholds.off_route_mm
-            ),
-        });
-    }
+            )
+        },
+    ));
     // Force in an intracranial vessel.
     let k = VesselClass::ALL
         .iter()
         .position(|c| *c == VesselClass::Intracranial)
         .unwrap_or(2);
     let limit_n = thresholds.forces.intracranial_n;
-    for (a, b) in stretches(n, |i| s[i].wall_force_n[k] > limit_n) {
-        let peak = (a..=b)
-            .max_by(|&i, &j| s[i].wall_force_n[k].total_cmp(&s[j].wall_force_n[k]))
-            .unwrap_or(a);
-        errors.push(ProcedureError {
-            kind: ErrorKind::IntracranialForce,
-            start_s: s[a].time_s,
-            end_s: s[b].time_s,
-            vessel: s[peak].vessel.clone(),
-            detail: format!(
-                "{:.2} N on an intracranial wall (limit {:.2} N)",
-                s[peak].wall_force_n[k], limit_n
-            ),
-        });
-    }
+    errors.extend(over_limit(
+        s,
+        ErrorKind::IntracranialForce,
+        |x| x.wall_force_n[k],
+        limit_n,
+        |x| {
+            format!(
+                "{:.2} N on an intracranial wall (limit {limit_n:.2} N)",
+                x.wall_force_n[k]
+            )
+        },
+    ));
     // Fluoroscopy with no hand moving: intervals where both ends expose and nothing moved.
     let idle = idle_intervals(trace, IDLE_SPEED_M_S, IDLE_TWIST_RAD_S);
     for (a, b) in stretches(idle.len(), |i| {
