@@ -52,6 +52,10 @@ pub struct ConfigFile {
     pub listen: Option<String>,
     /// SQLite database file.
     pub database: Option<PathBuf>,
+    /// A PostgreSQL database shared by a fleet of servers
+    /// (`postgres://user:password@host:port/database`; also `CATHLAB_DATABASE_URL`); when set,
+    /// it is the store and `database` is not used.
+    pub database_url: Option<String>,
     /// Scene directory.
     pub scenes: Option<PathBuf>,
     /// The instructor key (also `CATHLAB_INSTRUCTOR_KEY`).
@@ -110,6 +114,8 @@ pub struct ServerConfig {
     pub listen: String,
     /// SQLite database file.
     pub database: PathBuf,
+    /// A PostgreSQL database URL; when set, the store instead of `database`.
+    pub database_url: Option<String>,
     /// Scene directory.
     pub scenes: PathBuf,
     /// Instructor key, if any.
@@ -162,6 +168,7 @@ impl Default for ServerConfig {
         Self {
             listen: "127.0.0.1:50051".into(),
             database: PathBuf::from("var/cathlab.sqlite"),
+            database_url: None,
             scenes: PathBuf::from("scenes"),
             instructor_key: None,
             tls: None,
@@ -201,12 +208,21 @@ impl ServerConfig {
         }
     }
 
+    /// Where the store is: the PostgreSQL database if a URL is set, else the SQLite file.
+    pub fn store_location(&self) -> crate::store::StoreLocation {
+        match &self.database_url {
+            Some(url) => crate::store::StoreLocation::Postgres(url.clone()),
+            None => crate::store::StoreLocation::Sqlite(self.database.clone()),
+        }
+    }
+
     /// Defaults, overridden by the file's fields.
     pub fn from_file(file: ConfigFile) -> Self {
         let d = Self::default();
         Self {
             listen: file.listen.unwrap_or(d.listen),
             database: file.database.unwrap_or(d.database),
+            database_url: file.database_url,
             scenes: file.scenes.unwrap_or(d.scenes),
             instructor_key: file.instructor_key,
             tls: file.tls,

@@ -81,6 +81,11 @@ struct Options {
     /// SQLite database file.
     #[arg(long, global = true)]
     database: Option<PathBuf>,
+    /// A PostgreSQL database shared by a fleet (`postgres://user:password@host:port/db`;
+    /// also CATHLAB_DATABASE_URL, which keeps the password off the command line); when
+    /// given, the store instead of --database.
+    #[arg(long, global = true)]
+    database_url: Option<String>,
     /// Scene directory.
     #[arg(long, global = true)]
     scenes: Option<PathBuf>,
@@ -140,6 +145,13 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
     }
     if let Some(v) = &options.database {
         config.database = v.clone();
+    }
+    if let Some(v) = options
+        .database_url
+        .clone()
+        .or_else(|| std::env::var("CATHLAB_DATABASE_URL").ok())
+    {
+        config.database_url = Some(v);
     }
     if let Some(v) = &options.scenes {
         config.scenes = v.clone();

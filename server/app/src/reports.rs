@@ -108,7 +108,7 @@ impl Caller {
 fn store_status(e: StoreError) -> Status {
     match e {
         StoreError::Corrupt { .. } => Status::data_loss(e.to_string()),
-        StoreError::Sqlite { .. } => Status::internal(e.to_string()),
+        StoreError::Database { .. } => Status::unavailable(e.to_string()),
     }
 }
 
@@ -154,10 +154,11 @@ impl Reports {
             .ok_or_else(|| Status::not_found(format!("session {id:?}")))
     }
 
-    /// Session `id`'s report: the stored one, or computed now from the recording (a closed
+    /// `session`'s report: the stored one, or computed now from the recording (a closed
     /// or interrupted session only: a running one is still being written). A caller that goes
     /// away abandons the computation.
-    pub async fn get(&self, id: &str) -> Result<StoredReport, Status> {
+    pub async fn get(&self, session: &StoredSession) -> Result<StoredReport, Status> {
+        let id = session.id.as_str();
         let lock = self.busy.lock().entry(id.to_owned()).or_default().clone();
         let _held = lock.lock().await;
         if let Some(r) = self.store.report(id).map_err(store_status)?
@@ -165,7 +166,6 @@ impl Reports {
         {
             return Ok(r);
         }
-        let session = self.session(id)?;
         if session.status == "running" && self.engine.get(id).is_ok() {
             return Err(Status::failed_precondition(format!(
                 "session {id:?} is still running; its report is made when it closes"
@@ -176,11 +176,12 @@ impl Reports {
             .replay_permit()
             .map_err(|e| Status::resource_exhausted(e.to_string()))?;
         let cancel = CancelOnDrop(Arc::new(AtomicBool::new(false)));
-        let (engine, store, flag, options) = (
+        let (engine, store, flag, options, session) = (
             self.engine.clone(),
             self.store.clone(),
             cancel.0.clone(),
             self.options,
+            session.clone(),
         );
         let id_owned = id.to_owned();
         let (done_tx, done_rx) = oneshot::channel();

@@ -19,7 +19,7 @@ use tower_http::cors::{AllowOrigin, CorsLayer};
 
 use crate::config::{RendererChoice, ServerConfig};
 use crate::service::SimulatorService;
-use crate::store::Store;
+use crate::store::{Store, StoreLocation};
 
 /// The renderer sessions share: for `auto`, wgpu on a hardware adapter, else the CPU
 /// renderer (on a software rasterizer such as lavapipe the CPU renderer makes the cached-
@@ -41,12 +41,14 @@ pub fn renderer(choice: RendererChoice) -> anyhow::Result<Box<dyn Renderer>> {
 
 /// The engine and store of a configuration.
 pub fn engine(config: &ServerConfig) -> anyhow::Result<(Arc<Engine>, Arc<Store>, EngineMetrics)> {
-    if let Some(dir) = config.database.parent()
+    let location = config.store_location();
+    if let StoreLocation::Sqlite(file) = &location
+        && let Some(dir) = file.parent()
         && !dir.as_os_str().is_empty()
     {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let store = Arc::new(Store::open(&config.database)?);
+    let store = Arc::new(Store::at(&location)?);
     let metrics = EngineMetrics::default();
     let renderer = SharedRenderer::new(renderer(config.renderer)?);
     let engine = Engine::new(

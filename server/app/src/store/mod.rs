@@ -1,7 +1,14 @@
-//! The embedded SQLite store: sessions, every applied command with its step, checkpoints
-//! (state digest and metrics), events. One writer thread batches what the physics threads
-//! hand it into transactions and acknowledges commands only after their transaction commits
-//! (WAL mode: a commit survives the process being killed). Reads open their own connections.
+//! The store: sessions, every applied command with its step, checkpoints (state digest and
+//! metrics), events, accounts and reports, in SQLite (the embedded default: one file) or
+//! PostgreSQL (shared by a fleet of servers). One writer thread batches what the physics
+//! threads hand it into transactions and acknowledges commands only after their transaction
+//! commits. The queries are written once, over [`sql::Conn`]; each backend keeps its own
+//! versioned migrations.
+
+pub mod cluster;
+pub mod postgres;
+pub mod sql;
+pub mod sqlite;
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
@@ -9,29 +16,41 @@ use std::thread::JoinHandle;
 
 use cathlab_engine::session::Ack;
 use cathlab_engine::{Checkpoint, CommandRecord, EngineError, Event, Metrics, Recorder};
-use rusqlite::{Connection, params};
+
+use self::postgres::{PgReaders, PgTarget};
+use self::sql::{Conn, Dialect, Row, Value, transaction, values_list};
+use self::sqlite::SqliteConn;
 
 /// Store errors.
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
-    /// SQLite refused something.
-    #[error("{file}: {source}")]
-    Sqlite {
-        /// The database.
-        file: PathBuf,
+    /// The database refused something, or cannot be reached.
+    #[error("{store}: {reason}")]
+    Database {
+        /// The database (a file, or a URL without its password).
+        store: String,
         /// The cause.
-        source: rusqlite::Error,
+        reason: String,
     },
     /// A stored value does not parse.
-    #[error("{file}: corrupt {what}: {reason}")]
+    #[error("{store}: corrupt {what}: {reason}")]
     Corrupt {
         /// The database.
-        file: PathBuf,
+        store: String,
         /// Which value.
         what: String,
         /// Why.
         reason: String,
     },
+}
+
+/// Where the store keeps its data.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StoreLocation {
+    /// A SQLite file (created with its directory if missing).
+    Sqlite(PathBuf),
+    /// A PostgreSQL database: `postgres://user:password@host:port/database`.
+    Postgres(String),
 }
 
 /// A session as stored.
@@ -99,124 +118,106 @@ enum Write {
     Flush(std::sync::mpsc::Sender<()>),
 }
 
-/// The store: a writer thread and the database file.
+/// How the store reads: a SQLite file opened per read (WAL lets reads run beside the
+/// writer), or PostgreSQL's reader threads.
+enum Backend {
+    Sqlite(PathBuf),
+    Postgres(PgReaders),
+}
+
+/// The store: a writer thread and the database.
 pub struct Store {
-    file: PathBuf,
+    name: String,
+    dialect: Dialect,
+    backend: Backend,
     writes: SyncSender<Write>,
     _writer: JoinHandle<()>,
 }
 
 impl std::fmt::Debug for Store {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Store").field("file", &self.file).finish()
+        f.debug_struct("Store")
+            .field("database", &self.name)
+            .finish()
     }
 }
 
-/// The schema's migrations, in order: migration `i` takes a database at version `i` (SQLite's
-/// `user_version`) to `i + 1`, in one transaction. A database made before migrations existed
-/// is at version 0 with the first migration's tables: its `IF NOT EXISTS` keeps them.
-const MIGRATIONS: [&str; 2] = [SCHEMA_V1, SCHEMA_V2];
+/// The schema version this build writes (the same for both backends).
+pub const SCHEMA_VERSION: usize = sqlite::MIGRATIONS.len();
 
-const SCHEMA_V2: &str = "
-CREATE TABLE accounts (
-    id TEXT PRIMARY KEY, name TEXT NOT NULL, role TEXT NOT NULL,
-    token_hash TEXT NOT NULL UNIQUE, created_unix_s REAL NOT NULL);
-ALTER TABLE sessions ADD COLUMN account_id TEXT REFERENCES accounts(id);
-ALTER TABLE sessions ADD COLUMN controller_hash TEXT;
-CREATE INDEX sessions_by_account ON sessions (account_id, created_unix_s);
-CREATE TABLE reports (
-    session_id TEXT PRIMARY KEY, version INTEGER NOT NULL, json TEXT NOT NULL,
-    metrics TEXT NOT NULL, within INTEGER NOT NULL, judged INTEGER NOT NULL);
-CREATE TABLE report_frames (
-    session_id TEXT NOT NULL, idx INTEGER NOT NULL, time_s REAL NOT NULL, png BLOB NOT NULL,
-    PRIMARY KEY (session_id, idx));
-";
+const _: () = assert!(sqlite::MIGRATIONS.len() == postgres::MIGRATIONS.len());
 
-const SCHEMA_V1: &str = "
-CREATE TABLE IF NOT EXISTS sessions (
-    id TEXT PRIMARY KEY, label TEXT NOT NULL, scene_name TEXT NOT NULL,
-    scene_json TEXT NOT NULL, base_dir TEXT NOT NULL, created_unix_s REAL NOT NULL,
-    status TEXT NOT NULL, step_rate_hz REAL NOT NULL);
-CREATE TABLE IF NOT EXISTS commands (
-    session_id TEXT NOT NULL, ordinal INTEGER NOT NULL, step INTEGER NOT NULL,
-    seq INTEGER NOT NULL, command TEXT NOT NULL, PRIMARY KEY (session_id, ordinal));
-CREATE TABLE IF NOT EXISTS checkpoints (
-    session_id TEXT NOT NULL, step INTEGER NOT NULL, digest TEXT NOT NULL,
-    metrics TEXT NOT NULL, PRIMARY KEY (session_id, step));
-CREATE TABLE IF NOT EXISTS events (
-    session_id TEXT NOT NULL, step INTEGER NOT NULL, time_s REAL NOT NULL,
-    kind TEXT NOT NULL, message TEXT NOT NULL);
-";
-
-/// The schema version this build writes.
-pub const SCHEMA_VERSION: usize = MIGRATIONS.len();
-
-/// Brings the database to [`SCHEMA_VERSION`], one transaction per migration. A database of a
-/// newer version (a newer server wrote it) is refused rather than guessed at.
-fn migrate(conn: &Connection) -> rusqlite::Result<()> {
-    let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0))?;
-    if version < 0 || version as usize > MIGRATIONS.len() {
-        return Err(rusqlite::Error::InvalidParameterName(format!(
-            "schema version {version}; this server knows up to {}",
-            MIGRATIONS.len()
-        )));
-    }
-    for (i, sql) in MIGRATIONS.iter().enumerate().skip(version as usize) {
-        conn.execute_batch(&format!(
-            "BEGIN; {sql}; PRAGMA user_version = {}; COMMIT;",
-            i + 1
-        ))
-        .inspect_err(|_| {
-            let _ = conn.execute_batch("ROLLBACK");
-        })?;
-    }
-    Ok(())
-}
-
-fn open(file: &Path) -> Result<Connection, StoreError> {
-    let sqlite = |source| StoreError::Sqlite {
-        file: file.to_owned(),
-        source,
-    };
-    let conn = Connection::open(file).map_err(sqlite)?;
-    conn.pragma_update(None, "journal_mode", "WAL")
-        .map_err(sqlite)?;
-    // In WAL mode NORMAL syncs at checkpoints, not at every commit: a commit survives the
-    // process being killed (it is in the WAL file) but not a power cut before the next sync.
-    conn.pragma_update(None, "synchronous", "NORMAL")
-        .map_err(sqlite)?;
-    conn.busy_timeout(std::time::Duration::from_secs(5))
-        .map_err(sqlite)?;
-    Ok(conn)
-}
+/// Makes a writer's connection, migrating the schema to current (again, after one is lost).
+type Connect = Box<dyn Fn() -> Result<Box<dyn Conn>, String> + Send>;
 
 impl Store {
-    /// Opens (or creates) the database, marks sessions left running by a previous process as
-    /// interrupted, and starts the writer.
+    /// Opens (or creates) the SQLite database `file`, marks sessions left running by a
+    /// previous process as interrupted, and starts the writer.
     pub fn open(file: &Path) -> Result<Self, StoreError> {
-        let conn = open(file)?;
-        let sqlite = |source| StoreError::Sqlite {
-            file: file.to_owned(),
-            source,
+        Self::at(&StoreLocation::Sqlite(file.to_owned()))
+    }
+
+    /// Opens the store at `location`: migrates it to [`SCHEMA_VERSION`], marks sessions left
+    /// running by a previous process as interrupted, and starts the writer.
+    pub fn at(location: &StoreLocation) -> Result<Self, StoreError> {
+        let (name, dialect, backend, connect): (_, _, _, Connect) = match location {
+            StoreLocation::Sqlite(file) => {
+                let path = file.clone();
+                (
+                    file.display().to_string(),
+                    Dialect::Sqlite,
+                    Backend::Sqlite(file.clone()),
+                    Box::new(move || {
+                        let mut c = SqliteConn::open(&path)?;
+                        c.migrate()?;
+                        Ok(Box::new(c) as Box<dyn Conn>)
+                    }),
+                )
+            }
+            StoreLocation::Postgres(url) => {
+                let target = PgTarget::parse(url).map_err(|reason| StoreError::Database {
+                    store: "the PostgreSQL store".into(),
+                    reason,
+                })?;
+                let readers =
+                    PgReaders::new(target.clone(), 2).map_err(|reason| StoreError::Database {
+                        store: target.name.clone(),
+                        reason,
+                    })?;
+                (
+                    target.name.clone(),
+                    Dialect::Postgres,
+                    Backend::Postgres(readers),
+                    Box::new(move || {
+                        let mut c = target.connect()?;
+                        c.migrate()?;
+                        Ok(Box::new(c) as Box<dyn Conn>)
+                    }),
+                )
+            }
         };
-        migrate(&conn).map_err(sqlite)?;
+        let database = |reason| StoreError::Database {
+            store: name.clone(),
+            reason,
+        };
+        // The first connection migrates the schema; a writer's later connection (after one
+        // was lost) finds it current.
+        let mut conn = connect().map_err(database)?;
         conn.execute(
             "UPDATE sessions SET status = 'interrupted' WHERE status = 'running'",
-            [],
+            &[],
         )
-        .map_err(sqlite)?;
+        .map_err(database)?;
         let (tx, rx) = sync_channel(1 << 16);
-        let path = file.to_owned();
+        let writer_name = name.clone();
         let writer = std::thread::Builder::new()
             .name("store-writer".into())
-            .spawn(move || writer_loop(conn, rx, path))
-            .map_err(|e| StoreError::Corrupt {
-                file: file.to_owned(),
-                what: "writer thread".into(),
-                reason: e.to_string(),
-            })?;
+            .spawn(move || writer_loop(Some(conn), connect, rx, writer_name))
+            .map_err(|e| database(format!("cannot start the writer thread: {e}")))?;
         Ok(Self {
-            file: file.to_owned(),
+            name,
+            dialect,
+            backend,
             writes: tx,
             _writer: writer,
         })
@@ -256,32 +257,45 @@ impl Store {
         let _ = rx.recv();
     }
 
-    fn sqlite(&self) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
-        |source| StoreError::Sqlite {
-            file: self.file.clone(),
-            source,
-        }
+    /// The database, as messages name it (a file, or a URL without its password).
+    pub fn name(&self) -> &str {
+        &self.name
     }
 
-    /// The rows of `sql` with `parameters`, mapped by `row`, on a fresh read connection (WAL
-    /// lets reads run beside the writer).
+    /// Runs `f` on a read connection: a fresh SQLite connection, or a PostgreSQL reader's.
+    fn read<T: Send + 'static>(
+        &self,
+        f: impl FnOnce(&mut dyn Conn) -> Result<T, String> + Send + 'static,
+    ) -> Result<T, StoreError> {
+        match &self.backend {
+            Backend::Sqlite(file) => SqliteConn::open(file).and_then(|mut c| f(&mut c)),
+            Backend::Postgres(readers) => readers.run(f),
+        }
+        .map_err(|reason| StoreError::Database {
+            store: self.name.clone(),
+            reason,
+        })
+    }
+
+    /// The rows of `sql` with `params`, each turned into a `T` by `row` (a row that does
+    /// not is reported as corrupt `what`).
     fn rows<T>(
         &self,
-        sql: &str,
-        parameters: impl rusqlite::Params,
-        row: impl FnMut(&rusqlite::Row<'_>) -> rusqlite::Result<T>,
+        sql: impl Into<String>,
+        params: Vec<Value>,
+        what: &str,
+        row: impl Fn(&Row) -> Result<T, String>,
     ) -> Result<Vec<T>, StoreError> {
-        let conn = open(&self.file)?;
-        let mut stmt = conn.prepare(sql).map_err(self.sqlite())?;
-        stmt.query_map(parameters, row)
-            .map_err(self.sqlite())?
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(self.sqlite())
+        let sql = sql.into();
+        self.read(move |c| c.query(&sql, &params))?
+            .iter()
+            .map(|r| row(r).map_err(|e| self.corrupt(what.to_owned(), e)))
+            .collect()
     }
 
     fn corrupt(&self, what: String, reason: impl std::fmt::Display) -> StoreError {
         StoreError::Corrupt {
-            file: self.file.clone(),
+            store: self.name.clone(),
             what,
             reason: reason.to_string(),
         }
@@ -290,8 +304,9 @@ impl Store {
     /// Every stored session, newest first.
     pub fn sessions(&self) -> Result<Vec<StoredSession>, StoreError> {
         self.rows(
-            &format!("{SELECT_SESSION} ORDER BY created_unix_s DESC"),
-            (),
+            format!("{SELECT_SESSION} ORDER BY created_unix_s DESC"),
+            vec![],
+            "session",
             row_to_session,
         )
     }
@@ -300,8 +315,9 @@ impl Store {
     pub fn session(&self, id: &str) -> Result<Option<StoredSession>, StoreError> {
         Ok(self
             .rows(
-                &format!("{SELECT_SESSION} WHERE id = ?1"),
-                [id],
+                format!("{SELECT_SESSION} WHERE id = ?1"),
+                vec![id.into()],
+                &format!("session {id}"),
                 row_to_session,
             )?
             .pop())
@@ -310,75 +326,60 @@ impl Store {
     /// A session's recorded events in order: (step, simulated time s, kind, message).
     pub fn events(&self, id: &str) -> Result<Vec<(u64, f64, String, String)>, StoreError> {
         self.rows(
-            "SELECT step, time_s, kind, message FROM events WHERE session_id = ?1
-             ORDER BY rowid",
-            [id],
-            |r| {
-                Ok((
-                    r.get::<_, i64>(0)?.max(0) as u64,
-                    r.get(1)?,
-                    r.get(2)?,
-                    r.get(3)?,
-                ))
-            },
+            format!(
+                "SELECT step, time_s, kind, message FROM events WHERE session_id = ?1
+                 ORDER BY {}",
+                self.dialect.event_order()
+            ),
+            vec![id.into()],
+            &format!("event of session {id}"),
+            |r| Ok((r.int(0)?.max(0) as u64, r.real(1)?, r.text(2)?, r.text(3)?)),
         )
     }
 
     /// A session's commands in application order.
     pub fn commands(&self, id: &str) -> Result<Vec<CommandRecord>, StoreError> {
-        let rows = self.rows(
+        self.rows(
             "SELECT ordinal, step, seq, command FROM commands WHERE session_id = ?1
              ORDER BY ordinal",
-            [id],
-            |r| {
-                Ok((
-                    r.get::<_, i64>(0)?,
-                    r.get::<_, i64>(1)?,
-                    r.get::<_, i64>(2)?,
-                    r.get::<_, String>(3)?,
-                ))
-            },
-        )?;
-        rows.into_iter()
-            .map(|(ordinal, step, seq, json)| {
-                Ok(CommandRecord {
-                    ordinal: ordinal as u64,
-                    step: step as u64,
-                    seq: seq as u64,
-                    command: serde_json::from_str(&json).map_err(|e| {
-                        self.corrupt(format!("command {ordinal} of session {id}"), e)
-                    })?,
-                })
+            vec![id.into()],
+            &format!("command of session {id}"),
+            |r| Ok((r.int(0)?, r.int(1)?, r.int(2)?, r.text(3)?)),
+        )?
+        .into_iter()
+        .map(|(ordinal, step, seq, json)| {
+            Ok(CommandRecord {
+                ordinal: ordinal as u64,
+                step: step as u64,
+                seq: seq as u64,
+                command: serde_json::from_str(&json)
+                    .map_err(|e| self.corrupt(format!("command {ordinal} of session {id}"), e))?,
             })
-            .collect()
+        })
+        .collect()
     }
 
     fn checkpoint_rows(&self, id: &str, order_limit: &str) -> Result<Vec<Checkpoint>, StoreError> {
-        let rows = self.rows(
-            &format!(
+        self.rows(
+            format!(
                 "SELECT step, digest, metrics FROM checkpoints WHERE session_id = ?1 {order_limit}"
             ),
-            [id],
-            |r| {
-                Ok((
-                    r.get::<_, i64>(0)?,
-                    r.get::<_, String>(1)?,
-                    r.get::<_, String>(2)?,
-                ))
-            },
-        )?;
-        rows.into_iter()
-            .map(|(step, digest, metrics)| {
-                let what = |what: &str| format!("{what} at step {step} of session {id}");
-                Ok(Checkpoint {
-                    step: step as u64,
-                    digest: u64::from_str_radix(&digest, 16)
-                        .map_err(|e| self.corrupt(what("digest"), e))?,
-                    metrics: serde_json::from_str::<Metrics>(&metrics)
-                        .map_err(|e| self.corrupt(what("metrics"), e))?,
-                })
+            vec![id.into()],
+            &format!("checkpoint of session {id}"),
+            |r| Ok((r.int(0)?, r.text(1)?, r.text(2)?)),
+        )?
+        .into_iter()
+        .map(|(step, digest, metrics)| {
+            let what = |what: &str| format!("{what} at step {step} of session {id}");
+            Ok(Checkpoint {
+                step: step as u64,
+                digest: u64::from_str_radix(&digest, 16)
+                    .map_err(|e| self.corrupt(what("digest"), e))?,
+                metrics: serde_json::from_str::<Metrics>(&metrics)
+                    .map_err(|e| self.corrupt(what("metrics"), e))?,
             })
-            .collect()
+        })
+        .collect()
     }
 
     /// A session's checkpoints by step.
@@ -393,22 +394,33 @@ impl Store {
             .pop())
     }
 
-    /// A write on a connection of its own (accounts and reports: rare, and not on the
-    /// physics threads' path).
-    fn write(&self, sql: &str, parameters: impl rusqlite::Params) -> Result<usize, StoreError> {
-        open(&self.file)?
-            .execute(sql, parameters)
-            .map_err(self.sqlite())
+    /// Statements run in one transaction on a read connection (accounts and reports: rare,
+    /// and not on the physics threads' path).
+    fn write(&self, statements: Vec<(String, Vec<Value>)>) -> Result<(), StoreError> {
+        self.read(move |c| {
+            transaction(c, |c| {
+                for (sql, params) in &statements {
+                    c.execute(sql, params)?;
+                }
+                Ok(())
+            })
+        })
     }
 
     /// Adds an account.
     pub fn insert_account(&self, a: &StoredAccount) -> Result<(), StoreError> {
-        self.write(
+        self.write(vec![(
             "INSERT INTO accounts (id, name, role, token_hash, created_unix_s)
-             VALUES (?1, ?2, ?3, ?4, ?5)",
-            params![a.id, a.name, a.role, a.token_hash, a.created_unix_s],
-        )
-        .map(|_| ())
+             VALUES (?1, ?2, ?3, ?4, ?5)"
+                .into(),
+            vec![
+                (&a.id).into(),
+                (&a.name).into(),
+                (&a.role).into(),
+                (&a.token_hash).into(),
+                a.created_unix_s.into(),
+            ],
+        )])
     }
 
     /// The account whose token hashes to `token_hash`.
@@ -418,8 +430,9 @@ impl Store {
     ) -> Result<Option<StoredAccount>, StoreError> {
         Ok(self
             .rows(
-                &format!("{SELECT_ACCOUNT} WHERE token_hash = ?1"),
-                [token_hash],
+                format!("{SELECT_ACCOUNT} WHERE token_hash = ?1"),
+                vec![token_hash.into()],
+                "account",
                 row_to_account,
             )?
             .pop())
@@ -429,8 +442,9 @@ impl Store {
     pub fn account(&self, id: &str) -> Result<Option<StoredAccount>, StoreError> {
         Ok(self
             .rows(
-                &format!("{SELECT_ACCOUNT} WHERE id = ?1"),
-                [id],
+                format!("{SELECT_ACCOUNT} WHERE id = ?1"),
+                vec![id.into()],
+                &format!("account {id}"),
                 row_to_account,
             )?
             .pop())
@@ -439,8 +453,9 @@ impl Store {
     /// Every account, oldest first.
     pub fn accounts(&self) -> Result<Vec<StoredAccount>, StoreError> {
         self.rows(
-            &format!("{SELECT_ACCOUNT} ORDER BY created_unix_s"),
-            (),
+            format!("{SELECT_ACCOUNT} ORDER BY created_unix_s"),
+            vec![],
+            "account",
             row_to_account,
         )
     }
@@ -448,41 +463,36 @@ impl Store {
     /// An account's sessions, oldest first.
     pub fn sessions_of(&self, account_id: &str) -> Result<Vec<StoredSession>, StoreError> {
         self.rows(
-            &format!("{SELECT_SESSION} WHERE account_id = ?1 ORDER BY created_unix_s"),
-            [account_id],
+            format!("{SELECT_SESSION} WHERE account_id = ?1 ORDER BY created_unix_s"),
+            vec![account_id.into()],
+            &format!("session of account {account_id}"),
             row_to_session,
         )
     }
 
     /// A session's stored report, if any.
     pub fn report(&self, session_id: &str) -> Result<Option<StoredReport>, StoreError> {
-        let rows = self.rows(
+        let what = format!("report of session {session_id}");
+        self.rows(
             "SELECT version, json, metrics, within, judged FROM reports WHERE session_id = ?1",
-            [session_id],
-            |r| {
-                Ok((
-                    r.get::<_, i64>(0)?,
-                    r.get::<_, String>(1)?,
-                    r.get::<_, String>(2)?,
-                    r.get::<_, i64>(3)?,
-                    r.get::<_, i64>(4)?,
-                ))
-            },
-        )?;
-        rows.into_iter()
-            .next()
-            .map(|(version, json, metrics, within, judged)| {
-                Ok(StoredReport {
-                    version: version.max(0) as u32,
-                    json,
-                    metrics: serde_json::from_str(&metrics).map_err(|e| {
-                        self.corrupt(format!("report scores of session {session_id}"), e)
-                    })?,
-                    within: within.max(0) as u32,
-                    judged: judged.max(0) as u32,
-                })
+            vec![session_id.into()],
+            &what,
+            |r| Ok((r.int(0)?, r.text(1)?, r.text(2)?, r.int(3)?, r.int(4)?)),
+        )?
+        .into_iter()
+        .next()
+        .map(|(version, json, metrics, within, judged)| {
+            Ok(StoredReport {
+                version: version.max(0) as u32,
+                json,
+                metrics: serde_json::from_str(&metrics).map_err(|e| {
+                    self.corrupt(format!("report scores of session {session_id}"), e)
+                })?,
+                within: within.max(0) as u32,
+                judged: judged.max(0) as u32,
             })
-            .transpose()
+        })
+        .transpose()
     }
 
     /// Stores a session's report and its replay frames (replacing any before), in one
@@ -502,36 +512,42 @@ impl Store {
         let metrics = serde_json::to_string(&metrics)
             .map_err(|e| self.corrupt(format!("report scores of session {session_id}"), e))?;
         let within = report.verdicts.iter().filter(|v| v.within).count() as i64;
-        let mut conn = open(&self.file)?;
-        let tx = conn.transaction().map_err(self.sqlite())?;
-        let run = || -> rusqlite::Result<()> {
-            tx.execute(
-                "DELETE FROM report_frames WHERE session_id = ?1",
-                [session_id],
-            )?;
-            tx.execute(
-                "INSERT OR REPLACE INTO reports (session_id, version, json, metrics, within,
-                 judged) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
-                params![
-                    session_id,
-                    report.version,
-                    json,
-                    metrics,
-                    within,
-                    report.verdicts.len() as i64
+        let mut statements = vec![
+            (
+                "DELETE FROM report_frames WHERE session_id = ?1".to_owned(),
+                vec![session_id.into()],
+            ),
+            (
+                "INSERT INTO reports (session_id, version, json, metrics, within, judged)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6)
+                 ON CONFLICT (session_id) DO UPDATE SET version = excluded.version,
+                 json = excluded.json, metrics = excluded.metrics, within = excluded.within,
+                 judged = excluded.judged"
+                    .to_owned(),
+                vec![
+                    session_id.into(),
+                    i64::from(report.version).into(),
+                    json.into(),
+                    metrics.into(),
+                    within.into(),
+                    (report.verdicts.len() as i64).into(),
                 ],
-            )?;
-            for (i, f) in report.frames.iter().enumerate() {
-                tx.execute(
-                    "INSERT INTO report_frames (session_id, idx, time_s, png)
-                     VALUES (?1, ?2, ?3, ?4)",
-                    params![session_id, i as i64, f.time_s, f.png],
-                )?;
-            }
-            Ok(())
-        };
-        run().map_err(self.sqlite())?;
-        tx.commit().map_err(self.sqlite())
+            ),
+        ];
+        for (i, f) in report.frames.iter().enumerate() {
+            statements.push((
+                "INSERT INTO report_frames (session_id, idx, time_s, png)
+                 VALUES (?1, ?2, ?3, ?4)"
+                    .to_owned(),
+                vec![
+                    session_id.into(),
+                    (i as i64).into(),
+                    f.time_s.into(),
+                    f.png.clone().into(),
+                ],
+            ));
+        }
+        self.write(statements)
     }
 
     /// Replay frame `index` of a session's report: (time s, PNG).
@@ -543,8 +559,9 @@ impl Store {
         Ok(self
             .rows(
                 "SELECT time_s, png FROM report_frames WHERE session_id = ?1 AND idx = ?2",
-                params![session_id, index],
-                |r| Ok((r.get(0)?, r.get(1)?)),
+                vec![session_id.into(), i64::from(index).into()],
+                &format!("frame {index} of session {session_id}'s report"),
+                |r| Ok((r.real(0)?, r.blob(1)?)),
             )?
             .pop())
     }
@@ -556,40 +573,41 @@ impl Store {
             // for replay but are not the trainee's.
             "SELECT COUNT(*) FROM commands WHERE session_id = ?1 \
              AND command NOT LIKE '{\"fidelity\"%'",
-            [id],
-            |r| r.get::<_, i64>(0),
+            vec![id.into()],
+            "command count",
+            |r| r.int(0),
         )?;
-        Ok(counts.first().copied().unwrap_or(0) as u64)
+        Ok(counts.first().copied().unwrap_or(0).max(0) as u64)
     }
 }
 
 const SELECT_SESSION: &str = "SELECT id, label, scene_name, scene_json, base_dir, \
     created_unix_s, status, step_rate_hz, account_id, controller_hash FROM sessions";
 
-fn row_to_session(r: &rusqlite::Row<'_>) -> rusqlite::Result<StoredSession> {
+fn row_to_session(r: &Row) -> Result<StoredSession, String> {
     Ok(StoredSession {
-        id: r.get(0)?,
-        label: r.get(1)?,
-        scene_name: r.get(2)?,
-        scene_json: r.get(3)?,
-        base_dir: PathBuf::from(r.get::<_, String>(4)?),
-        created_unix_s: r.get(5)?,
-        status: r.get(6)?,
-        step_rate_hz: r.get(7)?,
-        account_id: r.get(8)?,
-        controller_hash: r.get(9)?,
+        id: r.text(0)?,
+        label: r.text(1)?,
+        scene_name: r.text(2)?,
+        scene_json: r.text(3)?,
+        base_dir: PathBuf::from(r.text(4)?),
+        created_unix_s: r.real(5)?,
+        status: r.text(6)?,
+        step_rate_hz: r.real(7)?,
+        account_id: r.opt_text(8)?,
+        controller_hash: r.opt_text(9)?,
     })
 }
 
 const SELECT_ACCOUNT: &str = "SELECT id, name, role, token_hash, created_unix_s FROM accounts";
 
-fn row_to_account(r: &rusqlite::Row<'_>) -> rusqlite::Result<StoredAccount> {
+fn row_to_account(r: &Row) -> Result<StoredAccount, String> {
     Ok(StoredAccount {
-        id: r.get(0)?,
-        name: r.get(1)?,
-        role: r.get(2)?,
-        token_hash: r.get(3)?,
-        created_unix_s: r.get(4)?,
+        id: r.text(0)?,
+        name: r.text(1)?,
+        role: r.text(2)?,
+        token_hash: r.text(3)?,
+        created_unix_s: r.real(4)?,
     })
 }
 
@@ -610,7 +628,12 @@ impl Recorder for Store {
 /// Most writes in one transaction.
 const BATCH: usize = 512;
 
-fn writer_loop(mut conn: Connection, rx: Receiver<Write>, file: PathBuf) {
+fn writer_loop(
+    mut conn: Option<Box<dyn Conn>>,
+    connect: Connect,
+    rx: Receiver<Write>,
+    name: String,
+) {
     let mut batch = Vec::with_capacity(BATCH);
     while let Ok(first) = rx.recv() {
         batch.push(first);
@@ -620,9 +643,18 @@ fn writer_loop(mut conn: Connection, rx: Receiver<Write>, file: PathBuf) {
                 Err(_) => break,
             }
         }
-        let result = write_batch(&mut conn, &batch);
+        // A lost connection is made again before the batch (each batch tries once).
+        if conn.as_ref().is_none_or(|c| c.is_broken()) {
+            conn = connect()
+                .inspect_err(|e| tracing::error!("{name}: {e}"))
+                .ok();
+        }
+        let result = match conn.as_deref_mut() {
+            Some(c) => write_batch(c, &batch),
+            None => Err("the database cannot be reached".to_owned()),
+        };
         if let Err(e) = &result {
-            tracing::error!("{}: {e}", file.display());
+            tracing::error!("{name}: {e}");
         }
         // Acknowledge after the commit (or report the failure).
         for w in batch.drain(..) {
@@ -630,11 +662,11 @@ fn writer_loop(mut conn: Connection, rx: Receiver<Write>, file: PathBuf) {
                 Write::Command(_, record, Some(ack)) => {
                     let _ = ack.send(match &result {
                         Ok(()) => Ok(record),
-                        Err(e) => Err(EngineError::Store(e.to_string())),
+                        Err(e) => Err(EngineError::Store(e.clone())),
                     });
                 }
                 Write::Session(_, done) => {
-                    let _ = done.send(result.as_ref().map(|_| ()).map_err(|e| e.to_string()));
+                    let _ = done.send(result.clone());
                 }
                 Write::Flush(done) => {
                     let _ = done.send(());
@@ -645,85 +677,142 @@ fn writer_loop(mut conn: Connection, rx: Receiver<Write>, file: PathBuf) {
     }
 }
 
-fn write_batch(conn: &mut Connection, batch: &[Write]) -> rusqlite::Result<()> {
-    let tx = conn.transaction()?;
-    for w in batch {
-        match w {
-            Write::Session(s, _) => {
+/// Columns of a `commands` row.
+const COMMAND_COLUMNS: usize = 5;
+
+fn write_batch(conn: &mut dyn Conn, batch: &[Write]) -> Result<(), String> {
+    transaction(conn, |tx| {
+        let mut i = 0;
+        while i < batch.len() {
+            // A run of commands goes in as one multi-row insert.
+            let run = batch[i..]
+                .iter()
+                .take_while(|w| matches!(w, Write::Command(..)))
+                .count();
+            if run > 0 {
+                let mut params = Vec::with_capacity(run * COMMAND_COLUMNS);
+                for w in &batch[i..i + run] {
+                    if let Write::Command(id, r, _) = w {
+                        params.extend([
+                            id.into(),
+                            (r.ordinal as i64).into(),
+                            (r.step as i64).into(),
+                            (r.seq as i64).into(),
+                            serde_json::to_string(&r.command).unwrap_or_default().into(),
+                        ]);
+                    }
+                }
                 tx.execute(
-                    "INSERT INTO sessions (id, label, scene_name, scene_json, base_dir,
-                     created_unix_s, status, step_rate_hz, account_id, controller_hash)
-                     VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
-                    params![
-                        s.id,
-                        s.label,
-                        s.scene_name,
-                        s.scene_json,
-                        s.base_dir.to_string_lossy(),
-                        s.created_unix_s,
-                        s.status,
-                        s.step_rate_hz,
-                        s.account_id,
-                        s.controller_hash
-                    ],
+                    &format!(
+                        "INSERT INTO commands (session_id, ordinal, step, seq, command) VALUES {}",
+                        values_list(run, COMMAND_COLUMNS)
+                    ),
+                    &params,
                 )?;
+                i += run;
+                continue;
             }
-            Write::Status(id, status) => {
-                tx.execute(
-                    "UPDATE sessions SET status = ?2 WHERE id = ?1",
-                    params![id, status],
-                )?;
+            match &batch[i] {
+                Write::Session(s, _) => {
+                    tx.execute(
+                        "INSERT INTO sessions (id, label, scene_name, scene_json, base_dir,
+                         created_unix_s, status, step_rate_hz, account_id, controller_hash)
+                         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+                        &[
+                            (&s.id).into(),
+                            (&s.label).into(),
+                            (&s.scene_name).into(),
+                            (&s.scene_json).into(),
+                            s.base_dir.to_string_lossy().into_owned().into(),
+                            s.created_unix_s.into(),
+                            (&s.status).into(),
+                            s.step_rate_hz.into(),
+                            s.account_id.clone().into(),
+                            s.controller_hash.clone().into(),
+                        ],
+                    )?;
+                }
+                Write::Status(id, status) => {
+                    tx.execute(
+                        "UPDATE sessions SET status = ?2 WHERE id = ?1",
+                        &[id.into(), (*status).into()],
+                    )?;
+                }
+                Write::Checkpoint(id, c) => {
+                    tx.execute(
+                        "INSERT INTO checkpoints (session_id, step, digest, metrics)
+                         VALUES (?1, ?2, ?3, ?4)
+                         ON CONFLICT (session_id, step) DO UPDATE SET digest = excluded.digest,
+                         metrics = excluded.metrics",
+                        &[
+                            id.into(),
+                            (c.step as i64).into(),
+                            format!("{:016x}", c.digest).into(),
+                            serde_json::to_string(&c.metrics).unwrap_or_default().into(),
+                        ],
+                    )?;
+                }
+                Write::Event(id, e) => {
+                    tx.execute(
+                        "INSERT INTO events (session_id, step, time_s, kind, message)
+                         VALUES (?1, ?2, ?3, ?4, ?5)",
+                        &[
+                            id.into(),
+                            (e.step as i64).into(),
+                            e.time_s.into(),
+                            e.kind.as_str().into(),
+                            (&e.message).into(),
+                        ],
+                    )?;
+                }
+                Write::Command(..) | Write::Flush(_) => {}
             }
-            Write::Command(id, r, _) => {
-                tx.execute(
-                    "INSERT INTO commands (session_id, ordinal, step, seq, command)
-                     VALUES (?1, ?2, ?3, ?4, ?5)",
-                    params![
-                        id,
-                        r.ordinal as i64,
-                        r.step as i64,
-                        r.seq as i64,
-                        serde_json::to_string(&r.command).unwrap_or_default()
-                    ],
-                )?;
-            }
-            Write::Checkpoint(id, c) => {
-                tx.execute(
-                    "INSERT OR REPLACE INTO checkpoints (session_id, step, digest, metrics)
-                     VALUES (?1, ?2, ?3, ?4)",
-                    params![
-                        id,
-                        c.step as i64,
-                        format!("{:016x}", c.digest),
-                        serde_json::to_string(&c.metrics).unwrap_or_default()
-                    ],
-                )?;
-            }
-            Write::Event(id, e) => {
-                tx.execute(
-                    "INSERT INTO events (session_id, step, time_s, kind, message)
-                     VALUES (?1, ?2, ?3, ?4, ?5)",
-                    params![id, e.step as i64, e.time_s, e.kind.as_str(), e.message],
-                )?;
-            }
-            Write::Flush(_) => {}
+            i += 1;
         }
-    }
-    tx.commit()
+        Ok(())
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use cathlab_engine::world::Command;
 
-    #[test]
-    fn the_governors_commands_are_replayed_but_not_counted_as_the_operators() {
-        use cathlab_engine::world::Command;
+    fn sqlite(name: &str) -> StoreLocation {
         let dir = std::env::temp_dir().join(format!("cathlab-store-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let file = dir.join("governor.sqlite");
+        let file = dir.join(format!("{name}.sqlite"));
         let _ = std::fs::remove_file(&file);
-        let store = Store::open(&file).unwrap();
+        StoreLocation::Sqlite(file)
+    }
+
+    /// A connection beside the store's, to write what the store would not.
+    fn raw(location: &StoreLocation) -> Box<dyn Conn> {
+        match location {
+            StoreLocation::Sqlite(file) => Box::new(SqliteConn::open(file).unwrap()),
+            StoreLocation::Postgres(url) => {
+                Box::new(PgTarget::parse(url).unwrap().connect().unwrap())
+            }
+        }
+    }
+
+    fn session(id: &str, status: &str) -> StoredSession {
+        StoredSession {
+            id: id.into(),
+            label: String::new(),
+            scene_name: "scene".into(),
+            scene_json: "{}".into(),
+            base_dir: PathBuf::from("."),
+            created_unix_s: 0.0,
+            status: status.into(),
+            step_rate_hz: 500.0,
+            account_id: None,
+            controller_hash: None,
+        }
+    }
+
+    fn the_governors_commands_are_replayed_but_not_counted(location: &StoreLocation) {
+        let store = Store::at(location).unwrap();
         let commands = [
             Command::PushVelocity(0.1),
             Command::Fidelity(2),
@@ -750,36 +839,18 @@ mod tests {
         assert_eq!(stored, commands);
     }
 
-    #[test]
-    fn corrupt_rows_are_named_not_trusted() {
-        let dir = std::env::temp_dir().join(format!("cathlab-store-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let file = dir.join("corrupt.sqlite");
-        let _ = std::fs::remove_file(&file);
-        let store = Store::open(&file).unwrap();
-        store
-            .insert_session(StoredSession {
-                id: "s1".into(),
-                label: String::new(),
-                scene_name: "scene".into(),
-                scene_json: "{}".into(),
-                base_dir: PathBuf::from("."),
-                created_unix_s: 0.0,
-                status: "running".into(),
-                step_rate_hz: 500.0,
-                account_id: None,
-                controller_hash: None,
-            })
-            .unwrap();
-        let conn = open(&file).unwrap();
+    fn corrupt_rows_are_named(location: &StoreLocation) {
+        let store = Store::at(location).unwrap();
+        store.insert_session(session("s1", "running")).unwrap();
+        let mut conn = raw(location);
         conn.execute(
             "INSERT INTO commands VALUES ('s1', 0, 5, 1, '{\"no_such_command\": 1}')",
-            [],
+            &[],
         )
         .unwrap();
         conn.execute(
             "INSERT INTO checkpoints VALUES ('s1', 500, 'not-hex', '{}')",
-            [],
+            &[],
         )
         .unwrap();
         let command = store.commands("s1").unwrap_err().to_string();
@@ -792,22 +863,16 @@ mod tests {
         assert_eq!(store.command_count("s1").unwrap(), 1);
         // A store opened again marks the running session interrupted.
         drop(store);
-        let store = Store::open(&file).unwrap();
+        let store = Store::at(location).unwrap();
         assert_eq!(store.session("s1").unwrap().unwrap().status, "interrupted");
         assert!(store.session("s2").unwrap().is_none());
     }
 
-    #[test]
-    fn stored_numbers_come_back_bit_for_bit() {
+    fn stored_numbers_come_back_bit_for_bit(location: &StoreLocation) {
         // Regression: serde_json's default parser read 0.012097896199016495 back one unit in
         // the last place off (a stored score differed from the report's; a stored command
         // could replay differently).
-        use cathlab_engine::world::Command;
-        let dir = std::env::temp_dir().join(format!("cathlab-store-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let file = dir.join("bits.sqlite");
-        let _ = std::fs::remove_file(&file);
-        let store = Store::open(&file).unwrap();
+        let store = Store::at(location).unwrap();
         let awkward = [
             0.012097896199016495,
             0.1 + 0.2,
@@ -835,31 +900,191 @@ mod tests {
             .collect();
         let sent: Vec<u64> = awkward.iter().map(|v| v.to_bits()).collect();
         assert_eq!(back, sent);
+        // A session's numbers too (a double column, not a single-precision one).
+        let mut s = session("s2", "closed");
+        s.created_unix_s = 1_790_000_000.123_456_7;
+        s.step_rate_hz = 1.0 / 3.0;
+        store.insert_session(s.clone()).unwrap();
+        assert_eq!(store.session("s2").unwrap().unwrap(), s);
+    }
+
+    fn a_batch_keeps_its_order_and_a_failed_batch_acknowledges_nothing(location: &StoreLocation) {
+        let store = Store::at(location).unwrap();
+        store.insert_session(session("s1", "running")).unwrap();
+        let mut acks = Vec::new();
+        for ordinal in 0..1500u64 {
+            let (tx, rx) = tokio::sync::oneshot::channel();
+            let record = CommandRecord {
+                ordinal,
+                step: ordinal,
+                seq: ordinal,
+                command: Command::PushVelocity(ordinal as f64 * 1e-3),
+            };
+            Recorder::command(&store, "s1", record, Some(tx));
+            acks.push(rx);
+        }
+        store.event(
+            "s1",
+            &Event {
+                step: 1,
+                time_s: 0.002,
+                kind: cathlab_engine::EventKind::Device,
+                message: "first".into(),
+            },
+        );
+        store.event(
+            "s1",
+            &Event {
+                step: 1,
+                time_s: 0.002,
+                kind: cathlab_engine::EventKind::Device,
+                message: "second".into(),
+            },
+        );
+        store.set_status("s1", "closed");
+        store.flush();
+        for (i, ack) in acks.into_iter().enumerate() {
+            assert_eq!(ack.blocking_recv().unwrap().unwrap().ordinal, i as u64);
+        }
+        let ordinals: Vec<u64> = store
+            .commands("s1")
+            .unwrap()
+            .iter()
+            .map(|c| c.ordinal)
+            .collect();
+        assert_eq!(ordinals, (0..1500).collect::<Vec<_>>());
+        let events: Vec<String> = store
+            .events("s1")
+            .unwrap()
+            .into_iter()
+            .map(|e| e.3)
+            .collect();
+        assert_eq!(events, ["first", "second"]);
+        assert_eq!(store.session("s1").unwrap().unwrap().status, "closed");
+        // A command whose ordinal is already stored fails its batch (whichever other writes
+        // share it): an acknowledgement says stored exactly when the command is.
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        let (tx2, rx2) = tokio::sync::oneshot::channel();
+        for (ordinal, tx) in [(1500, tx), (7, tx2)] {
+            let record = CommandRecord {
+                ordinal,
+                step: ordinal,
+                seq: 1,
+                command: Command::PushVelocity(0.5),
+            };
+            Recorder::command(&store, "s1", record, Some(tx));
+        }
+        store.flush();
+        let (fresh, duplicate) = (rx.blocking_recv().unwrap(), rx2.blocking_recv().unwrap());
+        assert!(duplicate.is_err(), "{duplicate:?}");
+        let stored = store.commands("s1").unwrap();
+        assert_eq!(
+            fresh.is_ok(),
+            stored.iter().any(|c| c.ordinal == 1500),
+            "{fresh:?}"
+        );
+        assert_eq!(stored[7].command, Command::PushVelocity(0.007));
+    }
+
+    fn check_all(location: impl Fn(&str) -> StoreLocation) {
+        the_governors_commands_are_replayed_but_not_counted(&location("governor"));
+        corrupt_rows_are_named(&location("corrupt"));
+        stored_numbers_come_back_bit_for_bit(&location("bits"));
+        a_batch_keeps_its_order_and_a_failed_batch_acknowledges_nothing(&location("batch"));
     }
 
     #[test]
-    fn an_old_database_is_migrated_and_keeps_its_sessions_and_a_newer_one_is_refused() {
-        let dir = std::env::temp_dir().join(format!("cathlab-store-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let file = dir.join("old.sqlite");
-        let _ = std::fs::remove_file(&file);
+    fn the_sqlite_store_records_and_reads_back() {
+        check_all(sqlite);
+    }
+
+    #[test]
+    fn the_postgres_store_records_and_reads_back_as_the_sqlite_one() {
+        let cluster = cluster::PgCluster::start().unwrap();
+        check_all(|name| StoreLocation::Postgres(cluster.database(name).unwrap()));
+    }
+
+    #[test]
+    fn an_old_sqlite_database_is_migrated_and_keeps_its_sessions_and_a_newer_one_is_refused() {
+        let location = sqlite("old");
+        let StoreLocation::Sqlite(file) = &location else {
+            unreachable!()
+        };
         // As the first release left it: the first schema, user_version 0, one session.
-        let conn = Connection::open(&file).unwrap();
-        conn.execute_batch(SCHEMA_V1).unwrap();
+        let mut conn = SqliteConn::open(file).unwrap();
+        conn.batch(sqlite::SCHEMA_V1).unwrap();
         conn.execute(
             "INSERT INTO sessions VALUES ('s1', 'old', 'scene', '{}', '.', 1.0, 'closed', 500.0)",
-            [],
+            &[],
         )
         .unwrap();
         drop(conn);
-        let store = Store::open(&file).unwrap();
+        let version = || {
+            SqliteConn::open(file)
+                .unwrap()
+                .query("PRAGMA user_version", &[])
+                .unwrap()[0]
+                .int(0)
+                .unwrap()
+        };
+        migrated_then_refused(&location, &|| version() as usize, &|| {
+            SqliteConn::open(file)
+                .unwrap()
+                .batch("PRAGMA user_version = 99")
+                .unwrap()
+        });
+    }
+
+    #[test]
+    fn an_old_postgres_database_is_migrated_and_keeps_its_sessions_and_a_newer_one_is_refused() {
+        let cluster = cluster::PgCluster::start().unwrap();
+        let location = StoreLocation::Postgres(cluster.database("old").unwrap());
+        let raw = || {
+            PgTarget::parse(&cluster.url("old"))
+                .unwrap()
+                .connect()
+                .unwrap()
+        };
+        // A database at version 1, with one session.
+        let mut conn = raw();
+        conn.batch(&format!(
+            "CREATE TABLE cathlab_schema (version BIGINT NOT NULL);
+             INSERT INTO cathlab_schema VALUES (1); {}",
+            postgres::MIGRATIONS[0]
+        ))
+        .unwrap();
+        conn.execute(
+            "INSERT INTO sessions VALUES ('s1', 'old', 'scene', '{}', '.', 1.0, 'closed', 500.0)",
+            &[],
+        )
+        .unwrap();
+        drop(conn);
+        migrated_then_refused(
+            &location,
+            &|| {
+                raw()
+                    .query("SELECT version FROM cathlab_schema", &[])
+                    .unwrap()[0]
+                    .int(0)
+                    .unwrap() as usize
+            },
+            &|| {
+                raw()
+                    .batch("UPDATE cathlab_schema SET version = 99")
+                    .unwrap()
+            },
+        );
+    }
+
+    fn migrated_then_refused(
+        location: &StoreLocation,
+        version: &dyn Fn() -> usize,
+        make_newer: &dyn Fn(),
+    ) {
+        let store = Store::at(location).unwrap();
         let old = store.session("s1").unwrap().unwrap();
         assert_eq!((old.label.as_str(), old.account_id), ("old", None));
-        let version: i64 = open(&file)
-            .unwrap()
-            .query_row("PRAGMA user_version", [], |r| r.get(0))
-            .unwrap();
-        assert_eq!(version as usize, SCHEMA_VERSION);
+        assert_eq!(version(), SCHEMA_VERSION);
         store
             .insert_account(&StoredAccount {
                 id: "a1".into(),
@@ -871,17 +1096,14 @@ mod tests {
             .unwrap();
         drop(store);
         // Opening again changes nothing.
-        let store = Store::open(&file).unwrap();
+        let store = Store::at(location).unwrap();
         assert_eq!(
             store.account_by_token_hash("ff").unwrap().unwrap().name,
             "Ada"
         );
         drop(store);
-        open(&file)
-            .unwrap()
-            .execute_batch("PRAGMA user_version = 99")
-            .unwrap();
-        let e = Store::open(&file).unwrap_err().to_string();
+        make_newer();
+        let e = Store::at(location).unwrap_err().to_string();
         assert!(e.contains("schema version 99"), "{e}");
     }
 }

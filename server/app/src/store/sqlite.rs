@@ -1,0 +1,142 @@
+//! The SQLite backend (the embedded default): connections in WAL mode and the schema's
+//! migrations, versioned by SQLite's `user_version`.
+
+use std::path::Path;
+
+use rusqlite::Connection;
+use rusqlite::types::Value as SqlValue;
+
+use super::sql::{Conn, Row, Value};
+
+/// The schema's migrations, in order: migration `i` takes a database at version `i` (SQLite's
+/// `user_version`) to `i + 1`, in one transaction. A database made before migrations existed
+/// is at version 0 with the first migration's tables: its `IF NOT EXISTS` keeps them.
+pub const MIGRATIONS: [&str; 2] = [SCHEMA_V1, SCHEMA_V2];
+
+/// The first release's tables.
+pub const SCHEMA_V1: &str = "
+CREATE TABLE IF NOT EXISTS sessions (
+    id TEXT PRIMARY KEY, label TEXT NOT NULL, scene_name TEXT NOT NULL,
+    scene_json TEXT NOT NULL, base_dir TEXT NOT NULL, created_unix_s REAL NOT NULL,
+    status TEXT NOT NULL, step_rate_hz REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS commands (
+    session_id TEXT NOT NULL, ordinal INTEGER NOT NULL, step INTEGER NOT NULL,
+    seq INTEGER NOT NULL, command TEXT NOT NULL, PRIMARY KEY (session_id, ordinal));
+CREATE TABLE IF NOT EXISTS checkpoints (
+    session_id TEXT NOT NULL, step INTEGER NOT NULL, digest TEXT NOT NULL,
+    metrics TEXT NOT NULL, PRIMARY KEY (session_id, step));
+CREATE TABLE IF NOT EXISTS events (
+    session_id TEXT NOT NULL, step INTEGER NOT NULL, time_s REAL NOT NULL,
+    kind TEXT NOT NULL, message TEXT NOT NULL);
+";
+
+const SCHEMA_V2: &str = "
+CREATE TABLE accounts (
+    id TEXT PRIMARY KEY, name TEXT NOT NULL, role TEXT NOT NULL,
+    token_hash TEXT NOT NULL UNIQUE, created_unix_s REAL NOT NULL);
+ALTER TABLE sessions ADD COLUMN account_id TEXT REFERENCES accounts(id);
+ALTER TABLE sessions ADD COLUMN controller_hash TEXT;
+CREATE INDEX sessions_by_account ON sessions (account_id, created_unix_s);
+CREATE TABLE reports (
+    session_id TEXT PRIMARY KEY, version INTEGER NOT NULL, json TEXT NOT NULL,
+    metrics TEXT NOT NULL, within INTEGER NOT NULL, judged INTEGER NOT NULL);
+CREATE TABLE report_frames (
+    session_id TEXT NOT NULL, idx INTEGER NOT NULL, time_s REAL NOT NULL, png BLOB NOT NULL,
+    PRIMARY KEY (session_id, idx));
+";
+
+/// A connection to a SQLite file.
+pub struct SqliteConn(Connection);
+
+impl SqliteConn {
+    /// Opens (or creates) `file` in WAL mode.
+    pub fn open(file: &Path) -> Result<Self, String> {
+        let conn = Connection::open(file).map_err(|e| e.to_string())?;
+        conn.pragma_update(None, "journal_mode", "WAL")
+            .map_err(|e| e.to_string())?;
+        // In WAL mode NORMAL syncs at checkpoints, not at every commit: a commit survives the
+        // process being killed (it is in the WAL file) but not a power cut before the next
+        // sync.
+        conn.pragma_update(None, "synchronous", "NORMAL")
+            .map_err(|e| e.to_string())?;
+        conn.busy_timeout(std::time::Duration::from_secs(5))
+            .map_err(|e| e.to_string())?;
+        Ok(Self(conn))
+    }
+
+    /// Brings the database to the newest schema, one transaction per migration. A database
+    /// of a newer version (a newer server wrote it) is refused rather than guessed at.
+    pub fn migrate(&mut self) -> Result<(), String> {
+        let version: i64 = self
+            .0
+            .query_row("PRAGMA user_version", [], |r| r.get(0))
+            .map_err(|e| e.to_string())?;
+        if version < 0 || version as usize > MIGRATIONS.len() {
+            return Err(format!(
+                "schema version {version}; this server knows up to {}",
+                MIGRATIONS.len()
+            ));
+        }
+        for (i, sql) in MIGRATIONS.iter().enumerate().skip(version as usize) {
+            self.0
+                .execute_batch(&format!(
+                    "BEGIN; {sql}; PRAGMA user_version = {}; COMMIT;",
+                    i + 1
+                ))
+                .map_err(|e| {
+                    let _ = self.0.execute_batch("ROLLBACK");
+                    format!("migration to schema version {}: {e}", i + 1)
+                })?;
+        }
+        Ok(())
+    }
+}
+
+fn to_sql(v: &Value) -> SqlValue {
+    match v {
+        Value::Null => SqlValue::Null,
+        Value::Int(i) => SqlValue::Integer(*i),
+        Value::Real(r) => SqlValue::Real(*r),
+        Value::Text(t) => SqlValue::Text(t.clone()),
+        Value::Blob(b) => SqlValue::Blob(b.clone()),
+    }
+}
+
+fn from_sql(v: SqlValue) -> Value {
+    match v {
+        SqlValue::Null => Value::Null,
+        SqlValue::Integer(i) => Value::Int(i),
+        SqlValue::Real(r) => Value::Real(r),
+        SqlValue::Text(t) => Value::Text(t),
+        SqlValue::Blob(b) => Value::Blob(b),
+    }
+}
+
+impl Conn for SqliteConn {
+    fn query(&mut self, sql: &str, params: &[Value]) -> Result<Vec<Row>, String> {
+        let mut stmt = self.0.prepare_cached(sql).map_err(|e| e.to_string())?;
+        let columns = stmt.column_count();
+        let params: Vec<SqlValue> = params.iter().map(to_sql).collect();
+        stmt.query_map(rusqlite::params_from_iter(params), |r| {
+            (0..columns)
+                .map(|i| r.get::<_, SqlValue>(i).map(from_sql))
+                .collect::<rusqlite::Result<Vec<_>>>()
+                .map(Row)
+        })
+        .map_err(|e| e.to_string())?
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| e.to_string())
+    }
+
+    fn execute(&mut self, sql: &str, params: &[Value]) -> Result<u64, String> {
+        let mut stmt = self.0.prepare_cached(sql).map_err(|e| e.to_string())?;
+        let params: Vec<SqlValue> = params.iter().map(to_sql).collect();
+        stmt.execute(rusqlite::params_from_iter(params))
+            .map(|n| n as u64)
+            .map_err(|e| e.to_string())
+    }
+
+    fn batch(&mut self, sql: &str) -> Result<(), String> {
+        self.0.execute_batch(sql).map_err(|e| e.to_string())
+    }
+}
