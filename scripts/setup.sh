@@ -20,7 +20,11 @@ apt_install() {
   local sudo=""
   [ "$(id -u)" -ne 0 ] && sudo="sudo"
   export DEBIAN_FRONTEND=noninteractive
-  $sudo apt-get update -qq
+  # One package-list update per run.
+  if [ -z "${CATHLAB_APT_UPDATED:-}" ]; then
+    $sudo apt-get update -qq
+    CATHLAB_APT_UPDATED=1
+  fi
   $sudo apt-get install -y -qq --no-install-recommends "$@" >/dev/null
 }
 # Software Vulkan (lavapipe) for the wgpu renderer: Debian's mesa-vulkan-drivers and the
@@ -55,9 +59,14 @@ build_web_client() {
   )
 }
 
-# Debian's Chromium for the browser tests (test command only).
-install_chromium() {
-  if [ ! -x /usr/bin/chromium ]; then
-    apt_install chromium fonts-dejavu-core
+# The test command's packages: Debian's Chromium for the browser tests, and Debian's
+# PostgreSQL server for the PostgreSQL and fleet tests (they make throwaway clusters of their
+# own on free ports; the package's default cluster is not started). One install for both.
+install_test_packages() {
+  local missing=()
+  [ -x /usr/bin/chromium ] || missing+=(chromium fonts-dejavu-core)
+  compgen -G "/usr/lib/postgresql/*/bin/initdb" >/dev/null || missing+=(postgresql)
+  if [ ${#missing[@]} -gt 0 ]; then
+    apt_install "${missing[@]}"
   fi
 }

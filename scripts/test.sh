@@ -16,7 +16,7 @@ log=$(mktemp)
 trap 'rm -f "$log"' EXIT
 echo "== web client: install, generated code current, build, unit tests"
 build_web_client
-install_chromium
+install_test_packages
 (
   cd client-web
   npm run --silent check-generated

@@ -53,8 +53,9 @@ pub fn status_of(error: &EngineError) -> Status {
         | EngineError::Physics(_)
         | EngineError::Hemo(_)
         | EngineError::Xray(_)
-        | EngineError::Spawn(_)
-        | EngineError::Store(_) => Status::internal(error.to_string()),
+        | EngineError::Spawn(_) => Status::internal(error.to_string()),
+        // The recording cannot be written (the database is unreachable): try again later.
+        EngineError::Store(_) => Status::unavailable(error.to_string()),
     }
 }
 

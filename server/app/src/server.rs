@@ -129,6 +129,37 @@ pub async fn serve(
     health
         .set_serving::<SimulatorServer<SimulatorService>>()
         .await;
+    // Health follows the store: NOT_SERVING while the database cannot be reached (sessions
+    // keep simulating, but no command is acknowledged), SERVING again when it can.
+    let (watched, reporter) = (store.clone(), health.clone());
+    tokio::spawn(async move {
+        let mut serving = true;
+        let mut tick = tokio::time::interval(std::time::Duration::from_millis(250));
+        loop {
+            tick.tick().await;
+            let reachable = watched.is_reachable();
+            if reachable == serving {
+                continue;
+            }
+            serving = reachable;
+            let status = if reachable {
+                tonic_health::ServingStatus::Serving
+            } else {
+                tracing::warn!("{}: unreachable; health is NOT_SERVING", watched.name());
+                tonic_health::ServingStatus::NotServing
+            };
+            reporter.set_service_status("", status).await;
+            if reachable {
+                reporter
+                    .set_serving::<SimulatorServer<SimulatorService>>()
+                    .await;
+            } else {
+                reporter
+                    .set_not_serving::<SimulatorServer<SimulatorService>>()
+                    .await;
+            }
+        }
+    });
     let reflection = tonic_reflection::server::Builder::configure()
         .register_encoded_file_descriptor_set(cathlab_api::FILE_DESCRIPTOR_SET)
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)

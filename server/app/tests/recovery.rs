@@ -13,7 +13,26 @@ use common::*;
 async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() {
     let dir = temp_dir("recovery");
     let database = dir.join("cathlab.sqlite");
-    let mut server = ServerProcess::start(&database, &[]);
+    kill_and_recover(&database, &[]).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_killed_server_on_postgres_keeps_every_acknowledged_command_and_replays_exactly() {
+    let cluster = cathlab_app::store::cluster::PgCluster::start().unwrap();
+    let url = cluster.database("recovery").unwrap();
+    // The SQLite file is named but not used: the URL wins.
+    let unused = temp_dir("recovery-postgres").join("unused.sqlite");
+    kill_and_recover(&unused, &["--database-url", &url]).await;
+    assert!(
+        !unused.exists(),
+        "the SQLite file was made beside PostgreSQL"
+    );
+}
+
+/// Runs a little procedure, kills the server, starts it again on the same store (`database`,
+/// or what `store` flags name) and checks the recording.
+async fn kill_and_recover(database: &std::path::Path, store: &[&str]) {
+    let mut server = ServerProcess::start(database, store);
     let mut client = server.client().await;
     let session = create(&mut client).await;
     let id = session.session_id.clone();
@@ -54,7 +73,7 @@ async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() 
     drop(client);
     server.kill();
 
-    let server = ServerProcess::start(&database, &[]);
+    let server = ServerProcess::start(database, store);
     let mut client = server.client().await;
     let recorded = listed_session(&mut client, &id).await;
     assert_eq!(recorded.status, pb::SessionStatus::Interrupted as i32);
@@ -101,7 +120,8 @@ async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() 
     drop(server);
     let output = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
         .arg("--database")
-        .arg(&database)
+        .arg(database)
+        .args(store)
         .arg("--scenes")
         .arg(repo_root().join("scenes"))
         .args(["--renderer", "cpu", "replay", "--session", &id])

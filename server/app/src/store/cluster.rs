@@ -1,7 +1,8 @@
 //! A throwaway local PostgreSQL cluster, for the PostgreSQL tests, the fleet test and the
 //! fleet benchmark: Debian's server binaries, a temporary data directory, a free port on
-//! 127.0.0.1, trust authentication, torn down when dropped. Not for production (it trades
-//! durability for speed: no fsync).
+//! 127.0.0.1, trust authentication, torn down when dropped. Not for production: it trades
+//! durability against a machine crash for speed (no fsync); a commit still survives the
+//! PostgreSQL server being killed (commits are synchronous), which the outage tests need.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -134,11 +135,19 @@ impl PgCluster {
 
     /// Makes a new empty database and returns its URL.
     pub fn database(&self, name: &str) -> Result<String, String> {
-        let mut client = postgres::Client::connect(&self.url("postgres"), postgres::NoTls)
-            .map_err(|e| format!("cannot connect to the test cluster: {e}"))?;
-        client
-            .batch_execute(&format!("CREATE DATABASE \"{name}\""))
-            .map_err(|e| format!("CREATE DATABASE {name}: {e:?}"))?;
+        // On a thread of its own: the `postgres` client must not block an async thread.
+        let url = self.url("postgres");
+        let owned = name.to_owned();
+        std::thread::spawn(move || {
+            let name = owned;
+            let mut client = postgres::Client::connect(&url, postgres::NoTls)
+                .map_err(|e| format!("cannot connect to the test cluster: {e}"))?;
+            client
+                .batch_execute(&format!("CREATE DATABASE \"{name}\""))
+                .map_err(|e| format!("CREATE DATABASE {name}: {e:?}"))
+        })
+        .join()
+        .map_err(|_| "the thread making the database panicked".to_owned())??;
         Ok(self.url(name))
     }
 
@@ -162,8 +171,8 @@ impl PgCluster {
         let data = self.dir.join("data");
         let log = self.dir.join("log");
         let options = format!(
-            "-p {} -k {} -c listen_addresses=127.0.0.1 -F -c synchronous_commit=off \
-             -c full_page_writes=off -c max_connections=200",
+            "-p {} -k {} -c listen_addresses=127.0.0.1 -F -c full_page_writes=off \
+             -c max_connections=200",
             self.port,
             self.dir.display()
         );

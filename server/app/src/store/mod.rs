@@ -11,6 +11,8 @@ pub mod sql;
 pub mod sqlite;
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::thread::JoinHandle;
 
@@ -131,6 +133,8 @@ pub struct Store {
     dialect: Dialect,
     backend: Backend,
     writes: SyncSender<Write>,
+    reachable: Arc<AtomicBool>,
+    refused_writes: AtomicU64,
     _writer: JoinHandle<()>,
 }
 
@@ -160,6 +164,11 @@ impl Store {
     /// Opens the store at `location`: migrates it to [`SCHEMA_VERSION`], marks sessions left
     /// running by a previous process as interrupted, and starts the writer.
     pub fn at(location: &StoreLocation) -> Result<Self, StoreError> {
+        Self::with_queue(location, QUEUE)
+    }
+
+    /// [`Store::at`] with a queue of `queue` writes.
+    fn with_queue(location: &StoreLocation, queue: usize) -> Result<Self, StoreError> {
         let (name, dialect, backend, connect): (_, _, _, Connect) = match location {
             StoreLocation::Sqlite(file) => {
                 let path = file.clone();
@@ -200,25 +209,47 @@ impl Store {
             store: name.clone(),
             reason,
         };
-        // The first connection migrates the schema; a writer's later connection (after one
-        // was lost) finds it current.
-        let mut conn = connect().map_err(database)?;
-        conn.execute(
-            "UPDATE sessions SET status = 'interrupted' WHERE status = 'running'",
-            &[],
-        )
-        .map_err(database)?;
-        let (tx, rx) = sync_channel(1 << 16);
+        // The writer thread makes the first connection (it migrates the schema; a later one,
+        // after a connection was lost, finds it current) and marks the sessions a previous
+        // process left running; this waits for that. PostgreSQL's client blocks on a runtime
+        // of its own, so it is used only on the store's own threads.
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let (tx, rx) = sync_channel(queue);
         let writer_name = name.clone();
+        let reachable = Arc::new(AtomicBool::new(true));
+        let writer_reachable = reachable.clone();
         let writer = std::thread::Builder::new()
             .name("store-writer".into())
-            .spawn(move || writer_loop(Some(conn), connect, rx, writer_name))
+            .spawn(move || {
+                let first = connect().and_then(|mut c| {
+                    c.execute(
+                        "UPDATE sessions SET status = 'interrupted' WHERE status = 'running'",
+                        &[],
+                    )?;
+                    Ok(c)
+                });
+                match first {
+                    Ok(conn) => {
+                        let _ = ready_tx.send(Ok(()));
+                        writer_loop(Some(conn), connect, rx, writer_name, &writer_reachable);
+                    }
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(e));
+                    }
+                }
+            })
             .map_err(|e| database(format!("cannot start the writer thread: {e}")))?;
+        ready_rx
+            .recv()
+            .map_err(|_| database("the writer thread stopped while starting".into()))?
+            .map_err(database)?;
         Ok(Self {
             name,
             dialect,
             backend,
             writes: tx,
+            reachable,
+            refused_writes: AtomicU64::new(0),
             _writer: writer,
         })
     }
@@ -226,16 +257,48 @@ impl Store {
     fn push(&self, write: Write) {
         match self.writes.try_send(write) {
             Ok(()) => {}
-            // The writer is behind by 65,536 writes: wait rather than lose one.
-            Err(TrySendError::Full(w)) => {
+            // The writer is behind by a full queue (65,536 writes). While the database answers, wait rather
+            // than lose one; while it cannot be reached, refuse instead (the physics threads
+            // must not stop): a command is answered with the error, never acknowledged.
+            Err(TrySendError::Full(w)) if self.is_reachable() => {
                 let _ = self.writes.send(w);
             }
-            Err(TrySendError::Disconnected(w)) => {
-                if let Write::Command(_, _, Some(ack)) = w {
-                    let _ = ack.send(Err(EngineError::Store("the store is closed".into())));
+            Err(TrySendError::Full(w)) => self.refuse(
+                w,
+                "the database cannot be reached and the store's queue is full",
+            ),
+            Err(TrySendError::Disconnected(w)) => self.refuse(w, "the store is closed"),
+        }
+    }
+
+    /// Answers a write that will not be made.
+    fn refuse(&self, write: Write, why: &str) {
+        match write {
+            Write::Command(_, _, Some(ack)) => {
+                let _ = ack.send(Err(EngineError::Store(why.into())));
+            }
+            Write::Session(_, done) => {
+                let _ = done.send(Err(why.into()));
+            }
+            Write::Flush(_) => {}
+            _ => {
+                let n = self.refused_writes.fetch_add(1, Ordering::Relaxed) + 1;
+                if n.is_power_of_two() {
+                    tracing::warn!("{}: {why}: {n} writes not stored", self.name);
                 }
             }
         }
+    }
+
+    /// Whether the last write to the database succeeded (false while it cannot be reached:
+    /// health reports NOT_SERVING and no command is acknowledged).
+    pub fn is_reachable(&self) -> bool {
+        self.reachable.load(Ordering::Relaxed)
+    }
+
+    /// Checkpoints and events not stored because the database could not be reached.
+    pub fn refused_writes(&self) -> u64 {
+        self.refused_writes.load(Ordering::Relaxed)
     }
 
     /// Inserts a new session and waits until it is committed.
@@ -628,13 +691,18 @@ impl Recorder for Store {
 /// Most writes in one transaction.
 const BATCH: usize = 512;
 
+/// Writes the physics threads may queue ahead of the writer.
+const QUEUE: usize = 1 << 16;
+
 fn writer_loop(
     mut conn: Option<Box<dyn Conn>>,
     connect: Connect,
     rx: Receiver<Write>,
     name: String,
+    reachable: &AtomicBool,
 ) {
     let mut batch = Vec::with_capacity(BATCH);
+    let mut last_error: Option<String> = None;
     while let Ok(first) = rx.recv() {
         batch.push(first);
         while batch.len() < BATCH {
@@ -644,18 +712,29 @@ fn writer_loop(
             }
         }
         // A lost connection is made again before the batch (each batch tries once).
+        let mut unreachable = None;
         if conn.as_ref().is_none_or(|c| c.is_broken()) {
-            conn = connect()
-                .inspect_err(|e| tracing::error!("{name}: {e}"))
-                .ok();
+            conn = connect().map_err(|e| unreachable = Some(e)).ok();
         }
-        let result = match conn.as_deref_mut() {
-            Some(c) => write_batch(c, &batch),
-            None => Err("the database cannot be reached".to_owned()),
+        let result = match (conn.as_deref_mut(), unreachable) {
+            (Some(c), _) => write_batch(c, &batch),
+            (None, why) => Err(why.unwrap_or_else(|| "the database cannot be reached".into())),
         };
-        if let Err(e) = &result {
-            tracing::error!("{name}: {e}");
+        // Each new failure once (an outage fails every batch the same way).
+        match &result {
+            Err(e) if last_error.as_ref() != Some(e) => {
+                tracing::error!("{name}: {e}");
+                last_error = Some(e.clone());
+            }
+            Err(_) => {}
+            Ok(()) => {
+                if last_error.take().is_some() {
+                    tracing::info!("{name}: writing again");
+                }
+            }
         }
+        let lost = conn.as_ref().is_none_or(|c| c.is_broken());
+        reachable.store(result.is_ok() || !lost, Ordering::Relaxed);
         // Acknowledge after the commit (or report the failure).
         for w in batch.drain(..) {
             match w {
@@ -1002,6 +1081,60 @@ mod tests {
     fn the_postgres_store_records_and_reads_back_as_the_sqlite_one() {
         let cluster = cluster::PgCluster::start().unwrap();
         check_all(|name| StoreLocation::Postgres(cluster.database(name).unwrap()));
+    }
+
+    #[test]
+    fn an_unreachable_postgres_database_never_blocks_the_recorder_and_acknowledges_nothing() {
+        let cluster = cluster::PgCluster::start().unwrap();
+        let location = StoreLocation::Postgres(cluster.database("outage").unwrap());
+        let store = Store::with_queue(&location, 16).unwrap();
+        assert!(store.is_reachable());
+        cluster.stop();
+        let mut acks = Vec::new();
+        // Far more writes than the queue holds, as the physics threads would make them.
+        for step in 0..20_000u64 {
+            store.checkpoint(
+                "s1",
+                Checkpoint {
+                    step,
+                    digest: step,
+                    metrics: Metrics::default(),
+                },
+            );
+            if step % 100 == 0 {
+                let (tx, rx) = tokio::sync::oneshot::channel();
+                let record = CommandRecord {
+                    ordinal: step / 100,
+                    step,
+                    seq: step / 100,
+                    command: Command::PushVelocity(0.0),
+                };
+                Recorder::command(&store, "s1", record, Some(tx));
+                acks.push(rx);
+            }
+        }
+        assert!(!store.is_reachable());
+        assert!(store.refused_writes() > 0);
+        for ack in acks {
+            let answer = ack.blocking_recv().unwrap();
+            assert!(
+                answer.is_err(),
+                "acknowledged while unreachable: {answer:?}"
+            );
+        }
+        // Back again: written and acknowledged.
+        cluster.restart().unwrap();
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        let record = CommandRecord {
+            ordinal: 1000,
+            step: 1,
+            seq: 1,
+            command: Command::PushVelocity(0.0),
+        };
+        Recorder::command(&store, "s1", record, Some(tx));
+        assert!(rx.blocking_recv().unwrap().is_ok());
+        assert!(store.is_reachable());
+        assert_eq!(store.commands("s1").unwrap().len(), 1);
     }
 
     #[test]
