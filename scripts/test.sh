@@ -25,9 +25,7 @@ install_test_packages
     console.log(`test result: ${r.success ? "ok" : "FAILED"}. ${r.numPassedTests} passed; ${r.numFailedTests} failed (vitest)`);
     process.exit(r.success ? 0 : 1)'
 ) 2>&1 | tee -a "$log"
-echo "== cargo test (lib, bins, tests, examples, benches in test mode; the browser tests among them)"
+echo "== cargo test (lib, bins, tests, benches in test mode; the browser tests among them)"
 export CATHLAB_REQUIRE_BROWSER=1
-# One build, then the test binaries in two lanes at once: the server's end-to-end tests at
-# normal priority, the CPU-bound rest under nice 19 (scripts/test-lanes.mjs).
-node scripts/test-lanes.mjs --locked --workspace --all-targets 2>&1 | tee -a "$log"
+cargo test --locked --workspace --all-targets 2>&1 | tee -a "$log"
 awk '/^test result:/ { p += $4; f += $6 } END { printf "cathlab: %d passed, %d failed\n", p, f }' "$log"
