@@ -130,7 +130,6 @@ enum Backend {
 /// The store: a writer thread and the database.
 pub struct Store {
     name: String,
-    dialect: Dialect,
     backend: Backend,
     writes: SyncSender<Write>,
     reachable: Arc<AtomicBool>,
@@ -169,12 +168,11 @@ impl Store {
 
     /// [`Store::at`] with a queue of `queue` writes.
     fn with_queue(location: &StoreLocation, queue: usize) -> Result<Self, StoreError> {
-        let (name, dialect, backend, connect): (_, _, _, Connect) = match location {
+        let (name, backend, connect): (_, _, Connect) = match location {
             StoreLocation::Sqlite(file) => {
                 let path = file.clone();
                 (
                     file.display().to_string(),
-                    Dialect::Sqlite,
                     Backend::Sqlite(file.clone()),
                     Box::new(move || {
                         let mut c = SqliteConn::open(&path)?;
@@ -195,7 +193,6 @@ impl Store {
                     })?;
                 (
                     target.name.clone(),
-                    Dialect::Postgres,
                     Backend::Postgres(readers),
                     Box::new(move || {
                         let mut c = target.connect()?;
@@ -245,7 +242,6 @@ impl Store {
             .map_err(database)?;
         Ok(Self {
             name,
-            dialect,
             backend,
             writes: tx,
             reachable,
@@ -320,6 +316,14 @@ impl Store {
         let _ = rx.recv();
     }
 
+    /// The SQL dialect the backend speaks.
+    fn dialect(&self) -> Dialect {
+        match self.backend {
+            Backend::Sqlite(_) => Dialect::Sqlite,
+            Backend::Postgres(_) => Dialect::Postgres,
+        }
+    }
+
     /// The database, as messages name it (a file, or a URL without its password).
     pub fn name(&self) -> &str {
         &self.name
@@ -392,7 +396,7 @@ impl Store {
             format!(
                 "SELECT step, time_s, kind, message FROM events WHERE session_id = ?1
                  ORDER BY {}",
-                self.dialect.event_order()
+                self.dialect().event_order()
             ),
             vec![id.into()],
             &format!("event of session {id}"),
