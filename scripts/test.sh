@@ -8,6 +8,8 @@ cd "$(dirname "$0")/.."
 source scripts/setup.sh
 # CI has lavapipe (installed by setup.sh): the wgpu tests must run, not skip.
 export CATHLAB_REQUIRE_GPU="${CATHLAB_REQUIRE_GPU:-1}"
+# A build from scratch: incremental compilation would only add its bookkeeping.
+export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 echo "== cargo fmt --check"
 cargo fmt --all --check
 echo "== cargo clippy"

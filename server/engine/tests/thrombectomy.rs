@@ -21,10 +21,17 @@ fn scenes() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes")
 }
 
+/// Loads a scene through one cache for the file, one load at a time: both scenes share the
+/// neuro phantom's anatomy and CT (about half a minute to build), built once.
 fn load(name: &str) -> Arc<SceneAssets> {
+    static CACHE: OnceLock<std::sync::Mutex<AssetCache>> = OnceLock::new();
     let text = std::fs::read_to_string(scenes().join(format!("{name}.toml"))).unwrap();
     let spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
-    AssetCache::default().load(&spec, &scenes()).unwrap()
+    let cache = CACHE.get_or_init(Default::default).lock();
+    cache
+        .unwrap_or_else(|e| e.into_inner())
+        .load(&spec, &scenes())
+        .unwrap()
 }
 
 /// The trainee's scene: the guide already in the ICA.
