@@ -19,6 +19,8 @@ const POLL_MS = 1000;
 interface Card {
   element: HTMLElement;
   stop: AbortController;
+  /** The client of the server that runs the session (another server of the fleet, or this one). */
+  client: SimulatorClient;
 }
 
 const cards = new Map<string, Card>();
@@ -131,10 +133,21 @@ function addCard(client: SimulatorClient, info: SessionInfo): Card {
   const timeline = document.createElement("button");
   timeline.textContent = "Timeline";
   timeline.addEventListener("click", () => select(client, info.sessionId));
+  const where: HTMLElement[] = [];
+  if (info.serverAddress) {
+    // Another server of the fleet runs it: its streams come from there (with the instructor
+    // key); its observer token stays on that server, so the read-only page is opened there.
+    open.href = new URL(`/dashboard.html`, info.serverAddress).toString();
+    open.textContent = "Its server";
+    const address = document.createElement("p");
+    address.className = "muted server-address";
+    address.textContent = `on ${info.serverAddress}`;
+    where.push(address);
+  }
   actions.append(open, timeline);
-  element.append(title, image, document.createElement("dl"), actions);
+  element.append(title, ...where, image, document.createElement("dl"), actions);
   $("sessions").append(element);
-  const card: Card = { element, stop: new AbortController() };
+  const card: Card = { element, stop: new AbortController(), client };
   if (thumbnailStreams < MAX_THUMBNAIL_STREAMS) {
     thumbnailStreams += 1;
     card.stop.signal.addEventListener("abort", () => {
@@ -210,7 +223,8 @@ function renderRecorded(recorded: SessionInfo[]) {
     ...sorted.map((info) => {
       const li = document.createElement("li");
       li.dataset.session = info.sessionId;
-      const status = info.status === SessionStatus.INTERRUPTED ? "interrupted" : "closed";
+      const status =
+        info.status === SessionStatus.INTERRUPTED ? "interrupted" : info.status === SessionStatus.LOST ? "lost" : "closed";
       li.className = status;
       const rows = Object.fromEntries(metricRows(info.metrics));
       li.textContent = `${sessionTitle(info)} — ${status}; ${info.commands} commands; time ${rows.Time}, fluoro ${rows.Fluoro}, target ${rows.Target} `;
@@ -247,7 +261,9 @@ async function poll(signal: AbortSignal) {
         }
       }
       for (const info of live) {
-        const card = cards.get(info.sessionId) ?? addCard(client, info);
+        const card =
+          cards.get(info.sessionId) ??
+          addCard(info.serverAddress ? simulatorClient(info.serverAddress, instructorKey) : client, info);
         cards.set(info.sessionId, card);
         renderMetrics(card.element, info.metrics);
       }
@@ -259,7 +275,10 @@ async function poll(signal: AbortSignal) {
         });
       }
       renderRecorded(sessions.filter((s) => s.status !== SessionStatus.RUNNING));
-      if (!cards.has(selected)) select(client, cards.keys().next().value ?? "");
+      if (!cards.has(selected)) {
+        const [first] = cards.entries();
+        select(first?.[1].client ?? client, first?.[0] ?? "");
+      }
     } catch (e) {
       if (signal.aborted) return;
       if (e instanceof ConnectError && (e.code === Code.Unauthenticated || e.code === Code.PermissionDenied)) {

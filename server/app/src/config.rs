@@ -56,6 +56,12 @@ pub struct ConfigFile {
     /// (`postgres://user:password@host:port/database`; also `CATHLAB_DATABASE_URL`); when set,
     /// it is the store and `database` is not used.
     pub database_url: Option<String>,
+    /// This server's id in a fleet sharing a PostgreSQL store (default: the host name and the
+    /// process id; `local` on SQLite).
+    pub server_id: Option<String>,
+    /// Where clients reach this server (`http://host:port`), as the fleet's other servers
+    /// list it (default: the address it listens on).
+    pub advertise: Option<String>,
     /// Scene directory.
     pub scenes: Option<PathBuf>,
     /// The instructor key (also `CATHLAB_INSTRUCTOR_KEY`).
@@ -116,6 +122,10 @@ pub struct ServerConfig {
     pub database: PathBuf,
     /// A PostgreSQL database URL; when set, the store instead of `database`.
     pub database_url: Option<String>,
+    /// This server's id in the fleet, if set.
+    pub server_id: Option<String>,
+    /// Where clients reach this server, if not where it listens.
+    pub advertise: Option<String>,
     /// Scene directory.
     pub scenes: PathBuf,
     /// Instructor key, if any.
@@ -169,6 +179,8 @@ impl Default for ServerConfig {
             listen: "127.0.0.1:50051".into(),
             database: PathBuf::from("var/cathlab.sqlite"),
             database_url: None,
+            server_id: None,
+            advertise: None,
             scenes: PathBuf::from("scenes"),
             instructor_key: None,
             tls: None,
@@ -216,6 +228,27 @@ impl ServerConfig {
         }
     }
 
+    /// This server's id in the fleet: as configured; else `local` on SQLite (one server per
+    /// file) and the host name with the process id on PostgreSQL.
+    pub fn resolved_server_id(&self) -> String {
+        match (&self.server_id, &self.database_url) {
+            (Some(id), _) => id.clone(),
+            (None, None) => crate::store::LOCAL_SERVER.to_owned(),
+            (None, Some(_)) => {
+                let host = std::env::var("HOSTNAME")
+                    .ok()
+                    .filter(|h| !h.is_empty())
+                    .or_else(|| {
+                        std::fs::read_to_string("/etc/hostname")
+                            .ok()
+                            .map(|h| h.trim().to_owned())
+                    })
+                    .unwrap_or_else(|| "cathlab".into());
+                format!("{host}-{}", std::process::id())
+            }
+        }
+    }
+
     /// Defaults, overridden by the file's fields.
     pub fn from_file(file: ConfigFile) -> Self {
         let d = Self::default();
@@ -223,6 +256,8 @@ impl ServerConfig {
             listen: file.listen.unwrap_or(d.listen),
             database: file.database.unwrap_or(d.database),
             database_url: file.database_url,
+            server_id: file.server_id,
+            advertise: file.advertise,
             scenes: file.scenes.unwrap_or(d.scenes),
             instructor_key: file.instructor_key,
             tls: file.tls,

@@ -4,6 +4,7 @@
 pub mod auth;
 pub mod config;
 pub mod connections;
+pub mod fleet;
 pub mod heap;
 pub mod reports;
 pub mod server;

@@ -86,6 +86,13 @@ struct Options {
     /// given, the store instead of --database.
     #[arg(long, global = true)]
     database_url: Option<String>,
+    /// This server's id in a fleet sharing a PostgreSQL store (default: host name and
+    /// process id).
+    #[arg(long, global = true)]
+    server_id: Option<String>,
+    /// Where clients reach this server (`http://host:port`; default: where it listens).
+    #[arg(long, global = true)]
+    advertise: Option<String>,
     /// Scene directory.
     #[arg(long, global = true)]
     scenes: Option<PathBuf>,
@@ -152,6 +159,12 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
         .or_else(|| std::env::var("CATHLAB_DATABASE_URL").ok())
     {
         config.database_url = Some(v);
+    }
+    if let Some(v) = &options.server_id {
+        config.server_id = Some(v.clone());
+    }
+    if let Some(v) = &options.advertise {
+        config.advertise = Some(v.clone());
     }
     if let Some(v) = &options.scenes {
         config.scenes = v.clone();

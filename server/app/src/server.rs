@@ -48,7 +48,7 @@ pub fn engine(config: &ServerConfig) -> anyhow::Result<(Arc<Engine>, Arc<Store>,
     {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let store = Arc::new(Store::at(&location)?);
+    let store = Arc::new(Store::for_server(&location, &config.resolved_server_id())?);
     let metrics = EngineMetrics::default();
     let renderer = SharedRenderer::new(renderer(config.renderer)?);
     let engine = Engine::new(
@@ -267,6 +267,21 @@ pub async fn serve(
         .with_context(|| format!("binding {}", config.listen))?;
     let address = listener.local_addr()?;
     println!("cathlab-server listening on {address}");
+    // In the fleet's registry (on SQLite, a fleet of one).
+    let advertised = config.advertise.clone().unwrap_or_else(|| {
+        let scheme = if config.tls.is_some() {
+            "https"
+        } else {
+            "http"
+        };
+        format!("{scheme}://{address}")
+    });
+    let mut registration = crate::fleet::Registration::start(
+        store.clone(),
+        engine.clone(),
+        advertised,
+        config.max_sessions,
+    )?;
     if web_client {
         let scheme = if config.tls.is_some() {
             "https"
@@ -302,6 +317,7 @@ pub async fn serve(
     // Also after a serve error (nothing to close after a clean shutdown).
     let closing = service.clone();
     tokio::task::spawn_blocking(move || closing.shutdown()).await?;
+    tokio::task::spawn_blocking(move || registration.stop()).await?;
     result?;
     Ok(())
 }

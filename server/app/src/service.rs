@@ -388,6 +388,7 @@ impl SimulatorService {
             active_device: state.active_device,
             observer_token: String::new(),
             guidance: Some(guidance_to_wire(&session.assets().spec.guidance)),
+            server_address: String::new(),
         }
     }
 
@@ -404,6 +405,7 @@ impl SimulatorService {
             status: match s.status.as_str() {
                 "running" => pb::SessionStatus::Running,
                 "closed" => pb::SessionStatus::Closed,
+                "lost" => pb::SessionStatus::Lost,
                 _ => pb::SessionStatus::Interrupted,
             } as i32,
             created_unix_s: s.created_unix_s,
@@ -416,6 +418,7 @@ impl SimulatorService {
             guidance: serde_json::from_str::<SceneSpec>(&s.scene_json)
                 .ok()
                 .map(|spec| guidance_to_wire(&spec.guidance)),
+            server_address: String::new(),
         })
     }
 
@@ -624,6 +627,7 @@ impl Simulator for SimulatorService {
                 step_rate_hz: spec.fidelity.step_rate_hz,
                 account_id,
                 controller_hash: Some(token_hash(&tokens.controller)),
+                server_id: Some(self.store.server_id().to_owned()),
             })
             .map_err(store_status)?;
         self.tokens.write().insert(id.clone(), tokens.clone());
@@ -658,10 +662,39 @@ impl Simulator for SimulatorService {
                 ..self.info_of(s)
             })
             .collect();
+        // The fleet's other servers' running sessions always (with where they run), the
+        // recorded ones when asked for.
+        let elsewhere = self.store.running_elsewhere().map_err(store_status)?;
+        if !elsewhere.is_empty() {
+            let servers: std::collections::HashMap<String, String> = self
+                .store
+                .servers()
+                .map_err(store_status)?
+                .into_iter()
+                .filter(|s| s.status == "serving")
+                .map(|s| (s.id, s.address))
+                .collect();
+            for stored in &elsewhere {
+                // A server that stopped beating is about to be marked lost: its sessions are
+                // not listed live meanwhile (nothing could be streamed from it).
+                let Some(server_address) = stored
+                    .server_id
+                    .as_ref()
+                    .and_then(|id| servers.get(id).cloned())
+                else {
+                    continue;
+                };
+                sessions.push(pb::SessionInfo {
+                    server_address,
+                    ..self.stored_info(stored)?
+                });
+            }
+        }
         if request.get_ref().include_recorded {
-            let live: Vec<String> = sessions.iter().map(|s| s.session_id.clone()).collect();
+            let listed: std::collections::HashSet<String> =
+                sessions.iter().map(|s| s.session_id.clone()).collect();
             for stored in self.store.sessions().map_err(store_status)? {
-                if !live.contains(&stored.id) {
+                if !listed.contains(&stored.id) {
                     sessions.push(self.stored_info(&stored)?);
                 }
             }

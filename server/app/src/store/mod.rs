@@ -79,6 +79,27 @@ pub struct StoredSession {
     /// SHA-256 of the session's controller token (hex): the trainee's key to the report of an
     /// anonymous session after it closed.
     pub controller_hash: Option<String>,
+    /// The server that runs (or ran) it; none for sessions from before the fleet.
+    pub server_id: Option<String>,
+}
+
+/// A server of the fleet as registered in the store.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredServer {
+    /// Id (unique in the fleet).
+    pub id: String,
+    /// Where clients reach it (`http://host:port`).
+    pub address: String,
+    /// Most sessions it runs at once.
+    pub capacity: u32,
+    /// Sessions it runs now.
+    pub load: u32,
+    /// Unix time it registered (s, the database's clock).
+    pub started_unix_s: f64,
+    /// Unix time of its last heartbeat (s, the database's clock).
+    pub heartbeat_unix_s: f64,
+    /// `serving`, `stopped` (shut down cleanly) or `lost` (stopped beating).
+    pub status: String,
 }
 
 /// An account as stored (its token only as a hash).
@@ -130,6 +151,7 @@ enum Backend {
 /// The store: a writer thread and the database.
 pub struct Store {
     name: String,
+    server_id: String,
     backend: Backend,
     writes: SyncSender<Write>,
     reachable: Arc<AtomicBool>,
@@ -163,11 +185,21 @@ impl Store {
     /// Opens the store at `location`: migrates it to [`SCHEMA_VERSION`], marks sessions left
     /// running by a previous process as interrupted, and starts the writer.
     pub fn at(location: &StoreLocation) -> Result<Self, StoreError> {
-        Self::with_queue(location, QUEUE)
+        Self::for_server(location, LOCAL_SERVER)
     }
 
-    /// [`Store::at`] with a queue of `queue` writes.
-    fn with_queue(location: &StoreLocation, queue: usize) -> Result<Self, StoreError> {
+    /// [`Store::at`] for server `server_id` of a fleet sharing the store: only the sessions
+    /// this server left running (or that name no server) are marked interrupted.
+    pub fn for_server(location: &StoreLocation, server_id: &str) -> Result<Self, StoreError> {
+        Self::with_queue(location, server_id, QUEUE)
+    }
+
+    /// [`Store::for_server`] with a queue of `queue` writes.
+    fn with_queue(
+        location: &StoreLocation,
+        server_id: &str,
+        queue: usize,
+    ) -> Result<Self, StoreError> {
         let (name, backend, connect): (_, _, Connect) = match location {
             StoreLocation::Sqlite(file) => {
                 let path = file.clone();
@@ -213,15 +245,19 @@ impl Store {
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
         let (tx, rx) = sync_channel(queue);
         let writer_name = name.clone();
+        let me = server_id.to_owned();
         let reachable = Arc::new(AtomicBool::new(true));
         let writer_reachable = reachable.clone();
         let writer = std::thread::Builder::new()
             .name("store-writer".into())
             .spawn(move || {
                 let first = connect().and_then(|mut c| {
+                    // Its own sessions another server marked lost while it was away too.
                     c.execute(
-                        "UPDATE sessions SET status = 'interrupted' WHERE status = 'running'",
-                        &[],
+                        "UPDATE sessions SET status = 'interrupted'
+                         WHERE (status = 'running' AND (server_id = ?1 OR server_id IS NULL))
+                         OR (status = 'lost' AND server_id = ?1)",
+                        &[me.into()],
                     )?;
                     Ok(c)
                 });
@@ -242,6 +278,7 @@ impl Store {
             .map_err(database)?;
         Ok(Self {
             name,
+            server_id: server_id.to_owned(),
             backend,
             writes: tx,
             reachable,
@@ -373,6 +410,19 @@ impl Store {
         self.rows(
             format!("{SELECT_SESSION} ORDER BY created_unix_s DESC"),
             vec![],
+            "session",
+            row_to_session,
+        )
+    }
+
+    /// The sessions other servers of the fleet run (as the store last heard), newest first.
+    pub fn running_elsewhere(&self) -> Result<Vec<StoredSession>, StoreError> {
+        self.rows(
+            format!(
+                "{SELECT_SESSION} WHERE status = 'running' AND server_id IS NOT NULL \
+                 AND server_id <> ?1 ORDER BY created_unix_s DESC"
+            ),
+            vec![self.server_id.as_str().into()],
             "session",
             row_to_session,
         )
@@ -633,6 +683,82 @@ impl Store {
             .pop())
     }
 
+    /// This store's server id.
+    pub fn server_id(&self) -> &str {
+        &self.server_id
+    }
+
+    /// Registers this server (or beats its heart): its address, capacity and load, stamped
+    /// with the database's clock. Sessions of this process that another server marked lost
+    /// while this one could not beat (the database unreachable, the process stalled) run
+    /// again. (At start, the lost sessions of an earlier process under the same id were
+    /// marked interrupted.)
+    pub fn heartbeat(&self, address: &str, capacity: u32, load: u32) -> Result<(), StoreError> {
+        let now = self.dialect().now_s();
+        let me: Value = self.server_id.as_str().into();
+        self.write(vec![
+            (
+                format!(
+                    "INSERT INTO servers (id, address, capacity, load, started_unix_s,
+                     heartbeat_unix_s, status) VALUES (?1, ?2, ?3, ?4, {now}, {now}, 'serving')
+                     ON CONFLICT (id) DO UPDATE SET address = excluded.address,
+                     capacity = excluded.capacity, load = excluded.load,
+                     heartbeat_unix_s = excluded.heartbeat_unix_s, status = 'serving'"
+                ),
+                vec![
+                    me.clone(),
+                    address.into(),
+                    i64::from(capacity).into(),
+                    i64::from(load).into(),
+                ],
+            ),
+            (
+                "UPDATE sessions SET status = 'running' WHERE server_id = ?1 AND status = 'lost'"
+                    .into(),
+                vec![me],
+            ),
+        ])
+    }
+
+    /// Marks this server stopped (a clean shutdown: its sessions were closed).
+    pub fn unregister(&self) -> Result<(), StoreError> {
+        self.write(vec![(
+            "UPDATE servers SET status = 'stopped', load = 0 WHERE id = ?1".into(),
+            vec![self.server_id.as_str().into()],
+        )])
+    }
+
+    /// Marks servers whose last heartbeat is older than `silent_s` (by the database's clock)
+    /// lost, and the sessions they were running lost too (their recordings stay replayable).
+    pub fn mark_lost(&self, silent_s: f64) -> Result<(), StoreError> {
+        let now = self.dialect().now_s();
+        self.write(vec![
+            (
+                format!(
+                    "UPDATE servers SET status = 'lost', load = 0 WHERE status = 'serving'
+                     AND heartbeat_unix_s < {now} - ?1"
+                ),
+                vec![silent_s.into()],
+            ),
+            (
+                "UPDATE sessions SET status = 'lost' WHERE status = 'running' AND server_id IN
+                 (SELECT id FROM servers WHERE status = 'lost')"
+                    .into(),
+                vec![],
+            ),
+        ])
+    }
+
+    /// Every server that ever registered, by id.
+    pub fn servers(&self) -> Result<Vec<StoredServer>, StoreError> {
+        self.rows(
+            format!("{SELECT_SERVER} ORDER BY id"),
+            vec![],
+            "server",
+            row_to_server,
+        )
+    }
+
     /// How many commands a session has recorded.
     pub fn command_count(&self, id: &str) -> Result<u64, StoreError> {
         let counts = self.rows(
@@ -649,7 +775,7 @@ impl Store {
 }
 
 const SELECT_SESSION: &str = "SELECT id, label, scene_name, scene_json, base_dir, \
-    created_unix_s, status, step_rate_hz, account_id, controller_hash FROM sessions";
+    created_unix_s, status, step_rate_hz, account_id, controller_hash, server_id FROM sessions";
 
 fn row_to_session(r: &Row) -> Result<StoredSession, String> {
     Ok(StoredSession {
@@ -663,6 +789,22 @@ fn row_to_session(r: &Row) -> Result<StoredSession, String> {
         step_rate_hz: r.real(7)?,
         account_id: r.opt_text(8)?,
         controller_hash: r.opt_text(9)?,
+        server_id: r.opt_text(10)?,
+    })
+}
+
+const SELECT_SERVER: &str = "SELECT id, address, capacity, load, started_unix_s, \
+    heartbeat_unix_s, status FROM servers";
+
+fn row_to_server(r: &Row) -> Result<StoredServer, String> {
+    Ok(StoredServer {
+        id: r.text(0)?,
+        address: r.text(1)?,
+        capacity: r.int(2)?.clamp(0, i64::from(u32::MAX)) as u32,
+        load: r.int(3)?.clamp(0, i64::from(u32::MAX)) as u32,
+        started_unix_s: r.real(4)?,
+        heartbeat_unix_s: r.real(5)?,
+        status: r.text(6)?,
     })
 }
 
@@ -694,6 +836,9 @@ impl Recorder for Store {
 
 /// Most writes in one transaction.
 const BATCH: usize = 512;
+
+/// The server id of a store used by one server alone.
+pub const LOCAL_SERVER: &str = "local";
 
 /// Writes the physics threads may queue ahead of the writer.
 const QUEUE: usize = 1 << 16;
@@ -799,8 +944,9 @@ fn write_batch(conn: &mut dyn Conn, batch: &[Write]) -> Result<(), String> {
                 Write::Session(s, _) => {
                     tx.execute(
                         "INSERT INTO sessions (id, label, scene_name, scene_json, base_dir,
-                         created_unix_s, status, step_rate_hz, account_id, controller_hash)
-                         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+                         created_unix_s, status, step_rate_hz, account_id, controller_hash,
+                         server_id)
+                         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
                         &[
                             (&s.id).into(),
                             (&s.label).into(),
@@ -812,6 +958,7 @@ fn write_batch(conn: &mut dyn Conn, batch: &[Write]) -> Result<(), String> {
                             s.step_rate_hz.into(),
                             s.account_id.clone().into(),
                             s.controller_hash.clone().into(),
+                            s.server_id.clone().into(),
                         ],
                     )?;
                 }
@@ -891,6 +1038,7 @@ mod tests {
             step_rate_hz: 500.0,
             account_id: None,
             controller_hash: None,
+            server_id: None,
         }
     }
 
@@ -1069,7 +1217,74 @@ mod tests {
         assert_eq!(stored[7].command, Command::PushVelocity(0.007));
     }
 
+    /// Two servers on one store: each marks only its own sessions interrupted at start; a
+    /// silent server is marked lost by the other's clock check, with its running sessions;
+    /// its heartbeat brings them back; another process under its id finds them interrupted.
+    fn the_fleet_registry_keeps_servers_and_their_sessions_apart(location: &StoreLocation) {
+        let a = Store::for_server(location, "a").unwrap();
+        let b = Store::for_server(location, "b").unwrap();
+        let on = |id: &str, server: &str| StoredSession {
+            server_id: Some(server.into()),
+            ..session(id, "running")
+        };
+        a.insert_session(on("a1", "a")).unwrap();
+        b.insert_session(on("b1", "b")).unwrap();
+        b.insert_session(on("b2", "b")).unwrap();
+        a.heartbeat("http://a:1", 4, 1).unwrap();
+        b.heartbeat("http://b:1", 4, 2).unwrap();
+        let servers = a.servers().unwrap();
+        assert_eq!(
+            servers
+                .iter()
+                .map(|s| (s.id.as_str(), s.address.as_str(), s.load, s.status.as_str()))
+                .collect::<Vec<_>>(),
+            [
+                ("a", "http://a:1", 1, "serving"),
+                ("b", "http://b:1", 2, "serving")
+            ]
+        );
+        assert!(servers[0].heartbeat_unix_s >= servers[0].started_unix_s);
+        let elsewhere = |s: &Store| -> Vec<String> {
+            s.running_elsewhere()
+                .unwrap()
+                .into_iter()
+                .map(|s| s.id)
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(elsewhere(&a).len(), 2);
+        assert_eq!(elsewhere(&b), ["a1"]);
+        // Nobody is silent for an hour: nothing lost.
+        a.mark_lost(3600.0).unwrap();
+        assert_eq!(b.session("b1").unwrap().unwrap().status, "running");
+        // Everyone is "silent" for a negative time: both lost, with their sessions.
+        a.mark_lost(-1.0).unwrap();
+        assert_eq!(b.session("b1").unwrap().unwrap().status, "lost");
+        assert_eq!(a.session("a1").unwrap().unwrap().status, "lost");
+        assert!(a.servers().unwrap().iter().all(|s| s.status == "lost"));
+        // A's heartbeat: a serves again, its session runs again; b's stay lost.
+        a.heartbeat("http://a:1", 4, 1).unwrap();
+        assert_eq!(a.session("a1").unwrap().unwrap().status, "running");
+        assert_eq!(a.session("b2").unwrap().unwrap().status, "lost");
+        // A new process as b: its lost sessions were interrupted; a's untouched.
+        drop(b);
+        let b = Store::for_server(location, "b").unwrap();
+        assert_eq!(b.session("b1").unwrap().unwrap().status, "interrupted");
+        assert_eq!(b.session("a1").unwrap().unwrap().status, "running");
+        b.heartbeat("http://b:2", 4, 0).unwrap();
+        assert_eq!(b.session("b2").unwrap().unwrap().status, "interrupted");
+        // A clean stop.
+        a.unregister().unwrap();
+        let a_row = b
+            .servers()
+            .unwrap()
+            .into_iter()
+            .find(|s| s.id == "a")
+            .unwrap();
+        assert_eq!((a_row.status.as_str(), a_row.load), ("stopped", 0));
+    }
+
     fn check_all(location: impl Fn(&str) -> StoreLocation) {
+        the_fleet_registry_keeps_servers_and_their_sessions_apart(&location("fleet"));
         the_governors_commands_are_replayed_but_not_counted(&location("governor"));
         corrupt_rows_are_named(&location("corrupt"));
         stored_numbers_come_back_bit_for_bit(&location("bits"));
@@ -1091,7 +1306,7 @@ mod tests {
     fn an_unreachable_postgres_database_never_blocks_the_recorder_and_acknowledges_nothing() {
         let cluster = cluster::PgCluster::start().unwrap();
         let location = StoreLocation::Postgres(cluster.database("outage").unwrap());
-        let store = Store::with_queue(&location, 16).unwrap();
+        let store = Store::with_queue(&location, LOCAL_SERVER, 16).unwrap();
         assert!(store.is_reachable());
         cluster.stop();
         let mut acks = Vec::new();

@@ -17,7 +17,7 @@ use super::sql::{Conn, Row, Value};
 
 /// The schema's migrations, in order (the same versions as SQLite's): migration `i` takes a
 /// database at version `i` to `i + 1`.
-pub const MIGRATIONS: [&str; 2] = [SCHEMA_V1, SCHEMA_V2];
+pub const MIGRATIONS: [&str; 3] = [SCHEMA_V1, SCHEMA_V2, SCHEMA_V3];
 
 const SCHEMA_V1: &str = "
 CREATE TABLE sessions (
@@ -51,6 +51,15 @@ CREATE TABLE reports (
 CREATE TABLE report_frames (
     session_id TEXT NOT NULL, idx BIGINT NOT NULL, time_s DOUBLE PRECISION NOT NULL,
     png BYTEA NOT NULL, PRIMARY KEY (session_id, idx));
+";
+
+const SCHEMA_V3: &str = "
+CREATE TABLE servers (
+    id TEXT PRIMARY KEY, address TEXT NOT NULL, capacity BIGINT NOT NULL,
+    load BIGINT NOT NULL, started_unix_s DOUBLE PRECISION NOT NULL,
+    heartbeat_unix_s DOUBLE PRECISION NOT NULL, status TEXT NOT NULL);
+ALTER TABLE sessions ADD COLUMN server_id TEXT;
+CREATE INDEX sessions_by_server ON sessions (server_id, status);
 ";
 
 /// The advisory lock the migrations hold ("cathlab" in ASCII).

@@ -128,6 +128,15 @@ impl Dialect {
             Self::Postgres => "id",
         }
     }
+
+    /// The database's clock as Unix time in seconds (servers of a fleet compare heartbeats
+    /// on one clock, not on their own).
+    pub fn now_s(self) -> &'static str {
+        match self {
+            Self::Sqlite => "((julianday('now') - 2440587.5) * 86400.0)",
+            Self::Postgres => "(EXTRACT(EPOCH FROM clock_timestamp())::DOUBLE PRECISION)",
+        }
+    }
 }
 
 /// One connection to a backend. Statements are written with SQLite's `?1`, `?2`… placeholders

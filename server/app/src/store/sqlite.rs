@@ -11,7 +11,7 @@ use super::sql::{Conn, Row, Value};
 /// The schema's migrations, in order: migration `i` takes a database at version `i` (SQLite's
 /// `user_version`) to `i + 1`, in one transaction. A database made before migrations existed
 /// is at version 0 with the first migration's tables: its `IF NOT EXISTS` keeps them.
-pub const MIGRATIONS: [&str; 2] = [SCHEMA_V1, SCHEMA_V2];
+pub const MIGRATIONS: [&str; 3] = [SCHEMA_V1, SCHEMA_V2, SCHEMA_V3];
 
 /// The first release's tables.
 pub const SCHEMA_V1: &str = "
@@ -43,6 +43,17 @@ CREATE TABLE reports (
 CREATE TABLE report_frames (
     session_id TEXT NOT NULL, idx INTEGER NOT NULL, time_s REAL NOT NULL, png BLOB NOT NULL,
     PRIMARY KEY (session_id, idx));
+";
+
+/// The fleet: servers sharing the store, and which runs each session.
+const SCHEMA_V3: &str = "
+CREATE TABLE servers (
+    id TEXT PRIMARY KEY, address TEXT NOT NULL, capacity INTEGER NOT NULL,
+    load INTEGER NOT NULL, started_unix_s REAL NOT NULL, heartbeat_unix_s REAL NOT NULL,
+    status TEXT NOT NULL);
+ALTER TABLE sessions ADD COLUMN server_id TEXT;
+CREATE INDEX sessions_by_server ON sessions (server_id, status);
+CREATE INDEX events_by_session ON events (session_id);
 ";
 
 /// A connection to a SQLite file.
