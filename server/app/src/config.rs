@@ -62,6 +62,13 @@ pub struct ConfigFile {
     /// Where clients reach this server (`http://host:port`), as the fleet's other servers
     /// list it (default: the address it listens on).
     pub advertise: Option<String>,
+    /// Speak the Agones SDK to the sidecar on `localhost:$AGONES_SDK_GRPC_PORT` (a
+    /// GameServer of an Agones Fleet): Ready once warm, Health while the physics loops keep
+    /// time, Allocated while it runs sessions, the `sessions` counter, Shutdown at exit.
+    pub agones: Option<bool>,
+    /// Scenes to load at start, before the server counts as ready (their anatomy and CT
+    /// built once, so the first trainee does not wait for them).
+    pub warm_scenes: Option<Vec<String>>,
     /// Scene directory.
     pub scenes: Option<PathBuf>,
     /// The instructor key (also `CATHLAB_INSTRUCTOR_KEY`).
@@ -126,6 +133,10 @@ pub struct ServerConfig {
     pub server_id: Option<String>,
     /// Where clients reach this server, if not where it listens.
     pub advertise: Option<String>,
+    /// Speak the Agones SDK (see [`ConfigFile::agones`]).
+    pub agones: bool,
+    /// Scenes loaded at start (see [`ConfigFile::warm_scenes`]).
+    pub warm_scenes: Vec<String>,
     /// Scene directory.
     pub scenes: PathBuf,
     /// Instructor key, if any.
@@ -181,6 +192,8 @@ impl Default for ServerConfig {
             database_url: None,
             server_id: None,
             advertise: None,
+            agones: false,
+            warm_scenes: Vec::new(),
             scenes: PathBuf::from("scenes"),
             instructor_key: None,
             tls: None,
@@ -258,6 +271,8 @@ impl ServerConfig {
             database_url: file.database_url,
             server_id: file.server_id,
             advertise: file.advertise,
+            agones: file.agones.unwrap_or(d.agones),
+            warm_scenes: file.warm_scenes.unwrap_or(d.warm_scenes),
             scenes: file.scenes.unwrap_or(d.scenes),
             instructor_key: file.instructor_key,
             tls: file.tls,

@@ -1,6 +1,7 @@
 //! The cathlab server: configuration, the SQLite store, the Simulator service and the
 //! assembly of everything into one listening server (`cathlab-server`).
 
+pub mod agones;
 pub mod auth;
 pub mod config;
 pub mod connections;

@@ -93,6 +93,15 @@ struct Options {
     /// Where clients reach this server (`http://host:port`; default: where it listens).
     #[arg(long, global = true)]
     advertise: Option<String>,
+    /// Most sessions at once (also the capacity this server publishes to a fleet).
+    #[arg(long, global = true)]
+    max_sessions: Option<usize>,
+    /// Speak the Agones SDK to the sidecar (`AGONES_SDK_GRPC_PORT`, default 9357).
+    #[arg(long, global = true)]
+    agones: bool,
+    /// A scene to load at start, before the server counts as ready (repeatable).
+    #[arg(long = "warm", global = true, value_name = "SCENE")]
+    warm_scenes: Vec<String>,
     /// Scene directory.
     #[arg(long, global = true)]
     scenes: Option<PathBuf>,
@@ -165,6 +174,15 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
     }
     if let Some(v) = &options.advertise {
         config.advertise = Some(v.clone());
+    }
+    if let Some(v) = options.max_sessions {
+        config.max_sessions = v;
+    }
+    if options.agones {
+        config.agones = true;
+    }
+    if !options.warm_scenes.is_empty() {
+        config.warm_scenes = options.warm_scenes.clone();
     }
     if let Some(v) = &options.scenes {
         config.scenes = v.clone();

@@ -103,12 +103,43 @@ pub async fn serve(
     shutdown: impl Future<Output = ()> + Send,
 ) -> anyhow::Result<()> {
     check_exposure(&config)?;
+    // An Agones GameServer without its sidecar would never be Ready: stop here, saying so.
+    let agones = if config.agones {
+        Some(crate::agones::connect().await?)
+    } else {
+        None
+    };
     let (engine, store, metrics) = engine(&config)?;
     tracing::info!(
         renderer = %format!("{:?}", config.renderer),
         scenes = engine.catalog().scenes().len(),
         "engine ready"
     );
+    // The scenes to warm, named now (a wrong name stops the server), loaded in the
+    // background: the server answers meanwhile, and counts as ready (to Agones) once done.
+    let mut warm = Vec::new();
+    for name in &config.warm_scenes {
+        let (spec, base) = engine
+            .scene(&cathlab_engine::engine::SceneSource::Named(name.clone()))
+            .with_context(|| format!("warm_scenes: {name:?}"))?;
+        warm.push((spec, base));
+    }
+    let warming = {
+        let engine = engine.clone();
+        tokio::task::spawn_blocking(move || {
+            for (spec, base) in warm {
+                let started = std::time::Instant::now();
+                match engine.load(&spec, &base) {
+                    Ok(_) => tracing::info!(
+                        scene = %spec.name,
+                        seconds = started.elapsed().as_secs_f64(),
+                        "scene warm"
+                    ),
+                    Err(e) => tracing::warn!(scene = %spec.name, "warming: {e}"),
+                }
+            }
+        })
+    };
     let default_scene = config.resolve_default_scene(&engine.catalog().names())?;
     let service = Arc::new(
         SimulatorService::new(engine.clone(), store.clone(), config.instructor_key.clone())
@@ -282,6 +313,13 @@ pub async fn serve(
         advertised,
         config.max_sessions,
     )?;
+    let lifecycle = agones.clone().map(|sdk| {
+        let (engine, capacity) = (engine.clone(), config.max_sessions);
+        tokio::spawn(async move {
+            let _ = warming.await;
+            crate::agones::run(sdk, engine, capacity).await;
+        })
+    });
     if web_client {
         let scheme = if config.tls.is_some() {
             "https"
@@ -318,6 +356,14 @@ pub async fn serve(
     let closing = service.clone();
     tokio::task::spawn_blocking(move || closing.shutdown()).await?;
     tokio::task::spawn_blocking(move || registration.stop()).await?;
+    // Drained (every session closed and stored): Agones may delete the pod.
+    if let (Some(task), Some(mut sdk)) = (lifecycle, agones) {
+        task.abort();
+        match sdk.shutdown().await {
+            Ok(()) => tracing::info!("Agones: Shutdown"),
+            Err(e) => tracing::warn!("{e}"),
+        }
+    }
     result?;
     Ok(())
 }

@@ -43,6 +43,11 @@ pub fn temp_dir(name: &str) -> PathBuf {
 impl ServerProcess {
     /// Starts a server on a free port with `database`, with extra flags.
     pub fn start(database: &Path, extra: &[&str]) -> Self {
+        Self::start_with_env(database, extra, &[])
+    }
+
+    /// [`ServerProcess::start`] with extra environment variables.
+    pub fn start_with_env(database: &Path, extra: &[&str], env: &[(&str, &str)]) -> Self {
         let mut child = Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
             .args(["--listen", "127.0.0.1:0", "--database"])
             .arg(database)
@@ -52,6 +57,7 @@ impl ServerProcess {
             .args(extra)
             .env("CATHLAB_INSTRUCTOR_KEY", INSTRUCTOR_KEY)
             .env("RUST_LOG", "warn")
+            .envs(env.iter().copied())
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
@@ -90,6 +96,21 @@ impl ServerProcess {
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
         panic!("cannot connect to {}", self.url());
+    }
+
+    /// A clean stop (stdin closed: the server closes its sessions and exits); false if it
+    /// had not exited within 30 s (then it is killed).
+    pub fn stop(&mut self) -> bool {
+        drop(self.child.stdin.take());
+        let deadline = std::time::Instant::now() + Duration::from_secs(30);
+        while std::time::Instant::now() < deadline {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        self.kill();
+        false
     }
 
     /// SIGKILL, no chance to clean up.
