@@ -154,6 +154,28 @@ impl Sdk {
             })
     }
 
+    /// The GameServer as Agones holds it (its address and ports among its status).
+    pub async fn game_server(&mut self) -> Result<pb::sdk::GameServer, AgonesError> {
+        self.sdk
+            .get_game_server(pb::sdk::Empty {})
+            .await
+            .map(tonic::Response::into_inner)
+            .map_err(|status| AgonesError::Call {
+                call: "GetGameServer",
+                status,
+            })
+    }
+
+    /// Where clients reach the GameServer: its status' address and first port, once Agones
+    /// has assigned them.
+    pub async fn public_address(&mut self) -> Result<Option<(String, u16)>, AgonesError> {
+        let gs = self.game_server().await?;
+        Ok(gs.status.and_then(|s| {
+            let port = s.ports.first().and_then(|p| u16::try_from(p.port).ok())?;
+            (!s.address.is_empty() && port != 0).then_some((s.address, port))
+        }))
+    }
+
     /// Sets the GameServer's label `agones.dev/sdk-{key}` to `value`.
     pub async fn set_label(&mut self, key: &str, value: &str) -> Result<(), AgonesError> {
         self.sdk

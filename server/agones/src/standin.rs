@@ -23,6 +23,8 @@ pub enum Call {
     Shutdown,
     /// One message on the `Health` stream.
     Health,
+    /// `GetGameServer`.
+    GetGameServer,
     /// `SetLabel(key, value)`.
     SetLabel(String, String),
     /// `UpdateCounter(name, count, capacity)` (count and capacity as sent, if set).
@@ -32,6 +34,7 @@ pub enum Call {
 #[derive(Debug, Default)]
 struct Recorded {
     calls: Vec<Call>,
+    address: Option<(String, u16)>,
     counters: HashMap<String, beta::Counter>,
 }
 
@@ -71,6 +74,27 @@ impl sdk::sdk_server::Sdk for Stable {
             record(&self.0, Call::Health);
         }
         Ok(Response::new(Empty {}))
+    }
+
+    async fn get_game_server(
+        &self,
+        _: Request<Empty>,
+    ) -> Result<Response<sdk::GameServer>, Status> {
+        let mut shared = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        shared.calls.push(Call::GetGameServer);
+        let (address, port) = shared.address.clone().unwrap_or_default();
+        Ok(Response::new(sdk::GameServer {
+            status: Some(sdk::game_server::Status {
+                state: "Ready".into(),
+                address,
+                ports: vec![sdk::game_server::status::Port {
+                    name: "grpc".into(),
+                    port: i32::from(port),
+                }],
+                ..Default::default()
+            }),
+            ..Default::default()
+        }))
     }
 
     async fn set_label(&self, request: Request<KeyValue>) -> Result<Response<Empty>, Status> {
@@ -167,6 +191,15 @@ impl StandIn {
             .clone()
     }
 
+    /// The address and port `GetGameServer` reports (none: empty, as before Agones assigns
+    /// them).
+    pub fn set_address(&self, address: &str, port: u16) {
+        self.shared
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .address = Some((address.into(), port));
+    }
+
     /// Counter `name` as last set.
     pub fn counter(&self, name: &str) -> Option<beta::Counter> {
         self.shared
@@ -207,6 +240,12 @@ mod tests {
         assert_eq!((counter.count, counter.capacity), (1, 4));
         sdk.allocate().await.unwrap();
         sdk.set_label("scene", "stroke").await.unwrap();
+        assert_eq!(sdk.public_address().await.unwrap(), None);
+        standin.set_address("gs.example.org", 7777);
+        assert_eq!(
+            sdk.public_address().await.unwrap(),
+            Some(("gs.example.org".into(), 7777))
+        );
         sdk.shutdown().await.unwrap();
         // The health stream is asynchronous: wait for its two pings.
         for _ in 0..100 {
@@ -231,6 +270,8 @@ mod tests {
                 &Call::UpdateCounter("sessions".into(), Some(1), Some(4)),
                 &Call::Allocate,
                 &Call::SetLabel("scene".into(), "stroke".into()),
+                &Call::GetGameServer,
+                &Call::GetGameServer,
                 &Call::Shutdown,
             ]
         );

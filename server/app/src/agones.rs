@@ -11,6 +11,8 @@ use std::time::{Duration, Instant};
 use cathlab_agones::Sdk;
 use cathlab_engine::Engine;
 
+use crate::fleet::AdvertisedAddress;
+
 /// How often a health ping is sent (Agones' default `health.periodSeconds` is 5 s).
 pub const HEALTH_PERIOD: Duration = Duration::from_secs(2);
 
@@ -69,8 +71,15 @@ impl TimeKeeping {
 }
 
 /// Runs the lifecycle until the task is dropped: Ready (after setting the counter), then
-/// health pings, counter updates and Allocate/Ready as sessions come and go.
-pub async fn run(mut sdk: Sdk, engine: Arc<Engine>, capacity: usize) {
+/// health pings, counter updates and Allocate/Ready as sessions come and go. With
+/// `advertise`, the fleet's registry gets the GameServer's public address and port from
+/// Agones (`scheme://address:port`) once Agones has assigned them.
+pub async fn run(
+    mut sdk: Sdk,
+    engine: Arc<Engine>,
+    capacity: usize,
+    advertise: Option<(AdvertisedAddress, &'static str)>,
+) {
     let capacity = i64::try_from(capacity).unwrap_or(i64::MAX);
     let mut count = 0i64;
     if let Err(e) = sdk.set_counter(SESSIONS_COUNTER, 0, capacity).await {
@@ -80,6 +89,17 @@ pub async fn run(mut sdk: Sdk, engine: Arc<Engine>, capacity: usize) {
         tracing::error!("{e}");
     }
     tracing::info!("Agones: Ready");
+    if let Some((address, scheme)) = &advertise {
+        match sdk.public_address().await {
+            Ok(Some((host, port))) => {
+                let public = format!("{scheme}://{host}:{port}");
+                tracing::info!(address = %public, "Agones: the GameServer's address advertised");
+                address.set(public);
+            }
+            Ok(None) => tracing::warn!("Agones gave no address yet: advertising {}", address.get()),
+            Err(e) => tracing::warn!("{e}"),
+        }
+    }
     let mut health = sdk.health();
     let mut keeping = TimeKeeping::default();
     let mut allocated = false;

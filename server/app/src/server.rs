@@ -204,6 +204,7 @@ pub async fn serve(
         heap.clone(),
     );
     let registry = Arc::new(registry);
+    let allocating = store.clone();
     let router = Routes::new(simulator)
         .add_service(health_service)
         .add_service(reflection)
@@ -212,6 +213,10 @@ pub async fn serve(
         // gRPC-Web for the gRPC routes only: tonic-web answers 400 to any other HTTP/1.1
         // request, and /metrics (added after the layer) is plain HTTP.
         .layer(tonic_web::GrpcWebLayer::new())
+        .route(
+            "/allocate",
+            get(move |uri: axum::http::Uri| allocate(allocating.clone(), uri)),
+        )
         .route(
             "/metrics",
             get(move || {
@@ -315,9 +320,18 @@ pub async fn serve(
     )?;
     let lifecycle = agones.clone().map(|sdk| {
         let (engine, capacity) = (engine.clone(), config.max_sessions);
+        // Unless told where clients reach it, a GameServer is reached where Agones says.
+        let advertise = config.advertise.is_none().then(|| {
+            let scheme = if config.tls.is_some() {
+                "https"
+            } else {
+                "http"
+            };
+            (registration.address(), scheme)
+        });
         tokio::spawn(async move {
             let _ = warming.await;
-            crate::agones::run(sdk, engine, capacity).await;
+            crate::agones::run(sdk, engine, capacity, advertise).await;
         })
     });
     if web_client {
@@ -366,6 +380,50 @@ pub async fn serve(
     }
     result?;
     Ok(())
+}
+
+/// `GET /allocate[?query]`: a new trainee's way in. Redirects (303) to the web client on the
+/// serving server of the fleet with the most room, the query kept (`?scene=…&label=…`);
+/// 503 if none has room. The registry is the fleet's store, so any server answers alike.
+async fn allocate(
+    store: Arc<Store>,
+    uri: axum::http::Uri,
+) -> axum::response::Response<axum::body::Body> {
+    use axum::http::{StatusCode, header};
+    use axum::response::IntoResponse;
+    let servers = tokio::task::spawn_blocking(move || store.servers()).await;
+    let servers = match servers {
+        Ok(Ok(s)) => s,
+        Ok(Err(e)) => {
+            return (
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!("the fleet's registry: {e}\n"),
+            )
+                .into_response();
+        }
+        Err(e) => return (StatusCode::INTERNAL_SERVER_ERROR, format!("{e}\n")).into_response(),
+    };
+    let Some(server) = crate::fleet::with_most_room(&servers) else {
+        return (
+            StatusCode::SERVICE_UNAVAILABLE,
+            [
+                (header::RETRY_AFTER, "30"),
+                (header::CACHE_CONTROL, "no-store"),
+            ],
+            "no server of the fleet has room for another session; try again shortly\n",
+        )
+            .into_response();
+    };
+    let query = uri.query().map(|q| format!("?{q}")).unwrap_or_default();
+    let location = format!("{}/{query}", server.address.trim_end_matches('/'));
+    (
+        StatusCode::SEE_OTHER,
+        [
+            (header::LOCATION, location),
+            (header::CACHE_CONTROL, "no-store".to_owned()),
+        ],
+    )
+        .into_response()
 }
 
 /// tonic answers a request message that does not decode with INTERNAL; it is the caller's

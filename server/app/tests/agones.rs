@@ -1,7 +1,8 @@
 //! The Agones SDK contract, against a stand-in of the sidecar that records the calls (not
 //! Agones itself: no GameServer states, no Kubernetes; see docs/deploy.md for a real
 //! cluster). A server started with `--agones` and a scene to warm: the `sessions` counter
-//! (0 of its capacity) and Ready only once the scene is warm; health pings while its physics
+//! (0 of its capacity) and Ready only once the scene is warm, then the GameServer's address
+//! (which `/allocate` sends new trainees to); health pings while its physics
 //! keeps time; a session makes it Allocated with the counter at 1; the session's end puts it
 //! back to Ready at 0; a clean exit ends with Shutdown, after the session was stored closed.
 //! Without a sidecar, `--agones` stops the server at start, naming where it looked.
@@ -58,8 +59,27 @@ async fn the_server_follows_the_agones_lifecycle_against_a_recording_stand_in() 
         ],
         &[("AGONES_SDK_GRPC_PORT", &port)],
     );
-    wait_for(&standin, "Ready", 60, |c| c.contains(&Call::Ready)).await;
-    assert_eq!(unary(&standin.calls()), [counter(0), Call::Ready]);
+    // Agones has placed the GameServer: the fleet's registry gets its address.
+    standin.set_address("gs-1.example.org", 7777);
+    wait_for(&standin, "Ready", 60, |c| c.contains(&Call::GetGameServer)).await;
+    assert_eq!(
+        unary(&standin.calls()),
+        [counter(0), Call::Ready, Call::GetGameServer]
+    );
+    // A new trainee is sent there (the query kept) by the allocation endpoint.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let (status, headers, body) = http_get(&server.address, "/allocate?scene=x").await;
+        let location = headers
+            .get("location")
+            .map(|l| l.to_str().unwrap().to_owned());
+        if location.as_deref() == Some("http://gs-1.example.org:7777/?scene=x") {
+            assert_eq!(status, 303, "{body}");
+            break;
+        }
+        assert!(Instant::now() < deadline, "{status} {location:?} {body}");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
     wait_for(&standin, "a health ping", 10, |c| c.contains(&Call::Health)).await;
 
     let mut client = server.client().await;
@@ -92,6 +112,7 @@ async fn the_server_follows_the_agones_lifecycle_against_a_recording_stand_in() 
         [
             counter(0),
             Call::Ready,
+            Call::GetGameServer,
             counter(1),
             Call::Allocate,
             counter(0),

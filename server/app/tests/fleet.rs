@@ -1,5 +1,6 @@
 //! A fleet on this machine: three server processes sharing one PostgreSQL (a throwaway local
-//! cluster). Sessions spread over the servers; any server's instructor list shows every
+//! cluster). Sessions spread over the servers (the allocation endpoint sends each new trainee
+//! to the server with the most room, and says so when none has); any server's instructor list shows every
 //! running session with the address of the server that runs it; a server killed without
 //! warning loses no acknowledged command, its sessions are marked lost by the others, and
 //! they replay bit for bit from the shared store.
@@ -44,25 +45,47 @@ async fn three_servers_on_one_postgres_share_sessions_and_survive_one_being_kill
                     &format!("s{i}"),
                     "--renderer",
                     "cpu",
+                    "--max-sessions",
+                    "2",
                 ],
             )
         })
         .collect();
 
-    // Two sessions on each server, a few acknowledged commands each.
+    // Six trainees in turn, each sent by server 0's allocation endpoint to the server with
+    // the most room: two sessions on each (capacity 2), a few acknowledged commands each.
     let mut sessions = Vec::new();
-    for (i, server) in servers.iter().enumerate() {
-        let mut client = server.client().await;
-        for _ in 0..2 {
-            let session = create(&mut client).await;
-            for seq in 1..=3 {
-                send(&mut client, &session, seq, push(10.0 * seq as f64))
-                    .await
-                    .unwrap();
-            }
-            sessions.push((i, session));
+    for _ in 0..6 {
+        let (status, headers, body) = http_get(&servers[0].address, "/allocate").await;
+        assert_eq!(status, 303, "{body}");
+        let location = headers["location"].to_str().unwrap().trim_end_matches('/');
+        let i = servers
+            .iter()
+            .position(|s| s.url() == location)
+            .unwrap_or_else(|| panic!("{location} is no server of the fleet"));
+        let mut client = servers[i].client().await;
+        let session = create(&mut client).await;
+        for seq in 1..=3 {
+            send(&mut client, &session, seq, push(10.0 * seq as f64))
+                .await
+                .unwrap();
         }
+        sessions.push((i, session));
+        // The server beats at once when its load changes.
+        tokio::time::sleep(Duration::from_millis(400)).await;
     }
+    for i in 0..3 {
+        assert_eq!(
+            sessions.iter().filter(|(j, _)| *j == i).count(),
+            2,
+            "server {i}'s share: {:?}",
+            sessions.iter().map(|(j, _)| j).collect::<Vec<_>>()
+        );
+    }
+    // The fleet is full: the next trainee is told to wait.
+    let (status, headers, _) = http_get(&servers[2].address, "/allocate").await;
+    assert_eq!(status, 503);
+    assert_eq!(headers["retry-after"], "30");
 
     // Every server lists all six running, each with where it runs.
     for (i, server) in servers.iter().enumerate() {

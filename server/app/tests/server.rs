@@ -793,22 +793,9 @@ async fn metrics_and_events_stream_and_instructors_list_sessions() {
 
 /// GET over HTTP/1.1 with hyper.
 async fn reqwest_free_get(address: &str, path: &str) -> String {
-    use http_body_util::{BodyExt, Empty};
-    use hyper::body::Bytes;
-    let stream = tokio::net::TcpStream::connect(address).await.unwrap();
-    let (mut sender, connection) =
-        hyper::client::conn::http1::handshake(hyper_util::rt::TokioIo::new(stream))
-            .await
-            .unwrap();
-    tokio::spawn(connection);
-    let request = hyper::Request::get(path)
-        .header("host", address)
-        .body(Empty::<Bytes>::new())
-        .unwrap();
-    let response = sender.send_request(request).await.unwrap();
-    assert_eq!(response.status(), 200);
-    let bytes = response.into_body().collect().await.unwrap().to_bytes();
-    String::from_utf8(bytes.to_vec()).unwrap()
+    let (status, _, body) = http_get(address, path).await;
+    assert_eq!(status, 200);
+    body
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -247,3 +247,29 @@ pub async fn close(client: &mut SimulatorClient<Channel>, session: &pb::CreateSe
         .await
         .expect("the session closes");
 }
+
+/// `GET path` over plain HTTP/1.1 from the server at `address` (`host:port`): the status, the
+/// headers and the body.
+pub async fn http_get(address: &str, path: &str) -> (u16, hyper::HeaderMap, String) {
+    use http_body_util::{BodyExt, Empty};
+    use hyper::body::Bytes;
+    let stream = tokio::net::TcpStream::connect(address).await.unwrap();
+    let (mut sender, connection) =
+        hyper::client::conn::http1::handshake(hyper_util::rt::TokioIo::new(stream))
+            .await
+            .unwrap();
+    tokio::spawn(connection);
+    let request = hyper::Request::get(path)
+        .header("host", address)
+        .body(Empty::<Bytes>::new())
+        .unwrap();
+    let response = sender.send_request(request).await.unwrap();
+    let status = response.status().as_u16();
+    let headers = response.headers().clone();
+    let bytes = response.into_body().collect().await.unwrap().to_bytes();
+    (
+        status,
+        headers,
+        String::from_utf8_lossy(&bytes).into_owned(),
+    )
+}
