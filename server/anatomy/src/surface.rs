@@ -10,6 +10,7 @@
 //! linear function on such a mesh is a closed, oriented 2-manifold.
 
 use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};
 
 use crate::error::{AnatomyError, Result, require_positive, require_range};
@@ -45,6 +46,9 @@ impl Default for SurfaceSettings {
 }
 
 type Key = [i32; 3];
+
+/// Leaf cubes whose corners are sampled together (in parallel) ahead of the march.
+const SAMPLE_BLOCK: usize = 8192;
 
 /// Builds the lumen surface of `graph` (outward-facing triangles, metres).
 pub fn lumen_surface(graph: &VesselGraph, settings: &SurfaceSettings) -> Result<TriangleMesh> {
@@ -222,18 +226,61 @@ impl<'a> Polygonizer<'a> {
         }
     }
 
+    /// The field at lattice point `k`, never zero (nor so close that crossings collapse
+    /// onto it).
+    fn sample_value(&self, k: &Key) -> f64 {
+        let v = self.field.value(&self.position(k));
+        let snap = 0.02 * self.unit;
+        if v.abs() < snap { snap } else { v }
+    }
+
     fn value(&mut self, k: &Key) -> f64 {
         if let Some(v) = self.values.get(k) {
             return *v;
         }
-        let mut v = self.field.value(&self.position(k));
-        // No sample may be zero (or so close that crossings collapse onto it).
-        let snap = 0.02 * self.unit;
-        if v.abs() < snap {
-            v = snap;
-        }
+        let v = self.sample_value(k);
         self.values.insert(*k, v);
         v
+    }
+
+    /// The tetrahedra of leaf cube (o, e) as (face centre, q_i, q_i+1) fans; each with the
+    /// cube's centre is one tetrahedron.
+    fn cube_fan(&self, o: Key, e: i32, fan: &mut Vec<[Key; 3]>) {
+        fan.clear();
+        for axis in 0..3 {
+            let (a1, a2) = ((axis + 1) % 3, (axis + 2) % 3);
+            let mut u = [0; 3];
+            let mut v = [0; 3];
+            u[a1] = e;
+            v[a2] = e;
+            for side in 0..2 {
+                let mut p00 = o;
+                p00[axis] += side * e;
+                self.face_triangles(p00, u, v, fan);
+            }
+        }
+    }
+
+    /// Evaluates, in parallel, the field at every corner of the tetrahedra of `leaves` not yet
+    /// sampled (the field is a pure function of position, so the surface is the same as when
+    /// they are sampled one by one as the march reaches them).
+    fn sample_corners(&mut self, leaves: &[(Key, i32)]) {
+        let mut keys = Vec::new();
+        let mut fan = Vec::new();
+        for &(o, e) in leaves {
+            let half = e / 2;
+            let center = [o[0] + half, o[1] + half, o[2] + half];
+            self.cube_fan(o, e, &mut fan);
+            keys.push(center);
+            for t in &fan {
+                keys.extend_from_slice(t);
+            }
+        }
+        keys.sort_unstable();
+        keys.dedup();
+        keys.retain(|k| !self.values.contains_key(k));
+        let values: Vec<f64> = keys.par_iter().map(|k| self.sample_value(k)).collect();
+        self.values.extend(keys.into_iter().zip(values));
     }
 
     fn run(mut self) -> Result<TriangleMesh> {
@@ -249,22 +296,15 @@ impl<'a> Polygonizer<'a> {
         let mut crossing: FxHashMap<(Key, Key), u32> = FxHashMap::default();
         let mut triangles: Vec<[u32; 3]> = Vec::new();
         let mut fan = Vec::new();
-        for (o, e) in active {
-            fan.clear();
+        for (i, &(o, e)) in active.iter().enumerate() {
+            // The next block of leaves' corners sampled at once, in parallel.
+            if i % SAMPLE_BLOCK == 0 {
+                let end = (i + SAMPLE_BLOCK).min(active.len());
+                self.sample_corners(&active[i..end]);
+            }
             let half = e / 2;
             let center = [o[0] + half, o[1] + half, o[2] + half];
-            for axis in 0..3 {
-                let (a1, a2) = ((axis + 1) % 3, (axis + 2) % 3);
-                let mut u = [0; 3];
-                let mut v = [0; 3];
-                u[a1] = e;
-                v[a2] = e;
-                for side in 0..2 {
-                    let mut p00 = o;
-                    p00[axis] += side * e;
-                    self.face_triangles(p00, u, v, &mut fan);
-                }
-            }
+            self.cube_fan(o, e, &mut fan);
             for &[fc, q0, q1] in &fan {
                 let mut tet = [center, fc, q0, q1];
                 if orientation(&tet) < 0 {
@@ -294,7 +334,7 @@ impl<'a> Polygonizer<'a> {
         let step = 0.05 * self.unit;
         mesh.normals = mesh
             .vertices
-            .iter()
+            .par_iter()
             .map(|p| {
                 self.field
                     .gradient(p, step)
@@ -400,9 +440,17 @@ impl<'a> Polygonizer<'a> {
                     (p[1] - p[0]).cross(&(p[2] - p[0])).dot(normal) <= 0.0
                 })
             };
-        for v in 0..n {
-            let candidate = project(mesh.vertices[v]);
-            let normal = self.field.gradient(&candidate, step);
+        // Each vertex's projection depends on its own position only: computed in parallel,
+        // then accepted in order (the fold check reads the neighbours as moved so far).
+        let projected: Vec<(Point3<f64>, Vector3<f64>)> = mesh
+            .vertices
+            .par_iter()
+            .map(|&x| {
+                let candidate = project(x);
+                (candidate, self.field.gradient(&candidate, step))
+            })
+            .collect();
+        for (v, (candidate, normal)) in projected.into_iter().enumerate() {
             if !folds(mesh, v, &candidate, &normal) {
                 mesh.vertices[v] = candidate;
             }
