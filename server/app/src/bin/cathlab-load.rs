@@ -5,6 +5,11 @@
 //! missed physics steps and step/frame time percentiles from the server, frame rates as
 //! received, the server's resident memory per session, the command-to-state latency of unary
 //! commands and the round trip of the bidirectional control stream at 1 kHz.
+//!
+//! With `--servers N` (N > 1) it loads a fleet instead: a throwaway PostgreSQL cluster (Debian's
+//! binaries) and N server processes sharing it, `--sessions-per-server` sessions on each, and
+//! reports each server's steps, late and missed steps, the command-to-state latency measured
+//! on every server at once, and the rows the fleet wrote to the shared store per second.
 
 mod harness;
 
@@ -35,6 +40,12 @@ struct Cli {
     /// `neuro_phantom_m1`.
     #[arg(long, default_value = "arch_to_cow_lcca")]
     scene: String,
+    /// Servers in a fleet sharing one PostgreSQL (1: the single-server benchmark).
+    #[arg(long, default_value_t = 1)]
+    servers: usize,
+    /// Sessions on each server of the fleet.
+    #[arg(long, default_value_t = 1)]
+    sessions_per_server: usize,
     #[command(flatten)]
     target: ServerArgs,
 }
@@ -300,6 +311,9 @@ async fn control_round_trip(
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> Result<()> {
     let cli = Cli::parse();
+    if cli.servers > 1 {
+        return fleet(&cli).await;
+    }
     let dir = std::env::temp_dir().join(format!("cathlab-load-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let server = start_server(&cli, &dir.join("load.sqlite"))?;
@@ -450,4 +464,190 @@ async fn session_info(
         ))
         .await?
         .into_inner())
+}
+
+/// Rows in the store's recording tables (commands, checkpoints, events).
+fn store_rows(url: &str) -> Result<[i64; 3]> {
+    let url = url.to_owned();
+    // The sync client runs a runtime of its own: off the async threads.
+    std::thread::spawn(move || -> Result<[i64; 3]> {
+        let mut db = postgres::Client::connect(&url, postgres::NoTls)?;
+        let row = db.query_one(
+            "SELECT (SELECT count(*) FROM commands), (SELECT count(*) FROM checkpoints), \
+             (SELECT count(*) FROM events)",
+            &[],
+        )?;
+        Ok([row.get(0), row.get(1), row.get(2)])
+    })
+    .join()
+    .map_err(|_| anyhow::anyhow!("the store query panicked"))?
+}
+
+/// The fleet benchmark: `--servers` processes on one PostgreSQL.
+async fn fleet(cli: &Cli) -> Result<()> {
+    let cluster = cathlab_app::store::cluster::PgCluster::start()
+        .map_err(|e| anyhow::anyhow!("starting PostgreSQL: {e}"))?;
+    let url = cluster
+        .database("fleet")
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let dir = std::env::temp_dir().join(format!("cathlab-fleet-load-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let binary = Server::binary(cli.target.server.as_deref())?;
+    let mut servers = Vec::new();
+    for i in 0..cli.servers {
+        let id = format!("fleet-{i}");
+        servers.push(Server::start(
+            &binary,
+            &dir.join(format!("{id}.sqlite")),
+            &cli.target.scenes,
+            &id,
+            &[
+                "--renderer",
+                &cli.target.renderer,
+                "--database-url",
+                &url,
+                "--server-id",
+                &id,
+            ],
+            Stdio::inherit(),
+        )?);
+    }
+    let mut clients = Vec::new();
+    let mut loaded = Vec::new();
+    for server in &servers {
+        let mut client = SimulatorClient::connect(format!("http://{}", server.address))
+            .await?
+            .max_decoding_message_size(64 << 20);
+        let mut here = Vec::new();
+        for _ in 0..cli.sessions_per_server {
+            here.push(load_session(&mut client, &cli.scene).await?);
+        }
+        clients.push(client);
+        loaded.push(here);
+    }
+    println!(
+        "cathlab-load: a fleet of {} servers on one PostgreSQL, {} session(s) each on {}",
+        cli.servers, cli.sessions_per_server, cli.scene
+    );
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let mut before = Vec::new();
+    for (client, here) in clients.iter_mut().zip(&loaded) {
+        for l in here {
+            before.push(session_info(client, &l.session).await?);
+        }
+    }
+    let rows0 = store_rows(&url)?;
+    let started = Instant::now();
+    // Command → state on every server at once (each command stored before its ack).
+    let probes: Vec<_> = clients
+        .iter()
+        .zip(&loaded)
+        .map(|(client, here)| {
+            let (mut client, session) = (client.clone(), here[0].session.clone());
+            let samples = cli.samples.min(1000);
+            tokio::spawn(async move { unary_latency(&mut client, &session, samples).await })
+        })
+        .collect();
+    let mut latencies = Vec::new();
+    for p in probes {
+        latencies.extend(p.await??);
+    }
+    let rest = Duration::from_secs_f64(cli.seconds).saturating_sub(started.elapsed());
+    tokio::time::sleep(rest).await;
+    let elapsed = started.elapsed().as_secs_f64();
+    let rows1 = store_rows(&url)?;
+    let mut after = Vec::new();
+    for (client, here) in clients.iter_mut().zip(&loaded) {
+        for l in here {
+            after.push(session_info(client, &l.session).await?);
+        }
+    }
+    latencies.sort_by(f64::total_cmp);
+    let t = |i: &pb::SessionInfo| i.timing.unwrap_or_default();
+    println!();
+    println!("| server | sessions | steps/s each | late | missed | step p99 |");
+    println!("|---|---|---|---|---|---|");
+    let per = cli.sessions_per_server;
+    for s in 0..cli.servers {
+        let range = s * per..(s + 1) * per;
+        let steps: u64 = range
+            .clone()
+            .map(|i| t(&after[i]).steps - t(&before[i]).steps)
+            .sum();
+        let late: u64 = range
+            .clone()
+            .map(|i| t(&after[i]).late_steps - t(&before[i]).late_steps)
+            .sum();
+        let missed: u64 = range
+            .clone()
+            .map(|i| t(&after[i]).missed_steps - t(&before[i]).missed_steps)
+            .sum();
+        let p99 = range
+            .map(|i| t(&after[i]).step_time_p99_ms)
+            .fold(0.0, f64::max);
+        println!(
+            "| fleet-{s} | {per} | {:.0} | {late} | {missed} | {p99:.3} ms |",
+            steps as f64 / elapsed / per as f64
+        );
+    }
+    println!(
+        "command → state over the fleet (unary, {} samples, {} servers at once): p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+        latencies.len(),
+        cli.servers,
+        percentile(&latencies, 0.5),
+        percentile(&latencies, 0.99),
+        latencies.last().copied().unwrap_or(f64::NAN)
+    );
+    let rate = |k: usize| (rows1[k] - rows0[k]) as f64 / elapsed;
+    println!(
+        "shared store: {:.0} commands/s, {:.0} checkpoints/s, {:.1} events/s written ({:.0} rows/s) over {elapsed:.1} s",
+        rate(0),
+        rate(1),
+        rate(2),
+        rate(0) + rate(1) + rate(2)
+    );
+    // Durable commands as fast as they are acknowledged: every session's client sends back to
+    // back for 5 s (each ack follows its commit to the shared store).
+    let burst = Duration::from_secs(5);
+    let senders: Vec<_> = clients
+        .iter()
+        .zip(&loaded)
+        .flat_map(|(client, here)| {
+            here.iter().map(move |l| {
+                let (mut client, session) = (client.clone(), l.session.clone());
+                tokio::spawn(async move {
+                    let started = Instant::now();
+                    let mut acked = 0u64;
+                    while started.elapsed() < burst {
+                        let seq = 10_000 + acked;
+                        send(
+                            &mut client,
+                            &session,
+                            seq,
+                            push(if seq % 2 == 0 { 1.0 } else { -1.0 }),
+                        )
+                        .await?;
+                        acked += 1;
+                    }
+                    anyhow::Ok(acked)
+                })
+            })
+        })
+        .collect();
+    let mut acked = 0;
+    for s in senders {
+        acked += s.await??;
+    }
+    println!(
+        "durable commands, every session's client sending back to back for {} s: {:.0} acknowledged/s over the fleet",
+        burst.as_secs(),
+        acked as f64 / burst.as_secs_f64()
+    );
+    for (client, mut here) in clients.iter_mut().zip(loaded) {
+        close_all(client, &mut here).await?;
+    }
+    drop(servers);
+    drop(cluster);
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
 }
