@@ -1,4 +1,4 @@
-//! The soak test runs end to end, briefly: three rounds of random clients, valid and invalid,
+//! The soak test runs end to end, briefly: two rounds of random clients, valid and invalid,
 //! beside a watched session (`cathlab-soak`; the full 10⁶-step run is in the README). It fails
 //! on a panic, an INTERNAL answer, the watched session missing more than 0.2 % of its steps
 //! (a debug server on CI's two shared cores may stall once for tens of milliseconds; the
@@ -12,9 +12,9 @@ fn a_short_soak_passes() {
     let output = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-soak"))
         .args([
             "--steps",
-            "60000",
+            "40000",
             "--round-seconds",
-            "15",
+            "12",
             "--max-seconds",
             "300",
             "--missed-tolerance",

@@ -624,7 +624,7 @@ async fn fleet(cli: &Cli) -> Result<()> {
                             &mut client,
                             &session,
                             seq,
-                            push(if seq % 2 == 0 { 1.0 } else { -1.0 }),
+                            push(if seq.is_multiple_of(2) { 1.0 } else { -1.0 }),
                         )
                         .await?;
                         acked += 1;
