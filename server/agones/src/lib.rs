@@ -63,6 +63,11 @@ pub enum AgonesError {
     },
 }
 
+/// The error of a failed `call`.
+fn failed(call: &'static str) -> impl FnOnce(tonic::Status) -> AgonesError {
+    move |status| AgonesError::Call { call, status }
+}
+
 /// The sidecar's port: `AGONES_SDK_GRPC_PORT`, else [`DEFAULT_PORT`].
 pub fn port_from_env() -> Result<u16, AgonesError> {
     match std::env::var("AGONES_SDK_GRPC_PORT") {
@@ -123,10 +128,7 @@ impl Sdk {
             .ready(pb::sdk::Empty {})
             .await
             .map(drop)
-            .map_err(|status| AgonesError::Call {
-                call: "Ready",
-                status,
-            })
+            .map_err(failed("Ready"))
     }
 
     /// Marks the GameServer Allocated (it took a session by itself): protected from
@@ -136,10 +138,7 @@ impl Sdk {
             .allocate(pb::sdk::Empty {})
             .await
             .map(drop)
-            .map_err(|status| AgonesError::Call {
-                call: "Allocate",
-                status,
-            })
+            .map_err(failed("Allocate"))
     }
 
     /// Marks the GameServer Shutdown: Agones deletes its pod.
@@ -148,10 +147,7 @@ impl Sdk {
             .shutdown(pb::sdk::Empty {})
             .await
             .map(drop)
-            .map_err(|status| AgonesError::Call {
-                call: "Shutdown",
-                status,
-            })
+            .map_err(failed("Shutdown"))
     }
 
     /// The GameServer as Agones holds it (its address and ports among its status).
@@ -160,10 +156,7 @@ impl Sdk {
             .get_game_server(pb::sdk::Empty {})
             .await
             .map(tonic::Response::into_inner)
-            .map_err(|status| AgonesError::Call {
-                call: "GetGameServer",
-                status,
-            })
+            .map_err(failed("GetGameServer"))
     }
 
     /// Where clients reach the GameServer: its status' address and first port, once Agones
@@ -185,10 +178,7 @@ impl Sdk {
             })
             .await
             .map(drop)
-            .map_err(|status| AgonesError::Call {
-                call: "SetLabel",
-                status,
-            })
+            .map_err(failed("SetLabel"))
     }
 
     /// Sets counter `name` to `count` of `capacity` (the Fleet must declare it); returns the
@@ -210,10 +200,7 @@ impl Sdk {
             })
             .await
             .map(tonic::Response::into_inner)
-            .map_err(|status| AgonesError::Call {
-                call: "UpdateCounter",
-                status,
-            })
+            .map_err(failed("UpdateCounter"))
     }
 
     /// Opens the Health stream: each [`Health::ping`] is one health ping. A stream the

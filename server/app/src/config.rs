@@ -56,8 +56,8 @@ pub struct ConfigFile {
     /// (`postgres://user:password@host:port/database`; also `CATHLAB_DATABASE_URL`); when set,
     /// it is the store and `database` is not used.
     pub database_url: Option<String>,
-    /// This server's id in a fleet sharing a PostgreSQL store (default: the host name and the
-    /// process id; `local` on SQLite).
+    /// This server's id in a fleet sharing a PostgreSQL store (default: the host name; `local`
+    /// on SQLite). Stable across restarts; several servers on one host need their own.
     pub server_id: Option<String>,
     /// Where clients reach this server (`http://host:port`), as the fleet's other servers
     /// list it (default: the address it listens on).
@@ -242,23 +242,22 @@ impl ServerConfig {
     }
 
     /// This server's id in the fleet: as configured; else `local` on SQLite (one server per
-    /// file) and the host name with the process id on PostgreSQL.
+    /// file) and the host name on PostgreSQL — stable across restarts, so that a server
+    /// started again marks the sessions its previous process left running interrupted (a pod
+    /// keeps its name; several servers on one host need their own `--server-id`).
     pub fn resolved_server_id(&self) -> String {
         match (&self.server_id, &self.database_url) {
             (Some(id), _) => id.clone(),
             (None, None) => crate::store::LOCAL_SERVER.to_owned(),
-            (None, Some(_)) => {
-                let host = std::env::var("HOSTNAME")
-                    .ok()
-                    .filter(|h| !h.is_empty())
-                    .or_else(|| {
-                        std::fs::read_to_string("/etc/hostname")
-                            .ok()
-                            .map(|h| h.trim().to_owned())
-                    })
-                    .unwrap_or_else(|| "cathlab".into());
-                format!("{host}-{}", std::process::id())
-            }
+            (None, Some(_)) => std::env::var("HOSTNAME")
+                .ok()
+                .filter(|h| !h.is_empty())
+                .or_else(|| {
+                    std::fs::read_to_string("/etc/hostname")
+                        .ok()
+                        .map(|h| h.trim().to_owned())
+                })
+                .unwrap_or_else(|| "cathlab".into()),
         }
     }
 

@@ -86,8 +86,8 @@ struct Options {
     /// given, the store instead of --database.
     #[arg(long, global = true)]
     database_url: Option<String>,
-    /// This server's id in a fleet sharing a PostgreSQL store (default: host name and
-    /// process id).
+    /// This server's id in a fleet sharing a PostgreSQL store (default: the host name;
+    /// several servers on one host need their own).
     #[arg(long, global = true)]
     server_id: Option<String>,
     /// Where clients reach this server (`http://host:port`; default: where it listens).

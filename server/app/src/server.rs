@@ -356,8 +356,15 @@ pub async fn serve(
     // On shutdown, close the sessions first: that ends their streams, which the server's
     // graceful drain would otherwise wait on for ever.
     let closing = service.clone();
+    // The Agones lifecycle stops before the sessions close (no Ready on the way out).
+    let lifecycle_stop = lifecycle
+        .as_ref()
+        .map(tokio::task::JoinHandle::abort_handle);
     let shutdown = async move {
         shutdown.await;
+        if let Some(stop) = lifecycle_stop {
+            stop.abort();
+        }
         tracing::info!("shutting down: closing sessions, flushing the store");
         let _ = tokio::task::spawn_blocking(move || closing.shutdown()).await;
     };

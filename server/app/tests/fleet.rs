@@ -14,19 +14,7 @@ use cathlab_app::store::cluster::PgCluster;
 use common::*;
 
 async fn listed(server: &ServerProcess) -> Vec<pb::SessionInfo> {
-    server
-        .client()
-        .await
-        .list_sessions(authed(
-            pb::ListSessionsRequest {
-                include_recorded: true,
-            },
-            INSTRUCTOR_KEY,
-        ))
-        .await
-        .unwrap()
-        .into_inner()
-        .sessions
+    list_all(&mut server.client().await).await
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

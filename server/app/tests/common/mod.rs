@@ -196,11 +196,9 @@ pub async fn state(
     stream.message().await.unwrap().expect("a state")
 }
 
-/// A session as the instructor's list (live and recorded) shows it.
-pub async fn listed_session(
-    client: &mut SimulatorClient<Channel>,
-    session_id: &str,
-) -> pb::SessionInfo {
+/// The instructor's list: every session, live and recorded (and, in a fleet, the other
+/// servers' running ones).
+pub async fn list_all(client: &mut SimulatorClient<Channel>) -> Vec<pb::SessionInfo> {
     client
         .list_sessions(authed(
             pb::ListSessionsRequest {
@@ -212,6 +210,15 @@ pub async fn listed_session(
         .unwrap()
         .into_inner()
         .sessions
+}
+
+/// A session as the instructor's list (live and recorded) shows it.
+pub async fn listed_session(
+    client: &mut SimulatorClient<Channel>,
+    session_id: &str,
+) -> pb::SessionInfo {
+    list_all(client)
+        .await
         .into_iter()
         .find(|s| s.session_id == session_id)
         .expect("the session is listed")

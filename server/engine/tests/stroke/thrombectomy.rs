@@ -9,7 +9,6 @@
 //! metrics carry the crossing forces, passes, first-pass effect, reperfusion time and the
 //! eTICI grade from the flow; the final run's contrast reaches beyond the clot.
 
-use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
 use cathlab_engine::metrics::Etici;
@@ -17,21 +16,13 @@ use cathlab_engine::thrombectomy::StrokeScript;
 use cathlab_engine::*;
 use nalgebra::{Point3, Vector3};
 
-fn scenes() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes")
-}
+use super::scenes;
 
-/// Loads a scene through one cache for the file, one load at a time: both scenes share the
-/// neuro phantom's anatomy and CT (about half a minute to build), built once.
+/// Loads a scene of the scene directory by name (through the binary's one cache).
 fn load(name: &str) -> Arc<SceneAssets> {
-    static CACHE: OnceLock<std::sync::Mutex<AssetCache>> = OnceLock::new();
     let text = std::fs::read_to_string(scenes().join(format!("{name}.toml"))).unwrap();
     let spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
-    let cache = CACHE.get_or_init(Default::default).lock();
-    cache
-        .unwrap_or_else(|e| e.into_inner())
-        .load(&spec, &scenes())
-        .unwrap()
+    super::load(&spec).unwrap()
 }
 
 /// The trainee's scene: the guide already in the ICA.

@@ -6,16 +6,13 @@
 //! flow, and eTICI still grades 0 (antegrade reperfusion only). Bad clots and collaterals
 //! name their field.
 
-use std::path::{Path, PathBuf};
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 
 use cathlab_engine::imaging::{carm_of, expose_snapshot_with};
 use cathlab_engine::*;
 use nalgebra::Point3;
 
-fn scenes() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes")
-}
+use super::{load, scenes};
 
 fn scene(clot: &str) -> String {
     std::fs::read_to_string(scenes().join("neuro_phantom_m1.toml")).unwrap() + clot
@@ -29,15 +26,9 @@ length_mm = 8.0
 red_cell_fraction = 0.5
 ";
 
-/// One cache for the file: the scenes share their anatomy and CT.
-fn cache() -> &'static AssetCache {
-    static CACHE: OnceLock<AssetCache> = OnceLock::new();
-    CACHE.get_or_init(AssetCache::default)
-}
-
 fn assets(text: &str) -> Arc<SceneAssets> {
     let spec = SceneSpec::parse(text, SceneFormat::Toml).unwrap();
-    cache().load(&spec, &scenes()).unwrap()
+    load(&spec).unwrap()
 }
 
 /// Injects 6 mL at 4 mL/s and runs `steps`; returns the world.
@@ -178,7 +169,7 @@ fn bad_clots_name_their_field() {
     ];
     for (clot, field) in cases {
         let spec = SceneSpec::parse(&scene(&clot), SceneFormat::Toml).unwrap();
-        let e = cache().load(&spec, &scenes()).unwrap_err().to_string();
+        let e = load(&spec).unwrap_err().to_string();
         assert!(e.contains(field), "{field}: {e}");
     }
     // A clot without flow.
@@ -187,7 +178,7 @@ fn bad_clots_name_their_field() {
     let end = start + text[start..].find("\n\n").unwrap();
     let no_flow = format!("{}{}", &text[..start], &text[end..]);
     let spec = SceneSpec::parse(&no_flow, SceneFormat::Toml).unwrap();
-    let e = cache().load(&spec, &scenes()).unwrap_err().to_string();
+    let e = load(&spec).unwrap_err().to_string();
     assert!(e.contains("clots[0].branch") && e.contains("[flow]"), "{e}");
 }
 
@@ -258,7 +249,7 @@ fn collaterals_feed_the_occluded_territory_and_etici_grades_without_them() {
     ] {
         assert_ne!(bad, COLLATERALS);
         let e = SceneSpec::parse(&scene(&bad), SceneFormat::Toml)
-            .and_then(|spec| cache().load(&spec, &scenes()).map(|_| ()))
+            .and_then(|spec| load(&spec).map(|_| ()))
             .unwrap_err()
             .to_string();
         assert!(e.contains(field), "{field}: {e}");

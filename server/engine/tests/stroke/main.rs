@@ -1,0 +1,26 @@
+//! The stroke scenes in the engine, in one test binary so that the neuro phantom's anatomy
+//! and CT (about half a minute to build), which every one of them uses, are built once: a
+//! clot in the scene (`clot`) and the thrombectomy end to end (`thrombectomy`).
+
+mod clot;
+mod thrombectomy;
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, OnceLock};
+
+use cathlab_engine::{AssetCache, Result, SceneAssets, SceneSpec};
+
+/// The scene directory.
+fn scenes() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes")
+}
+
+/// Loads `spec` (paths from the scene directory) through the binary's one cache, one load
+/// at a time: the first builds the shared anatomy and CT, the others find them.
+fn load(spec: &SceneSpec) -> Result<Arc<SceneAssets>> {
+    static CACHE: OnceLock<Mutex<AssetCache>> = OnceLock::new();
+    let cache = CACHE.get_or_init(Default::default).lock();
+    cache
+        .unwrap_or_else(|e| e.into_inner())
+        .load(spec, &scenes())
+}
