@@ -1,7 +1,9 @@
 //! The stroke scenes in the engine, in one test binary so that the neuro phantom's anatomy
 //! and CT (about half a minute to build), which every one of them uses, are built once: a
-//! clot in the scene (`clot`) and the thrombectomy end to end (`thrombectomy`).
+//! clot in the scene (`clot`), the thrombectomy end to end (`thrombectomy`) and a stack's
+//! access stage (`access`).
 
+mod access;
 mod clot;
 mod thrombectomy;
 
