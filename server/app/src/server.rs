@@ -303,15 +303,16 @@ pub async fn serve(
         .with_context(|| format!("binding {}", config.listen))?;
     let address = listener.local_addr()?;
     println!("cathlab-server listening on {address}");
+    let scheme = if config.tls.is_some() {
+        "https"
+    } else {
+        "http"
+    };
     // In the fleet's registry (on SQLite, a fleet of one).
-    let advertised = config.advertise.clone().unwrap_or_else(|| {
-        let scheme = if config.tls.is_some() {
-            "https"
-        } else {
-            "http"
-        };
-        format!("{scheme}://{address}")
-    });
+    let advertised = config
+        .advertise
+        .clone()
+        .unwrap_or_else(|| format!("{scheme}://{address}"));
     let mut registration = crate::fleet::Registration::start(
         store.clone(),
         engine.clone(),
@@ -321,25 +322,16 @@ pub async fn serve(
     let lifecycle = agones.clone().map(|sdk| {
         let (engine, capacity) = (engine.clone(), config.max_sessions);
         // Unless told where clients reach it, a GameServer is reached where Agones says.
-        let advertise = config.advertise.is_none().then(|| {
-            let scheme = if config.tls.is_some() {
-                "https"
-            } else {
-                "http"
-            };
-            (registration.address(), scheme)
-        });
+        let advertise = config
+            .advertise
+            .is_none()
+            .then(|| (registration.address(), scheme));
         tokio::spawn(async move {
             let _ = warming.await;
             crate::agones::run(sdk, engine, capacity, advertise).await;
         })
     });
     if web_client {
-        let scheme = if config.tls.is_some() {
-            "https"
-        } else {
-            "http"
-        };
         let host = if address.ip().is_unspecified() {
             std::net::SocketAddr::new(std::net::Ipv4Addr::LOCALHOST.into(), address.port())
         } else {
