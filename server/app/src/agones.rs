@@ -22,18 +22,16 @@ const WATCH_PERIOD: Duration = Duration::from_millis(250);
 /// The counter the Fleet declares for sessions (`spec.template.spec.counters.sessions`).
 pub const SESSIONS_COUNTER: &str = "sessions";
 
-/// How long the sidecar may take to answer at start.
-const CONNECT_TIMEOUT: Duration = Duration::from_secs(30);
-
 /// The least fraction of its steps a running session must have run over a health period for
 /// the server to count as keeping time (a wedged or starved physics loop runs none; the
 /// overload governor keeps a merely busy one well above this).
 pub const MIN_STEP_FRACTION: f64 = 0.5;
 
-/// Connects to the sidecar (`AGONES_SDK_GRPC_PORT`, default 9357).
-pub async fn connect() -> anyhow::Result<Sdk> {
+/// Connects to the sidecar (`AGONES_SDK_GRPC_PORT`, default 9357), waiting at most
+/// `timeout` for it to answer.
+pub async fn connect(timeout: Duration) -> anyhow::Result<Sdk> {
     let port = cathlab_agones::port_from_env()?;
-    Ok(Sdk::connect(port, CONNECT_TIMEOUT).await?)
+    Ok(Sdk::connect(port, timeout).await?)
 }
 
 /// Whether the physics loops kept time between two looks: each session seen both times ran

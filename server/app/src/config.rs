@@ -66,6 +66,9 @@ pub struct ConfigFile {
     /// GameServer of an Agones Fleet): Ready once warm, Health while the physics loops keep
     /// time, Allocated while it runs sessions, the `sessions` counter, Shutdown at exit.
     pub agones: Option<bool>,
+    /// How long the Agones sidecar may take to answer at start, in seconds (default 30; it
+    /// may start after the server's container).
+    pub agones_connect_timeout_s: Option<u64>,
     /// Scenes to load at start, before the server counts as ready (their anatomy and CT
     /// built once, so the first trainee does not wait for them).
     pub warm_scenes: Option<Vec<String>>,
@@ -135,6 +138,8 @@ pub struct ServerConfig {
     pub advertise: Option<String>,
     /// Speak the Agones SDK (see [`ConfigFile::agones`]).
     pub agones: bool,
+    /// How long the sidecar may take to answer at start, in seconds.
+    pub agones_connect_timeout_s: u64,
     /// Scenes loaded at start (see [`ConfigFile::warm_scenes`]).
     pub warm_scenes: Vec<String>,
     /// Scene directory.
@@ -193,6 +198,7 @@ impl Default for ServerConfig {
             server_id: None,
             advertise: None,
             agones: false,
+            agones_connect_timeout_s: 30,
             warm_scenes: Vec::new(),
             scenes: PathBuf::from("scenes"),
             instructor_key: None,
@@ -271,6 +277,9 @@ impl ServerConfig {
             server_id: file.server_id,
             advertise: file.advertise,
             agones: file.agones.unwrap_or(d.agones),
+            agones_connect_timeout_s: file
+                .agones_connect_timeout_s
+                .unwrap_or(d.agones_connect_timeout_s),
             warm_scenes: file.warm_scenes.unwrap_or(d.warm_scenes),
             scenes: file.scenes.unwrap_or(d.scenes),
             instructor_key: file.instructor_key,

@@ -99,6 +99,9 @@ struct Options {
     /// Speak the Agones SDK to the sidecar (`AGONES_SDK_GRPC_PORT`, default 9357).
     #[arg(long, global = true)]
     agones: bool,
+    /// How long the Agones sidecar may take to answer at start, in seconds (default 30).
+    #[arg(long = "agones-connect-timeout", global = true, value_name = "SECONDS")]
+    agones_connect_timeout_s: Option<u64>,
     /// A scene to load at start, before the server counts as ready (repeatable).
     #[arg(long = "warm", global = true, value_name = "SCENE")]
     warm_scenes: Vec<String>,
@@ -180,6 +183,9 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
     }
     if options.agones {
         config.agones = true;
+    }
+    if let Some(v) = options.agones_connect_timeout_s {
+        config.agones_connect_timeout_s = v;
     }
     if !options.warm_scenes.is_empty() {
         config.warm_scenes = options.warm_scenes.clone();

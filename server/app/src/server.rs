@@ -105,7 +105,12 @@ pub async fn serve(
     check_exposure(&config)?;
     // An Agones GameServer without its sidecar would never be Ready: stop here, saying so.
     let agones = if config.agones {
-        Some(crate::agones::connect().await?)
+        Some(
+            crate::agones::connect(std::time::Duration::from_secs(
+                config.agones_connect_timeout_s,
+            ))
+            .await?,
+        )
     } else {
         None
     };

@@ -5,8 +5,8 @@
 //! exchanged for the stent retriever, the stent deployed (the bypass shows in the eTICI),
 //! retrieved, a final DSA run; the session's metrics carry the passes, the first-pass effect,
 //! the time to reperfusion and eTICI 3. (The femoral access before it is the engine's
-//! `tests/stroke/thrombectomy.rs` and the scene check `tests/scenes.rs`: the same operator
-//! in the same world, without half a minute of access in real time here.)
+//! `tests/scenes/case.rs` and the scene check `tests/scenes/every_scene.rs`: the
+//! same operator in the same world, without half a minute of access in real time here.)
 
 mod common;
 

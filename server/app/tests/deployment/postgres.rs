@@ -4,13 +4,11 @@
 //! reports NOT_SERVING, and acknowledges no command it has not stored; when the database is
 //! back, so is the server.
 
-mod common;
-
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use crate::common::*;
 use cathlab_app::store::cluster::PgCluster;
-use common::*;
 use tonic_health::pb::health_check_response::ServingStatus;
 use tonic_health::pb::health_client::HealthClient;
 

@@ -2,12 +2,10 @@
 //! acknowledged command and the metrics are there, the session shows as interrupted, and
 //! replaying its commands reproduces every recorded state digest bit for bit.
 
-mod common;
-
 use std::time::Duration;
 
+use crate::common::*;
 use cathlab_api::pb;
-use common::*;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() {

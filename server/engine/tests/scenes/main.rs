@@ -1,11 +1,14 @@
-//! The stroke scenes in the engine, in one test binary so that the neuro phantom's anatomy
-//! and CT (about half a minute to build), which every one of them uses, are built once: a
-//! clot in the scene (`clot`), the thrombectomy end to end (`thrombectomy`) and a stack's
-//! access stage (`access`).
+//! The scenes in the engine, in one test binary so that the neuro phantom's anatomy and CT
+//! (about half a minute to build), which the stroke scenes use, are built once: every scene
+//! in `scenes/` loads and its scripted operator arrives (`every_scene`), a clot in the scene
+//! (`clot`), the stroke case end to end (`case`, the thrombectomy) and a stack's access
+//! stage (`access`). (libtest starts tests in name order: the two long cases come second
+//! and third, beside the access stage, not last.)
 
 mod access;
+mod case;
 mod clot;
-mod thrombectomy;
+mod every_scene;
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};

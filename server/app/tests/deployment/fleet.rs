@@ -5,13 +5,11 @@
 //! warning loses no acknowledged command, its sessions are marked lost by the others, and
 //! they replay bit for bit from the shared store.
 
-mod common;
-
 use std::time::{Duration, Instant};
 
+use crate::common::*;
 use cathlab_api::pb;
 use cathlab_app::store::cluster::PgCluster;
-use common::*;
 
 async fn listed(server: &ServerProcess) -> Vec<pb::SessionInfo> {
     list_all(&mut server.client().await).await

@@ -8,12 +8,10 @@
 //! session was closed.
 //! Without a sidecar, `--agones` stops the server at start, naming where it looked.
 
-mod common;
-
 use std::time::{Duration, Instant};
 
+use crate::common::*;
 use cathlab_agones::standin::{Call, StandIn};
-use common::*;
 
 async fn wait_for(standin: &StandIn, what: &str, seconds: u64, done: impl Fn(&[Call]) -> bool) {
     let deadline = Instant::now() + Duration::from_secs(seconds);
@@ -144,6 +142,7 @@ fn without_a_sidecar_agones_mode_stops_the_server_naming_where_it_looked() {
     let output = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
         .args(["--listen", "127.0.0.1:0", "--agones", "--database"])
         .arg(dir.join("cathlab.sqlite"))
+        .args(["--agones-connect-timeout", "2"])
         .arg("--scenes")
         .arg(repo_root().join("scenes"))
         .env("AGONES_SDK_GRPC_PORT", &port)
