@@ -387,6 +387,11 @@ pub struct Governor {
     calm: u32,
     /// Steps of low load before the level goes back up.
     calm_steps: u32,
+    /// The backlog (periods) when the level last dropped for one: a backlog lowers it again
+    /// only if it has not shrunk since (a loop catching up after one stall is not
+    /// overloaded; lowering on the shrinking backlog took a heavy scene to the lowest level in
+    /// under half a second, where its stack diverged).
+    backlog_at_drop: f64,
 }
 
 impl Governor {
@@ -405,6 +410,7 @@ impl Governor {
             cooldown: 0,
             calm: 0,
             calm_steps: (5.0 * rate_hz) as u32,
+            backlog_at_drop: 0.0,
         }
     }
 
@@ -418,12 +424,17 @@ impl Governor {
         } else {
             self.calm = 0;
         }
+        if behind < 1.0 {
+            self.backlog_at_drop = 0.0;
+        }
         if self.cooldown > 0 {
             return None;
         }
-        if (self.load > Self::HIGH || behind > Self::BEHIND_PERIODS)
-            && self.level < crate::world::MAX_FIDELITY_LEVEL
-        {
+        let backlog = behind > Self::BEHIND_PERIODS && behind >= self.backlog_at_drop;
+        if (self.load > Self::HIGH || backlog) && self.level < crate::world::MAX_FIDELITY_LEVEL {
+            if backlog {
+                self.backlog_at_drop = behind;
+            }
             self.level += 1;
             // Give the cheaper steps time to show in the load before judging again.
             self.cooldown = 50;

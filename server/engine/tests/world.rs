@@ -753,6 +753,25 @@ fn the_governor_lowers_fidelity_under_load_and_raises_it_when_calm() {
     // A backlog lowers it at once, without waiting for the average.
     let mut sudden = Governor::new(500.0);
     assert_eq!(sudden.update(0.1, 6.0), Some(1));
+    // One stall of 24 periods (just short of dropping the backlog) in a scene whose steps take
+    // 65 % of their period: one level down, then the loop catches up (0.35 periods a step)
+    // and the level stays. (It went on down while the backlog shrank; in a CI run the
+    // stroke scene went to the lowest level in half a second and its stack diverged there.)
+    let mut stalled = Governor::new(500.0);
+    let mut behind: f64 = 24.0;
+    let mut levels = Vec::new();
+    for _ in 0..400 {
+        levels.extend(stalled.update(0.65, behind));
+        behind = (behind - 0.35).max(0.0);
+    }
+    assert_eq!(levels, [1]);
+    // A backlog that keeps growing lowers it step by step.
+    let mut falling = Governor::new(500.0);
+    let mut levels = Vec::new();
+    for step in 0..400 {
+        levels.extend(falling.update(0.6, 6.0 + step as f64 * 0.2));
+    }
+    assert_eq!(levels, [1, 2, 3]);
     // Calm for 5 s (2,500 steps) raises it by one.
     let mut raised = Vec::new();
     for step in 0..6000 {
