@@ -80,6 +80,10 @@ pub struct ConfigFile {
     pub tls: Option<TlsFiles>,
     /// Renderer.
     pub renderer: Option<RendererChoice>,
+    /// Lower a session's fidelity when its steps cannot keep time (default on). Off, every
+    /// session keeps its scene's fidelity and a slow machine runs it slower than real time
+    /// (assessments where every trainee must get the same physics; tests of a procedure).
+    pub overload_governor: Option<bool>,
     /// Most sessions at once.
     pub max_sessions: Option<usize>,
     /// Most replays at once.
@@ -150,6 +154,8 @@ pub struct ServerConfig {
     pub tls: Option<TlsFiles>,
     /// Renderer.
     pub renderer: RendererChoice,
+    /// Lower fidelity under load (see [`ConfigFile::overload_governor`]).
+    pub overload_governor: bool,
     /// Most sessions at once.
     pub max_sessions: usize,
     /// Most replays at once (each takes a core, niced below live physics).
@@ -204,6 +210,7 @@ impl Default for ServerConfig {
             instructor_key: None,
             tls: None,
             renderer: RendererChoice::Auto,
+            overload_governor: true,
             max_sessions: 16,
             max_replays: 1,
             max_recorded_commands: cathlab_engine::session::MAX_RECORDED_COMMANDS,
@@ -285,6 +292,7 @@ impl ServerConfig {
             instructor_key: file.instructor_key,
             tls: file.tls,
             renderer: file.renderer.unwrap_or(d.renderer),
+            overload_governor: file.overload_governor.unwrap_or(d.overload_governor),
             max_sessions: file.max_sessions.unwrap_or(d.max_sessions),
             max_replays: file.max_replays.unwrap_or(d.max_replays),
             max_recorded_commands: file

@@ -114,6 +114,9 @@ struct Options {
     /// Renderer.
     #[arg(long, value_enum, global = true)]
     renderer: Option<RendererChoice>,
+    /// Keep every session at its scene's fidelity under load (no overload governor).
+    #[arg(long, global = true)]
+    no_overload_governor: bool,
     /// TLS certificate (PEM); needs --tls-key.
     #[arg(long, global = true)]
     tls_cert: Option<PathBuf>,
@@ -198,6 +201,9 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
     }
     if let Some(v) = options.renderer {
         config.renderer = v;
+    }
+    if options.no_overload_governor {
+        config.overload_governor = false;
     }
     if let Some(v) = options.inline_scenes {
         config.inline_scenes = v;

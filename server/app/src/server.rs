@@ -56,6 +56,7 @@ pub fn engine(config: &ServerConfig) -> anyhow::Result<(Arc<Engine>, Arc<Store>,
             scenes_dir: config.scenes.clone(),
             session: SessionSettings {
                 max_recorded_commands: config.max_recorded_commands,
+                overload_governor: config.overload_governor,
                 ..SessionSettings::default()
             },
             max_sessions: config.max_sessions,

@@ -108,6 +108,9 @@ pub struct SessionSettings {
     /// (RESOURCE_EXHAUSTED) and the dead-man rule stops the device. Bounds the recording
     /// (about 100 bytes a command in SQLite) whatever a client sends.
     pub max_recorded_commands: u64,
+    /// Lower the fidelity under load (the overload [`Governor`]); off, a session keeps its
+    /// scene's fidelity and a slow machine runs it slower than real time instead.
+    pub overload_governor: bool,
 }
 
 /// The default bound of a session's recording: an hour of a control stream at 1.1 kHz.
@@ -121,6 +124,7 @@ impl Default for SessionSettings {
             checkpoint_every_steps: 0,
             render_tick_s: 0.004,
             max_recorded_commands: MAX_RECORDED_COMMANDS,
+            overload_governor: true,
         }
     }
 }
@@ -548,7 +552,12 @@ fn physics_loop(mut p: PhysicsLoop) {
         next += period;
         // The governor's command applies at this step boundary, recorded like the others.
         let behind = Instant::now().saturating_duration_since(next).as_secs_f64() / dt;
-        if let Some(level) = governor.update(took / dt, behind) {
+        let change = if p.ctx.settings.overload_governor {
+            governor.update(took / dt, behind)
+        } else {
+            None
+        };
+        if let Some(level) = change {
             let (step, seq, command) = (
                 p.world.step_index(),
                 p.world.last_seq(),
