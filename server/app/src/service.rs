@@ -32,7 +32,7 @@ use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
 
 use crate::reports::{AccountRole, Caller, Reports, token_hash};
-use crate::store::{Store, StoredAccount, StoredSession};
+use crate::store::{Store, StoreError, StoredAccount, StoredSession};
 
 /// A boxed response stream.
 pub type ResponseStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send + 'static>>;
@@ -181,8 +181,12 @@ fn engine_status(e: EngineError) -> Status {
     status_of(&e)
 }
 
-fn store_status(e: impl std::fmt::Display) -> Status {
-    Status::internal(format!("store: {e}"))
+/// A database that cannot answer is UNAVAILABLE (retry later); a corrupt value INTERNAL.
+fn store_status(e: StoreError) -> Status {
+    match e {
+        StoreError::Database { .. } => Status::unavailable(format!("store: {e}")),
+        StoreError::Corrupt { .. } => Status::internal(format!("store: {e}")),
+    }
 }
 
 impl SimulatorService {
@@ -620,7 +624,8 @@ impl Simulator for SimulatorService {
                 id: id.clone(),
                 label: r.label,
                 scene_name: spec.name.clone(),
-                scene_json: serde_json::to_string(&spec).map_err(store_status)?,
+                scene_json: serde_json::to_string(&spec)
+                    .map_err(|e| Status::internal(format!("scene: {e}")))?,
                 base_dir: base,
                 created_unix_s: session.created_unix_s(),
                 status: "running".into(),
@@ -629,7 +634,7 @@ impl Simulator for SimulatorService {
                 controller_hash: Some(token_hash(&tokens.controller)),
                 server_id: Some(self.store.server_id().to_owned()),
             })
-            .map_err(store_status)?;
+            .map_err(|e| Status::unavailable(format!("store: {e}")))?;
         self.tokens.write().insert(id.clone(), tokens.clone());
         tracing::info!(session = %id, scene = %spec.name, "session created");
         Ok(Response::new(pb::CreateSessionResponse {

@@ -366,10 +366,11 @@ impl Store {
         &self.name
     }
 
-    /// Runs `f` on a read connection: a fresh SQLite connection, or a PostgreSQL reader's.
+    /// Runs `f` on a read connection: a fresh SQLite connection, or a PostgreSQL reader's
+    /// (again on a new connection if the database restarted under it: `f` may run twice).
     fn read<T: Send + 'static>(
         &self,
-        f: impl FnOnce(&mut dyn Conn) -> Result<T, String> + Send + 'static,
+        f: impl Fn(&mut dyn Conn) -> Result<T, String> + Send + Sync + 'static,
     ) -> Result<T, StoreError> {
         match &self.backend {
             Backend::Sqlite(file) => SqliteConn::open(file).and_then(|mut c| f(&mut c)),

@@ -331,6 +331,7 @@ type Job = Box<dyn FnOnce(Result<&mut PgConn, String>) + Send>;
 /// Reader threads, each with a connection made when first needed and made again when lost.
 pub struct PgReaders {
     jobs: SyncSender<Job>,
+    threads: usize,
 }
 
 impl PgReaders {
@@ -345,23 +346,52 @@ impl PgReaders {
                 .spawn(move || reader_loop(&rx, &target))
                 .map_err(|e| format!("cannot start a store reader: {e}"))?;
         }
-        Ok(Self { jobs: tx })
+        Ok(Self {
+            jobs: tx,
+            threads: threads.max(1),
+        })
     }
 
-    /// Runs `f` on a reader's connection and waits for its answer.
+    /// Runs `f` on a reader's connection and waits for its answer. A reader learns that its
+    /// connection was closed (the database restarted since its last job) only when a query
+    /// fails on it: `f` then runs again, on a new connection (as many times as there are
+    /// readers, each of which may hold such a connection), so `f` must be safe to repeat.
     pub fn run<T: Send + 'static>(
         &self,
-        f: impl FnOnce(&mut dyn Conn) -> Result<T, String> + Send + 'static,
+        f: impl Fn(&mut dyn Conn) -> Result<T, String> + Send + Sync + 'static,
     ) -> Result<T, String> {
+        let f = Arc::new(f);
+        let mut tries = 0;
+        loop {
+            tries += 1;
+            let g = f.clone();
+            match self.once(move |c| g(c))? {
+                (Err(_), true) if tries <= self.threads => continue,
+                (answer, _) => return answer,
+            }
+        }
+    }
+
+    /// Runs `f` once: its answer, and whether it left the reader's connection closed.
+    fn once<T: Send + 'static>(
+        &self,
+        f: impl FnOnce(&mut dyn Conn) -> Result<T, String> + Send + 'static,
+    ) -> Result<(Result<T, String>, bool), String> {
         let (tx, rx) = std::sync::mpsc::channel();
         let job: Job = Box::new(move |conn| {
-            let _ = tx.send(conn.and_then(|c| f(c)));
+            let _ = tx.send(match conn {
+                Ok(c) => {
+                    let answer = f(c);
+                    (answer, c.is_broken())
+                }
+                Err(e) => (Err(e), false),
+            });
         });
         self.jobs
             .send(job)
             .map_err(|_| "the store's readers have stopped".to_owned())?;
         rx.recv()
-            .map_err(|_| "a store reader stopped without an answer".to_owned())?
+            .map_err(|_| "a store reader stopped without an answer".to_owned())
     }
 }
 

@@ -98,6 +98,11 @@ async fn a_postgres_outage_mid_session_keeps_simulating_and_acknowledges_only_wh
         acknowledged += 1;
     }
     assert_eq!(health(&server.address).await, ServingStatus::Serving as i32);
+    // The store's readers have connections (each learns of a restart only when a query fails
+    // on it: such a read once reached the client as INTERNAL "connection closed").
+    for _ in 0..4 {
+        list_all(&mut client).await;
+    }
 
     // The database goes away (as a crash would).
     cluster.stop();
@@ -142,6 +147,10 @@ async fn a_postgres_outage_mid_session_keeps_simulating_and_acknowledges_only_wh
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
     wait_for_health(&server.address, ServingStatus::Serving).await;
+    // Reads work at once, on new connections.
+    for _ in 0..4 {
+        list_all(&mut client).await;
+    }
     // What was acknowledged is exactly what is stored.
     close(&mut client, &session).await;
     let recorded = listed_session(&mut client, &session.session_id).await;
