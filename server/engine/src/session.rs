@@ -393,8 +393,7 @@ pub struct Governor {
     calm_steps: u32,
     /// The backlog (periods) when the level last dropped for one: a backlog lowers it again
     /// only if it has not shrunk since (a loop catching up after one stall is not
-    /// overloaded; lowering on the shrinking backlog took a heavy scene to the lowest level in
-    /// under half a second, where its stack diverged).
+    /// overloaded).
     backlog_at_drop: f64,
 }
 

@@ -755,8 +755,7 @@ fn the_governor_lowers_fidelity_under_load_and_raises_it_when_calm() {
     assert_eq!(sudden.update(0.1, 6.0), Some(1));
     // One stall of 24 periods (just short of dropping the backlog) in a scene whose steps take
     // 65 % of their period: one level down, then the loop catches up (0.35 periods a step)
-    // and the level stays. (It went on down while the backlog shrank; in a CI run the
-    // stroke scene went to the lowest level in half a second and its stack diverged there.)
+    // and the level stays (it used to go on down while the backlog shrank).
     let mut stalled = Governor::new(500.0);
     let mut behind: f64 = 24.0;
     let mut levels = Vec::new();
