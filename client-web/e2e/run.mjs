@@ -34,6 +34,10 @@ function startServer(dir, listen = "127.0.0.1:0") {
       "--scenes", join(repo, "scenes"),
       "--web-root", join(here, "dist"),
       "--exit-on-stdin-eof",
+      // The sessions a finished test's pages left are closed 20 s after their pages went,
+      // as the server's 10-minute default would in a day's use, so that they do not load
+      // the two cores for the tests after them.
+      "--unattended-timeout", "20",
     ],
     { env: { ...process.env, CATHLAB_INSTRUCTOR_KEY: KEY, RUST_LOG: "warn" }, stdio: ["pipe", "pipe", "inherit"] },
   );
@@ -721,8 +725,14 @@ try {
     };
     await procedure(1500);
     const report = await procedure(2500);
+    const asked = Date.now();
     await page.goto(report);
-    await page.waitForSelector("body[data-ready='1']", { timeout: 120_000 });
+    await page.waitForSelector("body[data-ready='1'], #report-error:not([hidden])", { timeout: 120_000 });
+    assert(
+      (await page.getAttribute("body", "data-ready")) === "1",
+      `the report is not shown: ${await page.textContent("#report-error")}`,
+    );
+    console.log(`  the report shown ${((Date.now() - asked) / 1000).toFixed(1)} s after it was asked for`);
     await page.screenshot({ path: join(artifacts, "report.png"), fullPage: true });
     const title = await page.textContent("#title");
     assert(title.includes("Rita Trainee") && title.includes("arch_to_cow_lcca"), `the report's title: ${title}`);

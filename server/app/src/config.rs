@@ -116,6 +116,9 @@ pub struct ConfigFile {
     pub stream_stall_timeout_ms: Option<u64>,
     /// The scene a client starts when its user names none (must be listed).
     pub default_scene: Option<String>,
+    /// How long a running session may go without its controller (no stream open with its
+    /// controller token, no call with it) before the server closes it (s; 0: never).
+    pub unattended_session_timeout_s: Option<u64>,
 }
 
 impl ConfigFile {
@@ -190,6 +193,9 @@ pub struct ServerConfig {
     /// The scene a client starts when its user names none; `None`: `DEFAULT_SCENE` when
     /// the scene directory has it, else its first scene. A named scene must be listed.
     pub default_scene: Option<String>,
+    /// How long a running session may go without its controller before the server closes
+    /// it (s; 0: never).
+    pub unattended_session_timeout_s: u64,
 }
 
 /// The scene clients start by default: the coaxial approach to the left common carotid.
@@ -226,6 +232,7 @@ impl Default for ServerConfig {
             cors_origins: Vec::new(),
             stream_stall_timeout_ms: service::STREAM_STALL.as_millis() as u64,
             default_scene: None,
+            unattended_session_timeout_s: service::UNATTENDED_SESSION_TIMEOUT.as_secs(),
         }
     }
 }
@@ -316,6 +323,9 @@ impl ServerConfig {
                 .stream_stall_timeout_ms
                 .unwrap_or(d.stream_stall_timeout_ms),
             default_scene: file.default_scene,
+            unattended_session_timeout_s: file
+                .unattended_session_timeout_s
+                .unwrap_or(d.unattended_session_timeout_s),
         }
     }
 }

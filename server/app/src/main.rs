@@ -117,6 +117,10 @@ struct Options {
     /// Keep every session at its scene's fidelity under load (no overload governor).
     #[arg(long, global = true)]
     no_overload_governor: bool,
+    /// Close a running session whose controller has been away this long: no stream open
+    /// with its controller token, no call with it (default 600; 0: never).
+    #[arg(long = "unattended-timeout", global = true, value_name = "SECONDS")]
+    unattended_session_timeout_s: Option<u64>,
     /// TLS certificate (PEM); needs --tls-key.
     #[arg(long, global = true)]
     tls_cert: Option<PathBuf>,
@@ -204,6 +208,9 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
     }
     if options.no_overload_governor {
         config.overload_governor = false;
+    }
+    if let Some(v) = options.unattended_session_timeout_s {
+        config.unattended_session_timeout_s = v;
     }
     if let Some(v) = options.inline_scenes {
         config.inline_scenes = v;

@@ -8,7 +8,7 @@ use std::path::Path;
 use std::pin::Pin;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use cathlab_api::pb::simulator_server::Simulator;
 use cathlab_api::{
@@ -69,6 +69,32 @@ pub struct SimulatorService {
     stream_stall: Duration,
     control_inputs_per_second: u32,
     default_scene: String,
+    attendance: Arc<Mutex<HashMap<String, Attendance>>>,
+    unattended_timeout: Option<Duration>,
+}
+
+/// Whether anyone attends a running session: its controller's open streams, and when its
+/// controller was last heard from (a call with its token, or a stream of its ending).
+#[derive(Debug, Clone, Copy)]
+struct Attendance {
+    streams: usize,
+    last: Instant,
+}
+
+/// Counts one controller stream of a session while it lives; when dropped (the stream
+/// ended, or its client went away) the session was attended until now.
+struct Attending {
+    attendance: Arc<Mutex<HashMap<String, Attendance>>>,
+    id: String,
+}
+
+impl Drop for Attending {
+    fn drop(&mut self) {
+        if let Some(a) = self.attendance.lock().get_mut(&self.id) {
+            a.streams = a.streams.saturating_sub(1);
+            a.last = Instant::now();
+        }
+    }
 }
 
 /// A held speed: the instrument it drives (`None`: the innermost) and its axis.
@@ -146,6 +172,11 @@ pub const STREAM_STALL: Duration = Duration::from_secs(10);
 /// haptic bridge's 1 kHz, which is already more than the 500 Hz physics can apply.
 pub const CONTROL_INPUTS_PER_SECOND: u32 = 2000;
 
+/// How long a running session may go without its controller (no stream open with its
+/// controller token, no call with it) before the server closes it (the configuration's
+/// default): a trainee whose network dropped has this long to come back.
+pub const UNATTENDED_SESSION_TIMEOUT: Duration = Duration::from_secs(600);
+
 /// How long a control stream may go quiet before its setpoints are zeroed (the dead-man
 /// rule; the configuration's default).
 pub const CONTROL_TIMEOUT: Duration = Duration::from_millis(250);
@@ -205,6 +236,8 @@ impl SimulatorService {
             stream_budget: StreamBudget::new(STREAM_BUFFER_BYTES, engine.metrics().clone()),
             stream_stall: STREAM_STALL,
             control_inputs_per_second: CONTROL_INPUTS_PER_SECOND,
+            attendance: Arc::default(),
+            unattended_timeout: Some(UNATTENDED_SESSION_TIMEOUT),
             default_scene: crate::config::ServerConfig::default()
                 .resolve_default_scene(&engine.catalog().names())
                 .unwrap_or_default(),
@@ -231,6 +264,97 @@ impl SimulatorService {
     pub fn with_control_inputs_per_second(mut self, per_second: u32) -> Self {
         self.control_inputs_per_second = per_second.max(1);
         self
+    }
+
+    /// How long a running session may go without its controller before it is closed
+    /// (`None`: never); [`SimulatorService::close_unattended`] applies it.
+    pub fn with_unattended_timeout(mut self, timeout: Option<Duration>) -> Self {
+        self.unattended_timeout = timeout;
+        self
+    }
+
+    /// Closes the running sessions whose controller has been away longer than the unattended
+    /// timeout (no stream open with the controller token, no call with it), as their
+    /// controller's CloseSession would; returns their ids. A session this service did not
+    /// create counts as attended until now.
+    pub async fn close_unattended(&self) -> Vec<String> {
+        let Some(timeout) = self.unattended_timeout else {
+            return Vec::new();
+        };
+        let running: Vec<String> = self
+            .engine
+            .sessions()
+            .iter()
+            .map(|s| s.id().to_owned())
+            .collect();
+        let now = Instant::now();
+        let away: Vec<(String, Duration)> = {
+            let mut attendance = self.attendance.lock();
+            attendance.retain(|id, _| running.contains(id));
+            running
+                .iter()
+                .filter_map(|id| {
+                    let a = attendance.entry(id.clone()).or_insert(Attendance {
+                        streams: 0,
+                        last: now,
+                    });
+                    let away = now.saturating_duration_since(a.last);
+                    (a.streams == 0 && away > timeout).then(|| (id.clone(), away))
+                })
+                .collect()
+        };
+        let mut closed = Vec::new();
+        for (id, away) in away {
+            match self.close(&id).await {
+                Ok(_) => {
+                    tracing::info!(
+                        session = %id,
+                        away_s = away.as_secs(),
+                        "closed: its controller was away longer than the unattended timeout"
+                    );
+                    closed.push(id);
+                }
+                Err(e) => {
+                    tracing::warn!(session = %id, "closing an unattended session: {}", e.message())
+                }
+            }
+        }
+        closed
+    }
+
+    /// Marks `id`'s controller as heard from now.
+    fn attended(&self, id: &str) {
+        self.attendance
+            .lock()
+            .entry(id.to_owned())
+            .and_modify(|a| a.last = Instant::now())
+            .or_insert(Attendance {
+                streams: 0,
+                last: Instant::now(),
+            });
+    }
+
+    /// Counts a stream of `id`'s controller until the returned guard drops (an observer's
+    /// or instructor's stream does not count: `None`).
+    fn attending(&self, id: &str, role: Role) -> Option<Attending> {
+        if role != Role::Controller {
+            return None;
+        }
+        self.attendance
+            .lock()
+            .entry(id.to_owned())
+            .and_modify(|a| {
+                a.streams += 1;
+                a.last = Instant::now();
+            })
+            .or_insert(Attendance {
+                streams: 1,
+                last: Instant::now(),
+            });
+        Some(Attending {
+            attendance: self.attendance.clone(),
+            id: id.to_owned(),
+        })
     }
 
     /// How long a control stream may go quiet before its setpoints are zeroed.
@@ -351,6 +475,9 @@ impl SimulatorService {
                 }
             }
         };
+        if role == Role::Controller {
+            self.attended(session_id);
+        }
         if control && role != Role::Controller {
             return Err(Status::permission_denied(format!(
                 "{} may watch session {session_id:?} but not command it",
@@ -369,8 +496,19 @@ impl SimulatorService {
 
     /// The running session `id` if the request's token may read it.
     fn readable<T>(&self, request: &Request<T>, id: &str) -> Result<Arc<Session>, Status> {
-        self.authorize(peer_of(request), bearer(request).as_deref(), id, false)?;
-        self.session(id)
+        self.watched(request, id).map(|(session, _)| session)
+    }
+
+    /// The running session `id` if the request's token may read it, and the guard that
+    /// counts the stream as its controller's while it lives (see [`Self::attending`]).
+    fn watched<T>(
+        &self,
+        request: &Request<T>,
+        id: &str,
+    ) -> Result<(Arc<Session>, Option<Attending>), Status> {
+        let role = self.authorize(peer_of(request), bearer(request).as_deref(), id, false)?;
+        let session = self.session(id)?;
+        Ok((session, self.attending(id, role)))
     }
 
     fn info_of(&self, session: &Session) -> pb::SessionInfo {
@@ -467,6 +605,36 @@ impl SimulatorService {
             };
             let _ = session.send(seq, zero, None);
         });
+    }
+
+    /// Closes the running session `id`: the engine stops it, the store marks it closed, its
+    /// tokens end, and a trainee's report is made in the background.
+    async fn close(&self, id: &str) -> Result<Arc<Session>, Status> {
+        let engine = self.engine.clone();
+        let closing = id.to_owned();
+        let session = tokio::task::spawn_blocking(move || engine.close(&closing))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?
+            .map_err(engine_status)?;
+        self.store.set_status(id, "closed");
+        self.store.flush();
+        self.tokens.write().remove(id);
+        self.attendance.lock().remove(id);
+        self.holds.lock().retain(|(s, _), _| s != id);
+        // A trainee's session: its report, made now in the background, so that the history
+        // and the learning curve have its scores (an anonymous session's report is made when
+        // someone asks for it).
+        if let Ok(Some(stored)) = self.store.session(id)
+            && stored.account_id.is_some()
+        {
+            let reports = self.reports.clone();
+            tokio::spawn(async move {
+                if let Err(e) = reports.get(&stored).await {
+                    tracing::info!(session = %stored.id, "report not made at close: {}", e.message());
+                }
+            });
+        }
+        Ok(session)
     }
 
     /// Closes every session and waits for the store (graceful shutdown).
@@ -636,6 +804,7 @@ impl Simulator for SimulatorService {
             })
             .map_err(|e| Status::unavailable(format!("store: {e}")))?;
         self.tokens.write().insert(id.clone(), tokens.clone());
+        self.attended(&id);
         tracing::info!(session = %id, scene = %spec.name, "session created");
         Ok(Response::new(pb::CreateSessionResponse {
             session_id: id,
@@ -741,29 +910,7 @@ impl Simulator for SimulatorService {
                 "an observer cannot close a session",
             ));
         }
-        let engine = self.engine.clone();
-        let closing = id.clone();
-        let session = tokio::task::spawn_blocking(move || engine.close(&closing))
-            .await
-            .map_err(|e| Status::internal(e.to_string()))?
-            .map_err(engine_status)?;
-        self.store.set_status(&id, "closed");
-        self.store.flush();
-        self.tokens.write().remove(&id);
-        self.holds.lock().retain(|(s, _), _| *s != id);
-        // A trainee's session: its report, made now in the background, so that the history
-        // and the learning curve have its scores (an anonymous session's report is made when
-        // someone asks for it).
-        if let Ok(Some(stored)) = self.store.session(&id)
-            && stored.account_id.is_some()
-        {
-            let reports = self.reports.clone();
-            tokio::spawn(async move {
-                if let Err(e) = reports.get(&stored).await {
-                    tracing::info!(session = %stored.id, "report not made at close: {}", e.message());
-                }
-            });
-        }
+        let session = self.close(&id).await?;
         Ok(Response::new(pb::CloseSessionResponse {
             info: Some(self.info_of(&session)),
         }))
@@ -815,8 +962,9 @@ impl Simulator for SimulatorService {
             .ok_or_else(|| Status::invalid_argument("session_id: the stream sent nothing"))?;
         let id = first.session_id.clone();
         // Authorized with the token from the stream's metadata.
-        self.authorize(peer, token.as_deref(), &id, true)?;
+        let role = self.authorize(peer, token.as_deref(), &id, true)?;
         let session = self.session(&id)?;
+        let attending = self.attending(&id, role);
         let (out_tx, out_rx) = mpsc::channel::<Result<pb::ControlOutput, Status>>(64);
         let (pending_tx, mut pending_rx) = mpsc::channel::<(
             u64,
@@ -1024,7 +1172,12 @@ impl Simulator for SimulatorService {
                 }
             });
         }
-        Ok(Response::new(Box::pin(ReceiverStream::new(out_rx))))
+        Ok(Response::new(Box::pin(ReceiverStream::new(out_rx).map(
+            move |output| {
+                let _attending = &attending;
+                output
+            },
+        ))))
     }
 
     type StreamStateStream = ResponseStream<pb::DeviceState>;
@@ -1033,10 +1186,12 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::StreamStateRequest>,
     ) -> Result<Response<Self::StreamStateStream>, Status> {
-        let session = self.readable(&request, &request.get_ref().session_id)?;
+        let (session, attending) = self.watched(&request, &request.get_ref().session_id)?;
         let tip_only = request.get_ref().tip_only;
-        let stream = tokio_stream::wrappers::WatchStream::new(session.state())
-            .map(move |s| Ok(state_to_wire(&s, tip_only, unix_us())));
+        let stream = tokio_stream::wrappers::WatchStream::new(session.state()).map(move |s| {
+            let _attending = &attending;
+            Ok(state_to_wire(&s, tip_only, unix_us()))
+        });
         Ok(Response::new(Box::pin(stream)))
     }
 
@@ -1046,7 +1201,7 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::StreamFramesRequest>,
     ) -> Result<Response<Self::StreamFramesStream>, Status> {
-        let session = self.readable(&request, &request.get_ref().session_id)?;
+        let (session, attending) = self.watched(&request, &request.get_ref().session_id)?;
         let cutter = connections::peer(&request).map(|p| p.cutter.clone());
         let address = peer_of(&request);
         let r = request.into_inner();
@@ -1073,7 +1228,10 @@ impl Simulator for SimulatorService {
             self.stream_budget.clone(),
             (address, self.stream_stall, cutter),
         );
-        Ok(Response::new(Box::pin(stream)))
+        Ok(Response::new(Box::pin(stream.map(move |frame| {
+            let _attending = &attending;
+            frame
+        }))))
     }
 
     type StreamMetricsStream = ResponseStream<pb::SessionUpdate>;
@@ -1082,7 +1240,7 @@ impl Simulator for SimulatorService {
         &self,
         request: Request<pb::StreamMetricsRequest>,
     ) -> Result<Response<Self::StreamMetricsStream>, Status> {
-        let session = self.readable(&request, &request.get_ref().session_id)?;
+        let (session, attending) = self.watched(&request, &request.get_ref().session_id)?;
         let mut events = session.events();
         let state = session.state();
         // The timeline so far (subscribed first, so nothing falls between the two); live
@@ -1140,7 +1298,12 @@ impl Simulator for SimulatorService {
                 }
             }
         });
-        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx).map(
+            move |update| {
+                let _attending = &attending;
+                update
+            },
+        ))))
     }
 
     async fn get_anatomy(

@@ -832,6 +832,99 @@ async fn end_of(outputs: &mut tonic::Streaming<pb::ControlOutput>) -> Option<ton
     .expect("the stream ended within 10 s")
 }
 
+/// Whether the instructor's list shows `id` running.
+async fn running(
+    client: &mut pb::simulator_client::SimulatorClient<tonic::transport::Channel>,
+    id: &str,
+) -> bool {
+    listed_session(client, id).await.status == pb::SessionStatus::Running as i32
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sessions_whose_controller_went_away_are_closed() {
+    let _exclusive = EXCLUSIVE.lock().await;
+    let (server, _dir) = server_with("unattended", "unattended_session_timeout_s = 2\n");
+    let mut client = server.client().await;
+    // Nobody ever comes; the controller holds a state stream open; only an observer watches;
+    // the controller sends a command every 400 ms (and nothing else).
+    let nobody = create(&mut client).await;
+    let streaming = create(&mut client).await;
+    let observed = create(&mut client).await;
+    let commanding = create(&mut client).await;
+    let open = |session: &pb::CreateSessionResponse, token: &str| {
+        let (mut client, id, token) =
+            (client.clone(), session.session_id.clone(), token.to_owned());
+        async move {
+            client
+                .stream_state(authed(
+                    pb::StreamStateRequest {
+                        session_id: id,
+                        tip_only: true,
+                    },
+                    &token,
+                ))
+                .await
+                .unwrap()
+                .into_inner()
+        }
+    };
+    let held = open(&streaming, &streaming.controller_token).await;
+    let watching = open(&observed, &observed.observer_token).await;
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let sender = {
+        let (mut client, session, stop) = (client.clone(), commanding.clone(), stop.clone());
+        tokio::spawn(async move {
+            let mut seq = 0;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                seq += 1;
+                send(&mut client, &session, seq, push(0.0)).await.unwrap();
+                tokio::time::sleep(std::time::Duration::from_millis(400)).await;
+            }
+        })
+    };
+    let seconds = std::time::Duration::from_secs;
+    tokio::time::sleep(seconds(1)).await;
+    for s in [&nobody, &streaming, &observed, &commanding] {
+        assert!(
+            running(&mut client, &s.session_id).await,
+            "closed before the timeout"
+        );
+    }
+    tokio::time::sleep(seconds(3)).await;
+    let after = [
+        running(&mut client, &nobody.session_id).await,
+        running(&mut client, &streaming.session_id).await,
+        running(&mut client, &observed.session_id).await,
+        running(&mut client, &commanding.session_id).await,
+    ];
+    println!(
+        "after 4 s, running: nobody {}, controller's stream {}, observer only {}, commands {}",
+        after[0], after[1], after[2], after[3]
+    );
+    assert_eq!(after, [false, true, false, true]);
+    // The closed session's controller is told so; a new session can take its place.
+    let gone = send(&mut client, &nobody, 1, push(1.0)).await.unwrap_err();
+    assert_eq!(gone.code(), tonic::Code::NotFound, "{gone:?}");
+    // The stream ends and the commands stop: both close one timeout later.
+    drop((held, watching));
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    sender.await.unwrap();
+    tokio::time::sleep(seconds(1)).await;
+    assert!(
+        running(&mut client, &streaming.session_id).await,
+        "closed at once when its stream ended"
+    );
+    tokio::time::sleep(seconds(3)).await;
+    assert!(
+        !running(&mut client, &streaming.session_id).await,
+        "the controller's stream ended 4 s ago"
+    );
+    assert!(
+        !running(&mut client, &commanding.session_id).await,
+        "the last command came 4 s ago"
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_smaller_holes_are_closed() {
     let _exclusive = EXCLUSIVE.lock().await;
