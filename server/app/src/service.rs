@@ -74,7 +74,7 @@ pub struct SimulatorService {
 }
 
 /// Whether anyone attends a running session: its controller's open streams, and when its
-/// controller was last heard from (a call with its token, or a stream of its ending).
+/// controller was last heard from (a call with its token, or the end of one of its streams).
 #[derive(Debug, Clone, Copy)]
 struct Attendance {
     streams: usize,
@@ -496,7 +496,8 @@ impl SimulatorService {
 
     /// The running session `id` if the request's token may read it.
     fn readable<T>(&self, request: &Request<T>, id: &str) -> Result<Arc<Session>, Status> {
-        self.watched(request, id).map(|(session, _)| session)
+        self.authorize(peer_of(request), bearer(request).as_deref(), id, false)?;
+        self.session(id)
     }
 
     /// The running session `id` if the request's token may read it, and the guard that
