@@ -238,6 +238,13 @@ impl Default for ServerConfig {
 }
 
 impl ServerConfig {
+    /// How long a running session may go without its controller before it is closed
+    /// (`None`: never).
+    pub fn unattended_timeout(&self) -> Option<std::time::Duration> {
+        (self.unattended_session_timeout_s > 0)
+            .then(|| std::time::Duration::from_secs(self.unattended_session_timeout_s))
+    }
+
     /// The default scene among `listed` (scene names in the directory's order): the one
     /// named, `DEFAULT_SCENE` or the first; an error names a named scene that is not listed.
     pub fn resolve_default_scene(&self, listed: &[&str]) -> anyhow::Result<String> {

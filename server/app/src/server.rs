@@ -153,10 +153,7 @@ pub async fn serve(
             .with_inline_scenes(config.inline_scenes)
             .with_auth_failures_per_minute(config.auth_failures_per_minute)
             .with_control_timeout(std::time::Duration::from_millis(config.control_timeout_ms))
-            .with_unattended_timeout(
-                (config.unattended_session_timeout_s > 0)
-                    .then(|| std::time::Duration::from_secs(config.unattended_session_timeout_s)),
-            )
+            .with_unattended_timeout(config.unattended_timeout())
             .with_control_inputs_per_second(config.control_inputs_per_second)
             .with_stream_limits(
                 config.stream_buffer_mib << 20,
@@ -166,14 +163,12 @@ pub async fn serve(
     // Sessions whose controller went away are closed once the unattended timeout passes:
     // an abandoned session would otherwise hold its place and its core until the server
     // stops.
-    if config.unattended_session_timeout_s > 0 {
+    if let Some(timeout) = config.unattended_timeout() {
         let service = service.clone();
-        let period = std::time::Duration::from_secs(config.unattended_session_timeout_s)
-            .div_f64(4.0)
-            .clamp(
-                std::time::Duration::from_millis(250),
-                std::time::Duration::from_secs(10),
-            );
+        let period = timeout.div_f64(4.0).clamp(
+            std::time::Duration::from_millis(250),
+            std::time::Duration::from_secs(10),
+        );
         tokio::spawn(async move {
             let mut tick = tokio::time::interval(period);
             loop {

@@ -322,16 +322,25 @@ impl SimulatorService {
         closed
     }
 
-    /// Marks `id`'s controller as heard from now.
-    fn attended(&self, id: &str) {
-        self.attendance
-            .lock()
-            .entry(id.to_owned())
-            .and_modify(|a| a.last = Instant::now())
-            .or_insert(Attendance {
-                streams: 0,
-                last: Instant::now(),
-            });
+    /// Marks `id`'s controller as heard from now, with `opened` more streams open.
+    fn attended(&self, id: &str, opened: usize) {
+        let now = Instant::now();
+        let mut attendance = self.attendance.lock();
+        match attendance.get_mut(id) {
+            Some(a) => {
+                a.streams += opened;
+                a.last = now;
+            }
+            None => {
+                attendance.insert(
+                    id.to_owned(),
+                    Attendance {
+                        streams: opened,
+                        last: now,
+                    },
+                );
+            }
+        }
     }
 
     /// Counts a stream of `id`'s controller until the returned guard drops (an observer's
@@ -340,17 +349,7 @@ impl SimulatorService {
         if role != Role::Controller {
             return None;
         }
-        self.attendance
-            .lock()
-            .entry(id.to_owned())
-            .and_modify(|a| {
-                a.streams += 1;
-                a.last = Instant::now();
-            })
-            .or_insert(Attendance {
-                streams: 1,
-                last: Instant::now(),
-            });
+        self.attended(id, 1);
         Some(Attending {
             attendance: self.attendance.clone(),
             id: id.to_owned(),
@@ -476,7 +475,7 @@ impl SimulatorService {
             }
         };
         if role == Role::Controller {
-            self.attended(session_id);
+            self.attended(session_id, 0);
         }
         if control && role != Role::Controller {
             return Err(Status::permission_denied(format!(
@@ -805,7 +804,7 @@ impl Simulator for SimulatorService {
             })
             .map_err(|e| Status::unavailable(format!("store: {e}")))?;
         self.tokens.write().insert(id.clone(), tokens.clone());
-        self.attended(&id);
+        self.attended(&id, 0);
         tracing::info!(session = %id, scene = %spec.name, "session created");
         Ok(Response::new(pb::CreateSessionResponse {
             session_id: id,
