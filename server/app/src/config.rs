@@ -351,6 +351,10 @@ mod tests {
             ("listen = \"127.0.0.1:1\"\nport = 3\n", "port"),
             ("renderer = \"quantum\"\n", "renderer"),
             ("[tls]\ncert = \"a.pem\"\n", "key"),
+            (
+                "unattended_session_timeout_s = -5\n",
+                "unattended_session_timeout_s",
+            ),
         ] {
             std::fs::write(&file, text).unwrap();
             let message = ConfigFile::read(&file).unwrap_err().to_string();
@@ -366,6 +370,13 @@ mod tests {
             ("0.0.0.0:50051", 3)
         );
         assert_eq!(config.database, ServerConfig::default().database);
+        assert_eq!(
+            config.unattended_timeout(),
+            Some(std::time::Duration::from_secs(600))
+        );
+        std::fs::write(&file, "unattended_session_timeout_s = 0\n").unwrap();
+        let never = ServerConfig::from_file(ConfigFile::read(&file).unwrap());
+        assert_eq!(never.unattended_timeout(), None, "0 turns the sweep off");
     }
 
     #[test]
