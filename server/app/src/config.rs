@@ -119,6 +119,38 @@ pub struct ConfigFile {
     /// How long a running session may go without its controller (no stream open with its
     /// controller token, no call with it) before the server closes it (s; 0: never).
     pub unattended_session_timeout_s: Option<u64>,
+    /// Most bytes one data file (a surface, a CT, a scene) may have (MiB).
+    pub max_file_mib: Option<u64>,
+    /// Most bytes compressed data (zlib, gzip, VTK blocks) may inflate to (MiB; never more
+    /// than `asset_cache_mib`).
+    pub max_inflated_mib: Option<u64>,
+    /// Most voxels one CT volume may hold (never more than `asset_cache_mib` holds as f32).
+    pub max_volume_voxels: Option<u64>,
+    /// Most connections open at once.
+    pub max_connections: Option<usize>,
+    /// Most connections open at once from one address (a trusted proxy is not limited).
+    pub max_connections_per_address: Option<usize>,
+    /// How long a connection may pass no byte either way before it is closed (s).
+    pub connection_idle_timeout_s: Option<u64>,
+    /// Most concurrent HTTP/2 streams on one connection.
+    pub http2_max_streams: Option<u32>,
+    /// Memory the request messages still arriving may hold, all connections together (MiB).
+    pub request_buffer_mib: Option<usize>,
+    /// How long one request message may take to arrive once its first byte has (s).
+    pub message_read_timeout_s: Option<u64>,
+    /// Proxies (IP addresses) whose `X-Forwarded-For` header names the real client: behind
+    /// them, throttles and per-address limits apply to that client, not to the proxy.
+    pub trusted_proxies: Option<Vec<std::net::IpAddr>>,
+    /// Most running sessions one client (an account, else an address) may have created;
+    /// instructors are not limited (default: half of `max_sessions`).
+    pub max_sessions_per_client: Option<usize>,
+    /// Most sessions one client may create a minute (instructors are not limited).
+    pub session_creations_per_minute: Option<u32>,
+    /// Ended anonymous sessions the store keeps (the oldest beyond are deleted with their
+    /// recordings; a trainee account's go only by age).
+    pub max_recorded_anonymous_sessions: Option<usize>,
+    /// Days an ended session is kept (0: until pruned by count).
+    pub recorded_session_retention_days: Option<f64>,
 }
 
 impl ConfigFile {
@@ -196,6 +228,34 @@ pub struct ServerConfig {
     /// How long a running session may go without its controller before the server closes
     /// it (s; 0: never).
     pub unattended_session_timeout_s: u64,
+    /// Most bytes one data file may have (MiB).
+    pub max_file_mib: u64,
+    /// Most bytes compressed data may inflate to (MiB).
+    pub max_inflated_mib: u64,
+    /// Most voxels one CT volume may hold.
+    pub max_volume_voxels: u64,
+    /// Most connections open at once.
+    pub max_connections: usize,
+    /// Most connections open at once from one address (trusted proxies excepted).
+    pub max_connections_per_address: usize,
+    /// How long a connection may pass no byte either way before it is closed (s).
+    pub connection_idle_timeout_s: u64,
+    /// Most concurrent HTTP/2 streams on one connection.
+    pub http2_max_streams: u32,
+    /// Memory the request messages still arriving may hold together (MiB).
+    pub request_buffer_mib: usize,
+    /// How long one request message may take to arrive once its first byte has (s).
+    pub message_read_timeout_s: u64,
+    /// Proxies whose `X-Forwarded-For` names the real client.
+    pub trusted_proxies: Vec<std::net::IpAddr>,
+    /// Most running sessions one client may have created (`None`: half of `max_sessions`).
+    pub max_sessions_per_client: Option<usize>,
+    /// Most sessions one client may create a minute.
+    pub session_creations_per_minute: u32,
+    /// Ended anonymous sessions the store keeps.
+    pub max_recorded_anonymous_sessions: usize,
+    /// Days an ended session is kept (0: until pruned by count).
+    pub recorded_session_retention_days: f64,
 }
 
 /// The scene clients start by default: the coaxial approach to the left common carotid.
@@ -233,6 +293,20 @@ impl Default for ServerConfig {
             stream_stall_timeout_ms: service::STREAM_STALL.as_millis() as u64,
             default_scene: None,
             unattended_session_timeout_s: service::UNATTENDED_SESSION_TIMEOUT.as_secs(),
+            max_file_mib: 2048,
+            max_inflated_mib: 2048,
+            max_volume_voxels: 1 << 28,
+            max_connections: 512,
+            max_connections_per_address: 32,
+            connection_idle_timeout_s: 30,
+            http2_max_streams: 32,
+            request_buffer_mib: 128,
+            message_read_timeout_s: 10,
+            trusted_proxies: Vec::new(),
+            max_sessions_per_client: None,
+            session_creations_per_minute: 30,
+            max_recorded_anonymous_sessions: 20_000,
+            recorded_session_retention_days: 0.0,
         }
     }
 }
@@ -257,6 +331,25 @@ impl ServerConfig {
             ),
             None if listed.contains(&DEFAULT_SCENE) => Ok(DEFAULT_SCENE.into()),
             None => Ok(listed.first().map_or_else(String::new, |s| (*s).to_owned())),
+        }
+    }
+
+    /// Most running sessions one client may have created: as configured, else half of
+    /// `max_sessions` (at least one), so that one client never holds every place.
+    pub fn sessions_per_client(&self) -> usize {
+        self.max_sessions_per_client
+            .unwrap_or(self.max_sessions / 2)
+            .max(1)
+    }
+
+    /// What the file readers may read and allocate: the configured limits, the inflated
+    /// bytes and the voxels (as f32) never more than the asset budget.
+    pub fn read_limits(&self) -> cathlab_anatomy::io::limits::ReadLimits {
+        let budget = (self.asset_cache_mib as u64) << 20;
+        cathlab_anatomy::io::limits::ReadLimits {
+            max_file_bytes: self.max_file_mib << 20,
+            max_inflated_bytes: (self.max_inflated_mib << 20).min(budget),
+            max_voxels: self.max_volume_voxels.min(budget / 4),
         }
     }
 
@@ -333,6 +426,32 @@ impl ServerConfig {
             unattended_session_timeout_s: file
                 .unattended_session_timeout_s
                 .unwrap_or(d.unattended_session_timeout_s),
+            max_file_mib: file.max_file_mib.unwrap_or(d.max_file_mib),
+            max_inflated_mib: file.max_inflated_mib.unwrap_or(d.max_inflated_mib),
+            max_volume_voxels: file.max_volume_voxels.unwrap_or(d.max_volume_voxels),
+            max_connections: file.max_connections.unwrap_or(d.max_connections),
+            max_connections_per_address: file
+                .max_connections_per_address
+                .unwrap_or(d.max_connections_per_address),
+            connection_idle_timeout_s: file
+                .connection_idle_timeout_s
+                .unwrap_or(d.connection_idle_timeout_s),
+            http2_max_streams: file.http2_max_streams.unwrap_or(d.http2_max_streams),
+            request_buffer_mib: file.request_buffer_mib.unwrap_or(d.request_buffer_mib),
+            message_read_timeout_s: file
+                .message_read_timeout_s
+                .unwrap_or(d.message_read_timeout_s),
+            trusted_proxies: file.trusted_proxies.unwrap_or(d.trusted_proxies),
+            max_sessions_per_client: file.max_sessions_per_client,
+            session_creations_per_minute: file
+                .session_creations_per_minute
+                .unwrap_or(d.session_creations_per_minute),
+            max_recorded_anonymous_sessions: file
+                .max_recorded_anonymous_sessions
+                .unwrap_or(d.max_recorded_anonymous_sessions),
+            recorded_session_retention_days: file
+                .recorded_session_retention_days
+                .unwrap_or(d.recorded_session_retention_days),
         }
     }
 }

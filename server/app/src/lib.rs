@@ -7,6 +7,8 @@ pub mod config;
 pub mod connections;
 pub mod fleet;
 pub mod heap;
+pub mod intake;
+pub mod replays;
 pub mod reports;
 pub mod server;
 pub mod service;

@@ -15,6 +15,7 @@ use sha2::{Digest, Sha256};
 use tokio::sync::oneshot;
 use tonic::Status;
 
+use crate::replays::{Priority, ReplayQueue};
 use crate::store::{Store, StoreError, StoredAccount, StoredReport, StoredSession};
 
 /// SHA-256 of a token (hex): what the store keeps instead of the token.
@@ -105,12 +106,23 @@ impl Caller {
     }
 }
 
-fn store_status(e: StoreError) -> Status {
+/// What a client hears of a store error: what failed, never where the database is (the file
+/// or URL goes to the log). A database that cannot answer is UNAVAILABLE (retry later); a
+/// corrupt value is lost data.
+pub(crate) fn store_status(e: StoreError) -> Status {
+    tracing::warn!("{e}");
     match e {
-        StoreError::Corrupt { .. } => Status::data_loss(e.to_string()),
-        StoreError::Database { .. } => Status::unavailable(e.to_string()),
+        StoreError::Database { .. } => {
+            Status::unavailable("the session store cannot be reached; try again shortly")
+        }
+        StoreError::Corrupt { what, reason, .. } => {
+            Status::data_loss(format!("corrupt {what}: {reason}"))
+        }
     }
 }
+
+/// On-demand replays that may wait for a place at once (reports always wait their turn).
+pub const MAX_WAITING_REPLAYS: usize = 16;
 
 /// Computes, stores and hands out reports; one computation per session at a time.
 pub struct Reports {
@@ -118,6 +130,7 @@ pub struct Reports {
     store: Arc<Store>,
     options: ReportOptions,
     busy: Mutex<HashMap<String, Arc<tokio::sync::Mutex<()>>>>,
+    queue: Arc<ReplayQueue>,
 }
 
 impl std::fmt::Debug for Reports {
@@ -139,11 +152,17 @@ impl Reports {
     /// Reports of `engine`'s sessions, kept in `store`.
     pub fn new(engine: Arc<Engine>, store: Arc<Store>) -> Self {
         Self {
-            engine,
             store,
             options: ReportOptions::default(),
             busy: Mutex::new(HashMap::new()),
+            queue: ReplayQueue::new(engine.max_replays(), MAX_WAITING_REPLAYS),
+            engine,
         }
+    }
+
+    /// The queue for the replay places, which reports share with on-demand replays.
+    pub fn queue(&self) -> &Arc<ReplayQueue> {
+        &self.queue
     }
 
     /// The stored session `id`, NOT_FOUND if none.
@@ -171,6 +190,9 @@ impl Reports {
                 "session {id:?} is still running; its report is made when it closes"
             )));
         }
+        // A report waits its turn (before on-demand replays), never refused for want of a
+        // place.
+        let place = self.queue.enter(Priority::Report, id).await?;
         let permit = self
             .engine
             .replay_permit()
@@ -193,6 +215,7 @@ impl Reports {
                 );
                 let outcome = compute(&engine, &store, &session, &options, &flag);
                 drop(permit);
+                drop(place);
                 let _ = done_tx.send(outcome);
             })
             .map_err(|e| Status::internal(format!("cannot start a report thread: {e}")))?;

@@ -48,6 +48,8 @@ pub fn engine(config: &ServerConfig) -> anyhow::Result<(Arc<Engine>, Arc<Store>,
     {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
+    // Every reader of anatomy and CT files is bounded from here on.
+    cathlab_anatomy::io::limits::set_read_limits(config.read_limits());
     let store = Arc::new(Store::for_server(&location, &config.resolved_server_id())?);
     let metrics = EngineMetrics::default();
     let renderer = SharedRenderer::new(renderer(config.renderer)?);
@@ -154,6 +156,8 @@ pub async fn serve(
             .with_auth_failures_per_minute(config.auth_failures_per_minute)
             .with_control_timeout(std::time::Duration::from_millis(config.control_timeout_ms))
             .with_unattended_timeout(config.unattended_timeout())
+            .with_max_sessions_per_client(config.sessions_per_client())
+            .with_session_creations_per_minute(config.session_creations_per_minute)
             .with_control_inputs_per_second(config.control_inputs_per_second)
             .with_stream_limits(
                 config.stream_buffer_mib << 20,
@@ -174,6 +178,27 @@ pub async fn serve(
             loop {
                 tick.tick().await;
                 service.close_unattended().await;
+            }
+        });
+    }
+    // The store keeps what its retention settings say: ended anonymous sessions past the
+    // count, any past the age, pruned once a minute (and at start).
+    {
+        let store = store.clone();
+        let keep = config.max_recorded_anonymous_sessions;
+        let max_age_s = (config.recorded_session_retention_days > 0.0)
+            .then_some(config.recorded_session_retention_days * 86_400.0);
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(std::time::Duration::from_secs(60));
+            loop {
+                tick.tick().await;
+                let store = store.clone();
+                match tokio::task::spawn_blocking(move || store.prune(keep, max_age_s)).await {
+                    Ok(Ok(0)) => {}
+                    Ok(Ok(n)) => tracing::info!(sessions = n, "store: pruned ended sessions"),
+                    Ok(Err(e)) => tracing::warn!("store: pruning: {e}"),
+                    Err(e) => tracing::warn!("store: pruning: {e}"),
+                }
             }
         });
     }
@@ -233,6 +258,10 @@ pub async fn serve(
         .add_service(health_service)
         .add_service(reflection)
         .into_axum_router()
+        .layer(crate::intake::IntakeLayer::new(
+            crate::intake::RequestBuffer::new(config.request_buffer_mib << 20),
+            std::time::Duration::from_secs(config.message_read_timeout_s),
+        ))
         .layer(axum::middleware::map_response(undecodable_is_invalid))
         // gRPC-Web for the gRPC routes only: tonic-web answers 400 to any other HTTP/1.1
         // request, and /metrics (added after the layer) is plain HTTP.
@@ -315,7 +344,16 @@ pub async fn serve(
             "grpc-message".parse()?,
             "grpc-status-details-bin".parse()?,
         ]);
-    let mut builder = Server::builder().accept_http1(true);
+    // HTTP/2: a bounded number of streams a connection, flow-control windows the size of a
+    // request message; what arrives is held within the intake layer's buffer.
+    let window =
+        u32::try_from(config.max_message_bytes.clamp(64 << 10, 16 << 20)).unwrap_or(1 << 20);
+    let mut builder = Server::builder()
+        .accept_http1(true)
+        .max_concurrent_streams(Some(config.http2_max_streams))
+        .initial_stream_window_size(Some(window))
+        .initial_connection_window_size(Some(window.saturating_mul(2)))
+        .http2_max_pending_accept_reset_streams(Some(config.http2_max_streams as usize));
     if let Some(tls) = &config.tls {
         let cert = std::fs::read(&tls.cert).with_context(|| format!("{}", tls.cert.display()))?;
         let key = std::fs::read(&tls.key).with_context(|| format!("{}", tls.key.display()))?;
@@ -366,8 +404,15 @@ pub async fn serve(
         );
     }
     // Each connection can be cut (a reader that stalls a frame stream loses its connection).
+    let admission = crate::connections::Admission::new(crate::connections::ConnectionLimits {
+        max_total: config.max_connections,
+        max_per_address: config.max_connections_per_address,
+        idle_timeout: std::time::Duration::from_secs(config.connection_idle_timeout_s.max(1)),
+        trusted_proxies: config.trusted_proxies.clone(),
+    });
     let incoming = crate::connections::tracked(
         tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true)),
+        admission,
     );
     // On shutdown, close the sessions first: that ends their streams, which the server's
     // graceful drain would otherwise wait on for ever.
@@ -417,14 +462,23 @@ async fn allocate(
     let servers = tokio::task::spawn_blocking(move || store.servers()).await;
     let servers = match servers {
         Ok(Ok(s)) => s,
+        // The detail (a database path or address) is for the log, not for anyone who asks.
         Ok(Err(e)) => {
+            tracing::warn!("/allocate: the fleet's registry: {e}");
             return (
                 StatusCode::SERVICE_UNAVAILABLE,
-                format!("the fleet's registry: {e}\n"),
+                [
+                    (header::RETRY_AFTER, "30"),
+                    (header::CACHE_CONTROL, "no-store"),
+                ],
+                "the fleet's registry cannot be read; try again shortly\n",
             )
                 .into_response();
         }
-        Err(e) => return (StatusCode::INTERNAL_SERVER_ERROR, format!("{e}\n")).into_response(),
+        Err(e) => {
+            tracing::warn!("/allocate: {e}");
+            return (StatusCode::INTERNAL_SERVER_ERROR, "internal error\n").into_response();
+        }
     };
     let Some(server) = crate::fleet::with_most_room(&servers) else {
         return (
@@ -437,7 +491,7 @@ async fn allocate(
         )
             .into_response();
     };
-    let query = uri.query().map(|q| format!("?{q}")).unwrap_or_default();
+    let query = allocation_query(uri.query().unwrap_or(""));
     let location = format!("{}/{query}", server.address.trim_end_matches('/'));
     (
         StatusCode::SEE_OTHER,
@@ -449,8 +503,39 @@ async fn allocate(
         .into_response()
 }
 
+/// The query keys `/allocate` passes on to the server it sends a trainee to: the scene and
+/// the label (nothing else, so that no link can carry a `server`, an `account` or a token
+/// through it).
+const ALLOCATION_KEYS: [&str; 2] = ["scene", "label"];
+
+/// `?scene=…&label=…` of a query, its other keys dropped (each kept pair as it was
+/// encoded).
+fn allocation_query(query: &str) -> String {
+    let kept: Vec<&str> = query
+        .split('&')
+        .filter(|pair| {
+            let key = pair.split('=').next().unwrap_or("");
+            ALLOCATION_KEYS.contains(&key)
+        })
+        .collect();
+    if kept.is_empty() {
+        String::new()
+    } else {
+        format!("?{}", kept.join("&"))
+    }
+}
+
 /// tonic answers a request message that does not decode with INTERNAL; it is the caller's
 /// fault: INVALID_ARGUMENT.
+/// How tonic's INTERNAL answers about a request's bytes begin (plain and percent-encoded):
+/// a message that does not decode, a body with no message.
+const CALLERS_FRAMING: [&str; 4] = [
+    "failed to decode Protobuf message",
+    "failed%20to%20decode",
+    "Missing request message",
+    "Missing%20request%20message",
+];
+
 async fn undecodable_is_invalid(
     mut response: axum::response::Response,
 ) -> axum::response::Response {
@@ -459,10 +544,7 @@ async fn undecodable_is_invalid(
         && headers
             .get("grpc-message")
             .and_then(|m| m.to_str().ok())
-            .is_some_and(|m| {
-                m.starts_with("failed to decode Protobuf message")
-                    || m.starts_with("failed%20to%20decode")
-            });
+            .is_some_and(|m| CALLERS_FRAMING.iter().any(|start| m.starts_with(start)));
     if undecodable {
         headers.insert("grpc-status", axum::http::HeaderValue::from_static("3"));
     }

@@ -71,6 +71,37 @@ pub struct SimulatorService {
     default_scene: String,
     attendance: Arc<Mutex<HashMap<String, Attendance>>>,
     unattended_timeout: Option<Duration>,
+    clients: Arc<Mutex<ClientSessions>>,
+    max_sessions_per_client: usize,
+    creations_per_minute: u32,
+}
+
+/// Who created which running session (an account, else an address), and the creations
+/// under way: no one client may hold every place.
+#[derive(Debug, Default)]
+struct ClientSessions {
+    creator: HashMap<String, String>,
+    pending: HashMap<String, usize>,
+    /// Creations per client in the current minute: when the minute began, how many.
+    recent: HashMap<String, (Instant, u32)>,
+}
+
+/// A creation under way, counted against its client until it ends.
+struct Creating {
+    clients: Arc<Mutex<ClientSessions>>,
+    client: String,
+}
+
+impl Drop for Creating {
+    fn drop(&mut self) {
+        let mut clients = self.clients.lock();
+        if let Some(n) = clients.pending.get_mut(&self.client) {
+            *n -= 1;
+            if *n == 0 {
+                clients.pending.remove(&self.client);
+            }
+        }
+    }
 }
 
 /// Whether anyone attends a running session: its controller's open streams, and when its
@@ -200,6 +231,25 @@ fn checked_id(id: &str) -> Result<&str, Status> {
     Ok(id)
 }
 
+/// Recorded sessions on a `ListSessions` page unless the caller asks for fewer.
+pub const DEFAULT_PAGE_SIZE: usize = 100;
+
+/// The most recorded sessions one `ListSessions` page holds.
+pub const MAX_PAGE_SIZE: usize = 500;
+
+/// The last session of the previous page, as `next_page_token` named it (its creation
+/// time's bits in hex, a dot, its id).
+fn parse_page_token(token: &str) -> Result<(f64, String), Status> {
+    let bad = || Status::invalid_argument("page_token: not a next_page_token of this server");
+    let (bits, id) = token.split_once('.').ok_or_else(bad)?;
+    let created = f64::from_bits(u64::from_str_radix(bits, 16).map_err(|_| bad())?);
+    checked_id(id).map_err(|_| bad())?;
+    if !created.is_finite() {
+        return Err(bad());
+    }
+    Ok((created, id.to_owned()))
+}
+
 fn bearer<T>(request: &Request<T>) -> Option<String> {
     let value = request.metadata().get("authorization")?.to_str().ok()?;
     value
@@ -214,10 +264,7 @@ fn engine_status(e: EngineError) -> Status {
 
 /// A database that cannot answer is UNAVAILABLE (retry later); a corrupt value INTERNAL.
 fn store_status(e: StoreError) -> Status {
-    match e {
-        StoreError::Database { .. } => Status::unavailable(format!("store: {e}")),
-        StoreError::Corrupt { .. } => Status::internal(format!("store: {e}")),
-    }
+    crate::reports::store_status(e)
 }
 
 impl SimulatorService {
@@ -238,6 +285,9 @@ impl SimulatorService {
             control_inputs_per_second: CONTROL_INPUTS_PER_SECOND,
             attendance: Arc::default(),
             unattended_timeout: Some(UNATTENDED_SESSION_TIMEOUT),
+            clients: Arc::default(),
+            max_sessions_per_client: usize::MAX,
+            creations_per_minute: u32::MAX,
             default_scene: crate::config::ServerConfig::default()
                 .resolve_default_scene(&engine.catalog().names())
                 .unwrap_or_default(),
@@ -356,6 +406,64 @@ impl SimulatorService {
         })
     }
 
+    /// At most `n` running sessions created by one client (an account, else an address);
+    /// instructors create for others and are not limited.
+    pub fn with_max_sessions_per_client(mut self, n: usize) -> Self {
+        self.max_sessions_per_client = n.max(1);
+        self
+    }
+
+    /// At most `n` sessions created a minute by one client (instructors are not limited):
+    /// a create-and-close loop cannot fill the store.
+    pub fn with_session_creations_per_minute(mut self, n: u32) -> Self {
+        self.creations_per_minute = n.max(1);
+        self
+    }
+
+    /// Counts a creation by `client` against its limits, or refuses it.
+    fn creating(&self, client: &str) -> Result<Creating, Status> {
+        let running: std::collections::HashSet<String> = self
+            .engine
+            .sessions()
+            .iter()
+            .map(|s| s.id().to_owned())
+            .collect();
+        let mut clients = self.clients.lock();
+        clients.creator.retain(|id, _| running.contains(id));
+        let holds = clients.creator.values().filter(|c| *c == client).count()
+            + clients.pending.get(client).copied().unwrap_or(0);
+        if holds >= self.max_sessions_per_client {
+            return Err(Status::resource_exhausted(format!(
+                "this client runs {holds} sessions, the most one client may \
+                 (max_sessions_per_client); close one first"
+            )));
+        }
+        let now = Instant::now();
+        if clients.recent.len() > 10_000 {
+            clients
+                .recent
+                .retain(|_, (since, _)| now.duration_since(*since) < Duration::from_secs(60));
+        }
+        let recent = clients.recent.entry(client.to_owned()).or_insert((now, 0));
+        if now.duration_since(recent.0) >= Duration::from_secs(60) {
+            *recent = (now, 0);
+        }
+        if recent.1 >= self.creations_per_minute {
+            let wait = 60 - now.duration_since(recent.0).as_secs();
+            return Err(Status::resource_exhausted(format!(
+                "this client created {} sessions this minute, the most it may \
+                 (session_creations_per_minute); retry in {wait} s",
+                recent.1
+            )));
+        }
+        recent.1 += 1;
+        *clients.pending.entry(client.to_owned()).or_insert(0) += 1;
+        Ok(Creating {
+            clients: self.clients.clone(),
+            client: client.to_owned(),
+        })
+    }
+
     /// How long a control stream may go quiet before its setpoints are zeroed.
     pub fn with_control_timeout(mut self, timeout: Duration) -> Self {
         self.control_timeout = timeout;
@@ -396,12 +504,14 @@ impl SimulatorService {
 
     /// Who the request comes from. An address that guessed wrong too often is refused.
     fn caller<T>(&self, request: &Request<T>) -> Result<Caller, Status> {
-        self.throttle.check(peer_of(request))?;
         let token = bearer(request);
+        // An account's token is random (nothing to guess): never throttled.
+        if let Some(account) = token.as_deref().and_then(|t| self.account_of(t)) {
+            return Ok(Caller::Account(account));
+        }
+        self.throttle.check(peer_of(request))?;
         Ok(if self.is_instructor_key(token.as_deref()) {
             Caller::InstructorKey
-        } else if let Some(account) = token.as_deref().and_then(|t| self.account_of(t)) {
-            Caller::Account(account)
         } else {
             Caller::Other(token)
         })
@@ -442,7 +552,6 @@ impl SimulatorService {
         session_id: &str,
         control: bool,
     ) -> Result<Role, Status> {
-        self.throttle.check(peer)?;
         checked_id(session_id)?;
         let known = self.tokens.read().get(session_id).cloned();
         // The session's own tokens first: a controller's every command and stream is checked
@@ -452,6 +561,13 @@ impl SimulatorService {
             (Some(t), Some(k)) if same_secret(t, &k.observer) => Some(Role::Observer),
             _ => None,
         };
+        // A session's own token (random, 192 bits: nothing to guess) is never throttled, so
+        // that a trainee's stop or close goes through while someone at the same address
+        // (behind the same proxy) guesses; everything else is refused once the address has
+        // used up its guesses.
+        if own.is_none() {
+            self.throttle.check(peer)?;
+        }
         let role = if let Some(role) = own {
             role
         } else if self.is_instructor(token) {
@@ -474,7 +590,9 @@ impl SimulatorService {
                 }
             }
         };
-        if role == Role::Controller {
+        // A command keeps a session attended; a read does not (a client holding sessions
+        // with one cheap GetSession each would keep them from everyone).
+        if control && role == Role::Controller {
             self.attended(session_id, 0);
         }
         if control && role != Role::Controller {
@@ -734,6 +852,15 @@ impl Simulator for SimulatorService {
             Caller::Account(a) => Some(a.id.clone()),
             _ => None,
         };
+        let client = match &account_id {
+            Some(a) => format!("account {a}"),
+            None => format!("address {}", peer_of(&request)),
+        };
+        let creating = if instructor {
+            None
+        } else {
+            Some(self.creating(&client)?)
+        };
         let r = request.into_inner();
         let inline = matches!(
             r.scene,
@@ -802,8 +929,15 @@ impl Simulator for SimulatorService {
                 controller_hash: Some(token_hash(&tokens.controller)),
                 server_id: Some(self.store.server_id().to_owned()),
             })
-            .map_err(|e| Status::unavailable(format!("store: {e}")))?;
+            .map_err(|e| {
+                tracing::warn!("recording a new session: {e}");
+                Status::unavailable("the session store cannot be written; try again shortly")
+            })?;
         self.tokens.write().insert(id.clone(), tokens.clone());
+        if let Some(creating) = creating {
+            self.clients.lock().creator.insert(id.clone(), client);
+            drop(creating);
+        }
         self.attended(&id, 0);
         tracing::info!(session = %id, scene = %spec.name, "session created");
         Ok(Response::new(pb::CreateSessionResponse {
@@ -823,6 +957,15 @@ impl Simulator for SimulatorService {
                 "listing sessions needs the instructor key",
             ));
         }
+        let page_size = match request.get_ref().page_size {
+            0 => DEFAULT_PAGE_SIZE,
+            n => (n as usize).min(MAX_PAGE_SIZE),
+        };
+        let after = match request.get_ref().page_token.as_str() {
+            "" => None,
+            token => Some(parse_page_token(token)?),
+        };
+        let first_page = after.is_none();
         let tokens = self.tokens.read().clone();
         let mut sessions: Vec<pb::SessionInfo> = self
             .engine
@@ -864,16 +1007,30 @@ impl Simulator for SimulatorService {
                 });
             }
         }
+        if !first_page {
+            sessions.clear();
+        }
+        let mut next_page_token = String::new();
         if request.get_ref().include_recorded {
             let listed: std::collections::HashSet<String> =
                 sessions.iter().map(|s| s.session_id.clone()).collect();
-            for stored in self.store.sessions().map_err(store_status)? {
+            let (page, more) = self
+                .store
+                .sessions_page(after, page_size)
+                .map_err(store_status)?;
+            if more && let Some(last) = page.last() {
+                next_page_token = format!("{:x}.{}", last.created_unix_s.to_bits(), last.id);
+            }
+            for stored in &page {
                 if !listed.contains(&stored.id) {
-                    sessions.push(self.stored_info(&stored)?);
+                    sessions.push(self.stored_info(stored)?);
                 }
             }
         }
-        Ok(Response::new(pb::ListSessionsResponse { sessions }))
+        Ok(Response::new(pb::ListSessionsResponse {
+            sessions,
+            next_page_token,
+        }))
     }
 
     async fn get_session(
@@ -1372,6 +1529,14 @@ impl Simulator for SimulatorService {
         }
         // A place among the replays, then a niced thread of its own; a caller that goes away
         // abandons the replay (the guard below is dropped with this handler).
+        // Queued behind reports, one per caller (a token's hash, else an address).
+        let caller =
+            bearer(&request).map_or_else(|| peer_of(&request).to_string(), |t| token_hash(&t));
+        let place = self
+            .reports
+            .queue()
+            .enter(crate::replays::Priority::Replay, &caller)
+            .await?;
         let permit = self.engine.replay_permit().map_err(engine_status)?;
         let cancel = CancelOnDrop(Arc::new(AtomicBool::new(false)));
         let (engine, store, flag) = (self.engine.clone(), self.store.clone(), cancel.0.clone());
@@ -1387,6 +1552,7 @@ impl Simulator for SimulatorService {
                 // another replay on hearing it must find the place free (a niced thread
                 // could otherwise hold it for a while after answering).
                 drop(permit);
+                drop(place);
                 let _ = done_tx.send(outcome);
             })
             .map_err(|e| Status::internal(format!("cannot start a replay thread: {e}")))?;
@@ -1521,7 +1687,9 @@ impl Simulator for SimulatorService {
             (Caller::Account(a), true) => a.clone(),
             (Caller::Account(a), false) if a.id == wanted => a.clone(),
             (Caller::InstructorKey | Caller::Account(_), false) if caller.is_instructor() => {
-                checked_id(&wanted)?;
+                checked_id(&wanted).map_err(|e| {
+                    Status::invalid_argument(e.message().replacen("session_id", "account_id", 1))
+                })?;
                 self.store
                     .account(&wanted)
                     .map_err(store_status)?
@@ -1537,7 +1705,12 @@ impl Simulator for SimulatorService {
                     "account_id: the instructor key has no history of its own; name a trainee",
                 ));
             }
-            (Caller::Other(_), _) => {
+            (Caller::Other(token), _) => {
+                // A token that is nobody's is a guess, counted as every other.
+                if token.is_some() {
+                    self.throttle
+                        .failed(peer_of(&request), "a token of no account");
+                }
                 return Err(Status::unauthenticated(
                     "a history needs an account's token or the instructor role",
                 ));

@@ -225,6 +225,8 @@ pub struct AssetCache {
     volumes: Mutex<HashMap<String, Cached<Volume>>>,
     scenes: Mutex<HashMap<String, Cached<SceneAssets>>>,
     budget_bytes: usize,
+    /// Most bytes one scene's anatomy and CT may take, counted as built (none by default).
+    max_scene_bytes: usize,
     clock: AtomicU64,
     /// Directories scene files may name files in (canonical); empty: anywhere.
     roots: Vec<PathBuf>,
@@ -322,9 +324,17 @@ impl AssetCache {
             volumes: Mutex::new(HashMap::new()),
             scenes: Mutex::new(HashMap::new()),
             budget_bytes,
+            max_scene_bytes: usize::MAX,
             clock: AtomicU64::new(0),
             roots: Vec::new(),
         }
+    }
+
+    /// Refuses a scene whose anatomy and CT, as built, take more than `bytes` (what was read,
+    /// not the estimate made before loading); it keeps nothing.
+    pub fn with_max_scene_bytes(mut self, bytes: usize) -> Self {
+        self.max_scene_bytes = bytes;
+        self
     }
 
     /// Confines the files scenes may name to `roots` (each must exist).
@@ -438,6 +448,24 @@ impl AssetCache {
         }
         let mut staged = Staged::default();
         let assets = Arc::new(self.build(spec, base, &mut staged)?);
+        // What was actually read and built, not the estimate made before: a scene whose
+        // assets pass the budget is refused (and keeps nothing).
+        let built = staged
+            .anatomy
+            .as_ref()
+            .map_or(0, |(_, a)| a.lumen.memory_bytes())
+            + staged.volume.as_ref().map_or(0, |(_, v)| v.memory_bytes());
+        if built > self.max_scene_bytes {
+            return Err(EngineError::Scene {
+                path: "scene".into(),
+                reason: format!(
+                    "its anatomy and CT take {} MiB, more than the {} MiB the server's asset \
+                     budget allows (asset_cache_mib)",
+                    built >> 20,
+                    self.max_scene_bytes >> 20
+                ),
+            });
+        }
         if let Some((k, anatomy)) = staged.anatomy {
             let bytes = anatomy.lumen.memory_bytes();
             self.anatomies.lock().insert(
@@ -710,6 +738,18 @@ impl AssetCache {
     }
 
     fn build(&self, spec: &SceneSpec, base: &Path, staged: &mut Staged) -> Result<SceneAssets> {
+        // A CT file does not depend on the anatomy: it is read first, so that a file its
+        // reader refuses (a bomb, a wrong header) fails before the anatomy is built.
+        let file_ct = match &spec.ct {
+            CtSpec::File { .. } => Some(self.volume(
+                &spec.ct,
+                base,
+                "",
+                || unreachable!("a CT file is not the phantom"),
+                staged,
+            )?),
+            CtSpec::Phantom { .. } => None,
+        };
         let (anatomy, to_lps) = self.anatomy(&spec.anatomy, base, staged)?;
         let graph = &anatomy.graph;
         // A target given by a point near a vessel's end becomes that branch's name.
@@ -781,13 +821,16 @@ impl AssetCache {
             .map(|(i, spare)| spare.resolve(i))
             .collect::<Result<Vec<_>>>()?;
         let anatomy_key = format!("{:?}", spec.anatomy);
-        let volume = self.volume(
-            &spec.ct,
-            base,
-            &anatomy_key,
-            || BodyPhantom::around_graph(graph, &to_lps),
-            staged,
-        )?;
+        let volume = match file_ct {
+            Some(volume) => volume,
+            None => self.volume(
+                &spec.ct,
+                base,
+                &anatomy_key,
+                || BodyPhantom::around_graph(graph, &to_lps),
+                staged,
+            )?,
+        };
         let iso_name = if spec.carm.isocenter_branch.is_empty() {
             &spec.target.branch
         } else {
@@ -925,10 +968,16 @@ fn arch_to_cow_with_circle(dir: &Path) -> Result<Anatomy> {
 /// which field (never the server's paths or the file's contents).
 fn unreadable(field: &str, path: &Path, e: impl std::fmt::Display) -> EngineError {
     tracing::warn!(field, path = %path.display(), "scene file unreadable: {e}");
-    scene_error(
-        field,
-        "cannot be read as what the field names (the server's log has the detail)",
-    )
+    // A reader's limit says which limit and by how much (no path, no contents): the caller
+    // learns why; anything else stays in the log (no echo of a file's contents).
+    let text = e.to_string();
+    match text.find(cathlab_anatomy::io::limits::REFUSED) {
+        Some(at) => scene_error(field, &text[at..]),
+        None => scene_error(
+            field,
+            "cannot be read as what the field names (the server's log has the detail)",
+        ),
+    }
 }
 
 /// The `ElementDataFile` of a MetaImage header (`None` for `LOCAL` data or a file that is not

@@ -117,7 +117,9 @@ impl Engine {
         } else {
             settings.data_roots.clone()
         };
-        let assets = AssetCache::with_budget(settings.asset_budget_bytes).with_roots(&roots)?;
+        let assets = AssetCache::with_budget(settings.asset_budget_bytes)
+            .with_max_scene_bytes(settings.asset_budget_bytes)
+            .with_roots(&roots)?;
         // A catalog scene naming a missing file, or one outside the data roots, stops the
         // server at start rather than a trainee at CreateSession.
         for (spec, file) in catalog.scenes() {
@@ -234,6 +236,11 @@ impl Engine {
         Ok(ReplayPermit {
             admitted: self.admitted.clone(),
         })
+    }
+
+    /// Most replays at once (the settings' `max_replays`).
+    pub fn max_replays(&self) -> usize {
+        self.settings.max_replays
     }
 
     /// A running session.

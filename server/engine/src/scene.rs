@@ -878,9 +878,11 @@ impl SceneSpec {
 
     /// Reads a scene file (`.toml` or `.json`); its name defaults to the file stem.
     pub fn read(file: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(file).map_err(|source| EngineError::Io {
-            file: file.to_owned(),
-            source,
+        let text = cathlab_anatomy::io::limits::read_regular_text(file).map_err(|source| {
+            EngineError::Io {
+                file: file.to_owned(),
+                source,
+            }
         })?;
         let format = if file.extension().is_some_and(|e| e == "json") {
             SceneFormat::Json

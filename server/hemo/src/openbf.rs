@@ -56,10 +56,11 @@ pub struct OpenBfBoundary {
 
 /// Reads an openBF network file.
 pub fn read_openbf(path: &Path, boundary: OpenBfBoundary) -> Result<FlowNetwork> {
-    let text = std::fs::read_to_string(path).map_err(|source| HemoError::Io {
-        file: path.to_path_buf(),
-        source,
-    })?;
+    let text =
+        cathlab_anatomy::io::limits::read_regular_text(path).map_err(|source| HemoError::Io {
+            file: path.to_path_buf(),
+            source,
+        })?;
     parse_openbf(&text, &path.display().to_string(), boundary)
 }
 

@@ -235,9 +235,11 @@ pub fn load_surface_case(case: &SurfaceCase) -> Result<SurfaceAnatomy> {
                     g
                 } else if name.ends_with(".json") {
                     let text =
-                        std::fs::read_to_string(path).map_err(|source| ImagingError::Io {
-                            file: path.clone(),
-                            source,
+                        cathlab_anatomy::io::limits::read_regular_text(path).map_err(|source| {
+                            ImagingError::Io {
+                                file: path.clone(),
+                                source,
+                            }
                         })?;
                     VesselGraph::from_json(&text, &path.display().to_string())?
                 } else {

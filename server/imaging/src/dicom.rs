@@ -74,6 +74,9 @@ fn candidate_files(path: &Path) -> Result<Vec<PathBuf>> {
     if meta.is_file() {
         return Ok(vec![path.to_owned()]);
     }
+    if !meta.is_dir() {
+        return Err(error(path, "neither a regular file nor a folder"));
+    }
     let mut files = Vec::new();
     let entries = std::fs::read_dir(path).map_err(|source| ImagingError::Io {
         file: path.to_owned(),
@@ -372,7 +375,9 @@ pub fn read_series(path: &Path, series: Option<&str>) -> Result<ScalarVolume> {
         }
     }
     let (nx, ny, nz) = (first.columns, first.rows, slices.len());
-    let mut values = Vec::with_capacity(nx * ny * nz);
+    let voxels = cathlab_anatomy::io::limits::checked_voxels(&[nx as u64, ny as u64, nz as u64])
+        .map_err(|e| error(path, format!("Rows × Columns × slices: {e}")))?;
+    let mut values = Vec::with_capacity(voxels);
     for s in &slices {
         values.extend(decode(path, s, nx * ny)?);
     }

@@ -5,6 +5,7 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
+use cathlab_anatomy::io::limits;
 use nalgebra::{Matrix3, Point3, Vector3};
 
 use crate::error::{ImagingError, Result};
@@ -241,8 +242,64 @@ fn bad(file: &Path, reason: impl Into<String>) -> ImagingError {
     }
 }
 
+/// A gzip-compressed NIfTI file inflated no further than its header says it needs
+/// (`vox_offset` + its voxels), within the configured limits: the 348-byte header is
+/// inflated and checked first, then the voxels, and inflation stops there.
+fn inflate_nifti(path: &Path, compressed: &[u8]) -> Result<Vec<u8>> {
+    let gzip = |e: String| bad(path, format!("gzip data: {e}"));
+    let mut decoder = flate2::read::GzDecoder::new(compressed);
+    let mut out = Vec::new();
+    (&mut decoder)
+        .take(348)
+        .read_to_end(&mut out)
+        .map_err(|e| gzip(e.to_string()))?;
+    if out.len() < 348 {
+        return Ok(out); // the caller names the short header
+    }
+    let big_endian = i32::from_le_bytes([out[0], out[1], out[2], out[3]]) != 348;
+    let i16_at = |o: usize| {
+        let a = [out[o], out[o + 1]];
+        if big_endian {
+            i16::from_be_bytes(a)
+        } else {
+            i16::from_le_bytes(a)
+        }
+    };
+    // Voxel sizes by datatype code; an unknown code is refused by the caller, counted at
+    // the largest size here.
+    let size: u64 = match i16_at(70) {
+        2 | 256 => 1,
+        4 | 512 => 2,
+        8 | 16 | 768 => 4,
+        _ => 8,
+    };
+    let dims = [42, 44, 46].map(|o| i16_at(o).max(1) as u64);
+    let voxels = limits::checked_voxels(&dims).map_err(|e| bad(path, format!("dim: {e}")))?;
+    let raw_offset = [out[108], out[109], out[110], out[111]];
+    let vox_offset = f64::from(if big_endian {
+        f32::from_be_bytes(raw_offset)
+    } else {
+        f32::from_le_bytes(raw_offset)
+    });
+    let needed = vox_offset.clamp(348.0, 1e12) as u64 + voxels as u64 * size;
+    let cap = limits::read_limits().max_inflated_bytes;
+    if needed > cap {
+        return Err(gzip(format!(
+            "{}vox_offset + dim × datatype need {needed} bytes, more than the {cap} compressed \
+             data may inflate to (max_inflated_bytes)",
+            limits::REFUSED
+        )));
+    }
+    // Anything after the voxels is not read: a bomb stops at the header's size.
+    decoder
+        .take(needed - 348)
+        .read_to_end(&mut out)
+        .map_err(|e| gzip(e.to_string()))?;
+    Ok(out)
+}
+
 fn read_file(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).map_err(|source| ImagingError::Io {
+    cathlab_anatomy::io::limits::read_regular_file(path).map_err(|source| ImagingError::Io {
         file: path.to_owned(),
         source,
     })
@@ -383,10 +440,17 @@ pub fn read_metaimage(path: &Path) -> Result<ScalarVolume> {
         });
     }
     let dims = numbers("DimSize", 3)?;
-    if dims.iter().any(|&d| !(d >= 1.0 && d.fract() == 0.0)) {
+    // 2⁶³ and above are not exact integers a u64 holds.
+    if dims
+        .iter()
+        .any(|&d| !(d >= 1.0 && d.fract() == 0.0 && d < 9.2e18))
+    {
         return Err(bad(path, "DimSize: expected 3 positive integers"));
     }
-    let dims = [dims[0] as usize, dims[1] as usize, dims[2] as usize];
+    let dims = [dims[0] as u64, dims[1] as u64, dims[2] as u64];
+    // Checked before anything is allocated: a 150-byte header may declare 10¹⁵ voxels.
+    let count = limits::checked_voxels(&dims).map_err(|e| bad(path, format!("DimSize: {e}")))?;
+    let dims = dims.map(|d| d as usize);
     // The first of several synonymous header keys that is present.
     let first_of = |keys: &[&'static str]| keys.iter().copied().find(|k| get(k).is_some());
     let spacing = match first_of(&["ElementSpacing", "ElementSize"]) {
@@ -439,19 +503,18 @@ pub fn read_metaimage(path: &Path) -> Result<ScalarVolume> {
     );
     let compressed = matches!(get("CompressedData"), Some("True") | Some("true"));
     let data_file = get("ElementDataFile").unwrap_or("LOCAL");
-    let (raw, source): (Vec<u8>, PathBuf) = if data_file == "LOCAL" {
-        (bytes[offset..].to_vec(), path.to_owned())
+    let (raw, source): (std::borrow::Cow<'_, [u8]>, PathBuf) = if data_file == "LOCAL" {
+        (bytes[offset..].into(), path.to_owned())
     } else {
         let other = path.parent().unwrap_or(Path::new(".")).join(data_file);
-        (read_file(&other)?, other)
+        (read_file(&other)?.into(), other)
     };
-    let count = dims[0] * dims[1] * dims[2];
     let data = if compressed {
-        let mut out = Vec::with_capacity(count * element.size());
-        flate2::read::ZlibDecoder::new(raw.as_slice())
-            .read_to_end(&mut out)
-            .map_err(|e| bad(&source, format!("zlib data: {e}")))?;
-        out
+        // Inflated to the size the header declares, never past it or the configured cap.
+        let declared = limits::checked_bytes(count, element.size()).map_err(|e| bad(path, e))?;
+        limits::inflate_bounded(flate2::read::ZlibDecoder::new(&*raw), Some(declared))
+            .map(std::borrow::Cow::Owned)
+            .map_err(|e| bad(&source, format!("zlib data (CompressedData): {e}")))?
     } else {
         raw
     };
@@ -471,11 +534,7 @@ pub fn read_metaimage(path: &Path) -> Result<ScalarVolume> {
 pub fn read_nifti(path: &Path) -> Result<ScalarVolume> {
     let file_bytes = read_file(path)?;
     let bytes = if file_bytes.starts_with(&[0x1f, 0x8b]) {
-        let mut out = Vec::new();
-        flate2::read::GzDecoder::new(file_bytes.as_slice())
-            .read_to_end(&mut out)
-            .map_err(|e| bad(path, format!("gzip data: {e}")))?;
-        out
+        inflate_nifti(path, &file_bytes)?
     } else {
         file_bytes
     };
@@ -533,6 +592,8 @@ pub fn read_nifti(path: &Path) -> Result<ScalarVolume> {
             format!("dim[{}] is {} (must be ≥ 1)", axis + 1, dims[axis]),
         ));
     }
+    let count = limits::checked_voxels(&dims.map(|d| d as u64))
+        .map_err(|e| bad(path, format!("dim: {e}")))?;
     let dims = dims.map(|d| d as usize);
     let element = match i16_at(70) {
         2 => Element::U8,
@@ -600,7 +661,6 @@ pub fn read_nifti(path: &Path) -> Result<ScalarVolume> {
         columns.column(2) / spacing.z,
     ]);
     let origin = ras_to_lps * Vector3::new(affine[0][3], affine[1][3], affine[2][3]);
-    let count = dims[0] * dims[1] * dims[2];
     let start = vox_offset as usize;
     let data = bytes.get(start..).unwrap_or(&[]);
     let values = decode_voxels(path, data, count, element, big_endian, slope, intercept)?;

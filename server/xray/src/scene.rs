@@ -246,9 +246,11 @@ fn scene_error(file: &Path, reason: impl Into<String>) -> XrayError {
 impl SceneSpec {
     /// Reads a scene file.
     pub fn read(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|source| XrayError::Io {
-            file: path.to_owned(),
-            source,
+        let text = cathlab_anatomy::io::limits::read_regular_text(path).map_err(|source| {
+            XrayError::Io {
+                file: path.to_owned(),
+                source,
+            }
         })?;
         serde_yaml_ng::from_str(&text).map_err(|e| scene_error(path, e.to_string()))
     }

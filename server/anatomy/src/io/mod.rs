@@ -1,6 +1,7 @@
 //! Anatomy file formats: surfaces (OBJ, STL, PLY, VTK PolyData), centerlines (3D Slicer markups,
 //! SWC) and the JSON vessel graph; units, and loading by file extension.
 
+pub mod limits;
 pub mod obj;
 pub mod ply;
 pub mod slicer;
@@ -98,9 +99,10 @@ pub fn load_surface(path: &Path, unit: LengthUnit) -> Result<crate::mesh::Triang
     }
 }
 
-/// Reads a whole file, mapping failure to [`AnatomyError::Io`].
+/// Reads a whole regular file within [`limits::read_limits`], mapping failure to
+/// [`AnatomyError::Io`].
 pub(crate) fn read_bytes(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).map_err(|source| AnatomyError::Io {
+    limits::read_regular_file(path).map_err(|source| AnatomyError::Io {
         file: path.to_owned(),
         source,
     })

@@ -26,8 +26,40 @@ pub struct PolyData {
     pub lines: Vec<Centerline>,
 }
 
-/// Most bytes one data array may inflate to (a guard against compression bombs).
-pub const MAX_ARRAY_BYTES: usize = 1 << 30;
+/// What one file's arrays may still take (bytes): what its blocks inflate to and the f64
+/// values decoded from them are both charged, so that neither a compression bomb nor many
+/// arrays (a 1-byte type decodes to 8) passes [`super::limits::ReadLimits::max_inflated_bytes`].
+struct Budget(std::cell::Cell<u64>);
+
+impl Budget {
+    fn new() -> Self {
+        Self(std::cell::Cell::new(
+            super::limits::read_limits().max_inflated_bytes,
+        ))
+    }
+
+    /// Takes `bytes` from the budget, or names the array that would pass it.
+    fn charge(&self, bytes: u64, name: &str, file: &str) -> Result<()> {
+        let left = self.0.get();
+        if bytes > left {
+            return Err(parse_error(
+                file,
+                format!(
+                    "array {name}: {}{bytes} bytes would pass the {} a file's arrays may take \
+                     (max_inflated_bytes)",
+                    super::limits::REFUSED,
+                    super::limits::read_limits().max_inflated_bytes
+                ),
+            ));
+        }
+        self.0.set(left - bytes);
+        Ok(())
+    }
+
+    fn left(&self) -> u64 {
+        self.0.get()
+    }
+}
 
 /// How a file's binary arrays are stored: header word width, compression, appended data.
 #[derive(Clone, Copy)]
@@ -39,6 +71,8 @@ struct Encoding<'a> {
     /// The `<AppendedData>` section: its bytes after the `_` marker, and whether they are
     /// base64 text (else raw).
     appended: Appended<'a>,
+    /// What this file's arrays may still take.
+    budget: &'a Budget,
 }
 
 /// The bytes of an `<AppendedData>` section after its `_` marker, and whether they are base64.
@@ -70,7 +104,16 @@ fn base64_groups(text: &[u8], name: &str, file: &str) -> Result<Vec<u8>> {
 
 /// The data bytes of one binary block (VTK's layout: a header of UInt32 or UInt64 words, then
 /// the data, raw or as zlib-compressed blocks) at the start of `bytes`.
-fn block_data(bytes: &[u8], enc: &Encoding<'_>, name: &str, file: &str) -> Result<Vec<u8>> {
+/// `width` is the array's value size (bytes): the block is charged to the file's budget with
+/// the f64 values it will decode to, before anything is inflated.
+fn block_data(
+    bytes: &[u8],
+    enc: &Encoding<'_>,
+    width: usize,
+    name: &str,
+    file: &str,
+) -> Result<Vec<u8>> {
+    let with_values = |n: usize| n as u64 + (n / width) as u64 * 8;
     let width = if enc.header_u64 { 8 } else { 4 };
     let truncated = || parse_error(file, format!("array {name}: truncated binary block"));
     let word = |i: usize| -> Result<usize> {
@@ -86,12 +129,7 @@ fn block_data(bytes: &[u8], enc: &Encoding<'_>, name: &str, file: &str) -> Resul
     };
     if !enc.zlib {
         let declared = word(0)?;
-        if declared > MAX_ARRAY_BYTES {
-            return Err(parse_error(
-                file,
-                format!("array {name}: {declared} bytes is more than {MAX_ARRAY_BYTES}"),
-            ));
-        }
+        enc.budget.charge(with_values(declared), name, file)?;
         return bytes
             .get(width..width + declared)
             .map(<[u8]>::to_vec)
@@ -120,19 +158,31 @@ fn block_data(bytes: &[u8], enc: &Encoding<'_>, name: &str, file: &str) -> Resul
                     last_size
                 })
             })
-            .filter(|&n| n <= MAX_ARRAY_BYTES)
+            .filter(|&n| with_values(n) <= enc.budget.left())
             .ok_or_else(|| {
                 parse_error(
                     file,
-                    format!("array {name}: {blocks} blocks of {block_size} bytes is too large"),
+                    format!(
+                        "array {name}: {}{blocks} blocks of {block_size} bytes would pass the \
+                         {} bytes a file's arrays may take (max_inflated_bytes)",
+                        super::limits::REFUSED,
+                        super::limits::read_limits().max_inflated_bytes
+                    ),
                 )
             })?
     };
-    let mut at = width.checked_mul(3 + blocks).ok_or_else(truncated)?;
-    let mut out = Vec::with_capacity(full);
+    enc.budget.charge(with_values(full), name, file)?;
+    let mut at = width
+        .checked_mul(blocks.checked_add(3).ok_or_else(truncated)?)
+        .ok_or_else(truncated)?;
+    // Grown as blocks inflate (each to its declared size at most), never reserved from the
+    // header's word.
+    let mut out = Vec::new();
     for b in 0..blocks {
         let size = word(3 + b)?;
-        let compressed = bytes.get(at..at + size).ok_or_else(truncated)?;
+        let compressed = bytes
+            .get(at..at.checked_add(size).ok_or_else(truncated)?)
+            .ok_or_else(truncated)?;
         at += size;
         let expected = if b + 1 == blocks && last_size != 0 {
             last_size
@@ -149,7 +199,8 @@ fn block_data(bytes: &[u8], enc: &Encoding<'_>, name: &str, file: &str) -> Resul
             return Err(parse_error(
                 file,
                 format!(
-                    "array {name}: block {b} inflates to {} bytes, the header says {expected}",
+                    "array {name}: {}block {b} inflates to {} bytes, the header says {expected}",
+                    super::limits::REFUSED,
                     out.len() - before
                 ),
             ));
@@ -169,8 +220,18 @@ fn read_array(node: roxmltree::Node<'_, '_>, enc: &Encoding<'_>, file: &str) -> 
         .filter(|c| c.is_text())
         .filter_map(|c| c.text())
         .collect();
+    let width = match kind {
+        "Float32" | "Int32" | "UInt32" => Some(4),
+        "Float64" | "Int64" | "UInt64" => Some(8),
+        "Int8" | "UInt8" => Some(1),
+        "Int16" | "UInt16" => Some(2),
+        _ => None,
+    };
+    let unsupported = || parse_error(file, format!("array {name}: unsupported type {kind}"));
     let body = match format {
         "ascii" => {
+            enc.budget
+                .charge(text.split_whitespace().count() as u64 * 8, name, file)?;
             return text
                 .split_whitespace()
                 .map(|t| {
@@ -186,6 +247,7 @@ fn read_array(node: roxmltree::Node<'_, '_>, enc: &Encoding<'_>, file: &str) -> 
         "binary" => block_data(
             &base64_groups(text.as_bytes(), name, file)?,
             enc,
+            width.ok_or_else(unsupported)?,
             name,
             file,
         )?,
@@ -205,11 +267,18 @@ fn read_array(node: roxmltree::Node<'_, '_>, enc: &Encoding<'_>, file: &str) -> 
                 block_data(
                     &base64_groups(&data[offset..], name, file)?,
                     enc,
+                    width.ok_or_else(unsupported)?,
                     name,
                     file,
                 )?
             } else {
-                block_data(&data[offset..], enc, name, file)?
+                block_data(
+                    &data[offset..],
+                    enc,
+                    width.ok_or_else(unsupported)?,
+                    name,
+                    file,
+                )?
             }
         }
         other => {
@@ -219,18 +288,7 @@ fn read_array(node: roxmltree::Node<'_, '_>, enc: &Encoding<'_>, file: &str) -> 
             ));
         }
     };
-    let width = match kind {
-        "Float32" | "Int32" | "UInt32" => 4,
-        "Float64" | "Int64" | "UInt64" => 8,
-        "Int8" | "UInt8" => 1,
-        "Int16" | "UInt16" => 2,
-        other => {
-            return Err(parse_error(
-                file,
-                format!("array {name}: unsupported type {other}"),
-            ));
-        }
-    };
+    let width = width.ok_or_else(unsupported)?;
     if body.len() % width != 0 {
         return Err(parse_error(
             file,
@@ -367,10 +425,12 @@ pub fn parse(bytes: &[u8], unit: LengthUnit, file: &str) -> Result<PolyData> {
             ));
         }
     };
+    let budget = Budget::new();
     let enc = Encoding {
         header_u64: root.attribute("header_type") == Some("UInt64"),
         zlib,
         appended,
+        budget: &budget,
     };
     let piece = child(root, "PolyData")
         .and_then(|p| child(p, "Piece"))

@@ -621,6 +621,7 @@ impl Chaos {
                     .list_sessions(authed(
                         pb::ListSessionsRequest {
                             include_recorded: self.rng.random_bool(0.5),
+                            ..Default::default()
                         },
                         key,
                     ))

@@ -203,11 +203,18 @@ impl Store {
         let (name, backend, connect): (_, _, Connect) = match location {
             StoreLocation::Sqlite(file) => {
                 let path = file.clone();
+                // The first connection may create the file; one made again after the file
+                // was removed must not (an empty database would take the writes instead).
+                let opened = AtomicBool::new(false);
                 (
                     file.display().to_string(),
                     Backend::Sqlite(file.clone()),
                     Box::new(move || {
-                        let mut c = SqliteConn::open(&path)?;
+                        let mut c = if opened.swap(true, Ordering::SeqCst) {
+                            SqliteConn::open_existing(&path)?
+                        } else {
+                            SqliteConn::open(&path)?
+                        };
                         c.migrate()?;
                         Ok(Box::new(c) as Box<dyn Conn>)
                     }),
@@ -373,7 +380,7 @@ impl Store {
         f: impl Fn(&mut dyn Conn) -> Result<T, String> + Send + Sync + 'static,
     ) -> Result<T, StoreError> {
         match &self.backend {
-            Backend::Sqlite(file) => SqliteConn::open(file).and_then(|mut c| f(&mut c)),
+            Backend::Sqlite(file) => SqliteConn::open_existing(file).and_then(|mut c| f(&mut c)),
             Backend::Postgres(readers) => readers.run(f),
         }
         .map_err(|reason| StoreError::Database {
@@ -414,6 +421,91 @@ impl Store {
             "session",
             row_to_session,
         )
+    }
+
+    /// One page of stored sessions, newest first: at most `limit` created before `after`
+    /// (the last of the previous page: its creation time and id), and whether more follow.
+    pub fn sessions_page(
+        &self,
+        after: Option<(f64, String)>,
+        limit: usize,
+    ) -> Result<(Vec<StoredSession>, bool), StoreError> {
+        let (from, id) = after.unwrap_or((f64::INFINITY, String::new()));
+        let mut page = self.rows(
+            format!(
+                "{SELECT_SESSION} WHERE created_unix_s < ?1 OR (created_unix_s = ?1 AND id < ?2) \
+                 ORDER BY created_unix_s DESC, id DESC LIMIT ?3"
+            ),
+            vec![
+                if from.is_finite() { from } else { f64::MAX }.into(),
+                id.into(),
+                (limit as i64 + 1).into(),
+            ],
+            "session",
+            row_to_session,
+        )?;
+        let more = page.len() > limit;
+        page.truncate(limit);
+        Ok((page, more))
+    }
+
+    /// Deletes ended sessions (closed or interrupted: never one running, lost or being
+    /// written) with everything recorded of them: anonymous ones past the newest
+    /// `keep_anonymous`, and any older than `max_age_s` when set (a trainee's sessions, their
+    /// history, go only by age). Returns how many went.
+    pub fn prune(
+        &self,
+        keep_anonymous: usize,
+        max_age_s: Option<f64>,
+    ) -> Result<usize, StoreError> {
+        let ended = self.rows(
+            "SELECT id, created_unix_s, account_id IS NULL FROM sessions \
+             WHERE status IN ('closed', 'interrupted') ORDER BY created_unix_s DESC, id DESC",
+            vec![],
+            "session",
+            |r| Ok((r.text(0)?, r.real(1)?, r.int(2)? != 0)),
+        )?;
+        let cutoff = max_age_s.map(|age| unix_now_s() - age);
+        let mut anonymous = 0usize;
+        let doomed: Vec<String> = ended
+            .into_iter()
+            .filter(|(_, created, is_anonymous)| {
+                let too_old = cutoff.is_some_and(|c| *created < c);
+                let beyond = *is_anonymous && {
+                    anonymous += 1;
+                    anonymous > keep_anonymous
+                };
+                too_old || beyond
+            })
+            .map(|(id, _, _)| id)
+            .collect();
+        let count = doomed.len();
+        for chunk in doomed.chunks(200) {
+            let ids: Vec<Value> = chunk.iter().map(|id| id.clone().into()).collect();
+            let list = (1..=ids.len())
+                .map(|i| format!("?{i}"))
+                .collect::<Vec<_>>()
+                .join(", ");
+            self.read(move |c| {
+                transaction(c, |tx| {
+                    for table in [
+                        "commands",
+                        "checkpoints",
+                        "events",
+                        "reports",
+                        "report_frames",
+                    ] {
+                        tx.execute(
+                            &format!("DELETE FROM {table} WHERE session_id IN ({list})"),
+                            &ids,
+                        )?;
+                    }
+                    tx.execute(&format!("DELETE FROM sessions WHERE id IN ({list})"), &ids)?;
+                    Ok(())
+                })
+            })?;
+        }
+        Ok(count)
     }
 
     /// The sessions other servers of the fleet run (as the store last heard), newest first.
@@ -773,6 +865,13 @@ impl Store {
         )?;
         Ok(counts.first().copied().unwrap_or(0).max(0) as u64)
     }
+}
+
+/// Now, in seconds since the Unix epoch.
+fn unix_now_s() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 const SELECT_SESSION: &str = "SELECT id, label, scene_name, scene_json, base_dir, \

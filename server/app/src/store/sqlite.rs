@@ -56,13 +56,40 @@ CREATE INDEX sessions_by_server ON sessions (server_id, status);
 CREATE INDEX events_by_session ON events (session_id);
 ";
 
-/// A connection to a SQLite file.
-pub struct SqliteConn(Connection);
+/// A connection to a SQLite file, and the file it opened (device and inode): a connection
+/// whose file was removed or replaced under it is broken (it would go on writing into a file
+/// no one can read again).
+pub struct SqliteConn(Connection, std::path::PathBuf, Option<(u64, u64)>);
+
+/// The device and inode of `file`.
+fn identity(file: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    std::fs::metadata(file).ok().map(|m| (m.dev(), m.ino()))
+}
 
 impl SqliteConn {
     /// Opens (or creates) `file` in WAL mode.
     pub fn open(file: &Path) -> Result<Self, String> {
-        let conn = Connection::open(file).map_err(|e| e.to_string())?;
+        Self::open_with(file, true)
+    }
+
+    /// Opens `file` in WAL mode, which must exist: a database removed under a running server
+    /// is not made again empty.
+    pub fn open_existing(file: &Path) -> Result<Self, String> {
+        Self::open_with(file, false)
+    }
+
+    fn open_with(file: &Path, create: bool) -> Result<Self, String> {
+        use rusqlite::OpenFlags;
+        let mut flags = OpenFlags::SQLITE_OPEN_READ_WRITE
+            | OpenFlags::SQLITE_OPEN_URI
+            | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+        if create {
+            flags |= OpenFlags::SQLITE_OPEN_CREATE;
+        } else if !file.is_file() {
+            return Err("the database file is gone (removed while the server ran)".into());
+        }
+        let conn = Connection::open_with_flags(file, flags).map_err(|e| e.to_string())?;
         conn.pragma_update(None, "journal_mode", "WAL")
             .map_err(|e| e.to_string())?;
         // In WAL mode NORMAL syncs at checkpoints, not at every commit: a commit survives the
@@ -72,7 +99,7 @@ impl SqliteConn {
             .map_err(|e| e.to_string())?;
         conn.busy_timeout(std::time::Duration::from_secs(5))
             .map_err(|e| e.to_string())?;
-        Ok(Self(conn))
+        Ok(Self(conn, file.to_owned(), identity(file)))
     }
 
     /// Brings the database to the newest schema, one transaction per migration. A database
@@ -149,5 +176,9 @@ impl Conn for SqliteConn {
 
     fn batch(&mut self, sql: &str) -> Result<(), String> {
         self.0.execute_batch(sql).map_err(|e| e.to_string())
+    }
+
+    fn is_broken(&self) -> bool {
+        identity(&self.1) != self.2
     }
 }

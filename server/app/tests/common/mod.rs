@@ -199,17 +199,27 @@ pub async fn state(
 /// The instructor's list: every session, live and recorded (and, in a fleet, the other
 /// servers' running ones).
 pub async fn list_all(client: &mut SimulatorClient<Channel>) -> Vec<pb::SessionInfo> {
-    client
-        .list_sessions(authed(
-            pb::ListSessionsRequest {
-                include_recorded: true,
-            },
-            INSTRUCTOR_KEY,
-        ))
-        .await
-        .unwrap()
-        .into_inner()
-        .sessions
+    let mut all = Vec::new();
+    let mut page_token = String::new();
+    loop {
+        let page = client
+            .list_sessions(authed(
+                pb::ListSessionsRequest {
+                    include_recorded: true,
+                    page_token,
+                    ..Default::default()
+                },
+                INSTRUCTOR_KEY,
+            ))
+            .await
+            .unwrap()
+            .into_inner();
+        all.extend(page.sessions);
+        if page.next_page_token.is_empty() {
+            return all;
+        }
+        page_token = page.next_page_token;
+    }
 }
 
 /// A session as the instructor's list (live and recorded) shows it.

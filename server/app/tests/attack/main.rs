@@ -1,7 +1,10 @@
 //! The server attacked from outside, as a hostile or careless client would: each test starts
 //! the real `cathlab-server` with a configuration file and goes at one of its limits.
 
+#[path = "../common/mod.rs"]
 mod common;
+mod connections;
+mod files;
 
 use std::path::PathBuf;
 
@@ -244,6 +247,7 @@ async fn guessing_the_instructor_key_is_throttled() {
             .list_sessions(authed(
                 pb::ListSessionsRequest {
                     include_recorded: false,
+                    ..Default::default()
                 },
                 &format!("guess-{i:04}"),
             ))
@@ -267,6 +271,7 @@ async fn guessing_the_instructor_key_is_throttled() {
         .list_sessions(authed(
             pb::ListSessionsRequest {
                 include_recorded: false,
+                ..Default::default()
             },
             INSTRUCTOR_KEY,
         ))
@@ -1070,4 +1075,384 @@ fn check_scenes_prints_a_line_per_scene_and_fails_if_one_fails() {
         "{stdout}"
     );
     assert!(stderr.contains("1 of 2 scenes failed"), "{stderr}");
+}
+
+async fn account(client: &mut SimulatorClient, name: &str) -> pb::Account {
+    client
+        .create_account(authed(
+            pb::CreateAccountRequest {
+                name: name.into(),
+                role: "trainee".into(),
+            },
+            INSTRUCTOR_KEY,
+        ))
+        .await
+        .expect("account created")
+        .into_inner()
+}
+
+type SimulatorClient = pb::simulator_client::SimulatorClient<tonic::transport::Channel>;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_victims_stop_goes_through_while_an_attacker_at_its_address_is_throttled() {
+    let _exclusive = EXCLUSIVE.lock().await;
+    let (server, _dir) = server_with("victim", "auth_failures_per_minute = 5\n");
+    let mut client = server.client().await;
+    let victim = create(&mut client).await;
+    send(&mut client, &victim, 1, push(5.0)).await.unwrap();
+    // The attacker, at the same address: wrong tokens for GetHistory count as guesses too.
+    let mut answers = Vec::new();
+    for i in 0..7 {
+        let e = client
+            .get_history(authed(
+                pb::GetHistoryRequest::default(),
+                &format!("not-a-token-{i}"),
+            ))
+            .await
+            .unwrap_err();
+        answers.push(e.code());
+    }
+    println!("7 wrong GetHistory tokens: {answers:?}");
+    assert_eq!(
+        answers,
+        [
+            [tonic::Code::Unauthenticated; 5].as_slice(),
+            [tonic::Code::ResourceExhausted; 2].as_slice()
+        ]
+        .concat()
+    );
+    // The address is throttled: a wrong session token is refused before it is compared…
+    let guess = client
+        .get_session(authed(
+            pb::GetSessionRequest {
+                session_id: victim.session_id.clone(),
+            },
+            "guess",
+        ))
+        .await
+        .unwrap_err();
+    assert_eq!(guess.code(), tonic::Code::ResourceExhausted, "{guess:?}");
+    // …and the victim's stop and close, with its own token, go through.
+    let stop = send(&mut client, &victim, 2, push(0.0)).await;
+    assert!(stop.is_ok(), "the victim's stop was refused: {stop:?}");
+    tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    let a = state(&mut client, &victim.session_id, &victim.controller_token).await;
+    tokio::time::sleep(std::time::Duration::from_millis(1000)).await;
+    let b = state(&mut client, &victim.session_id, &victim.controller_token).await;
+    println!(
+        "inserted after the stop: {:.2} mm, a second later {:.2} mm",
+        a.inserted_mm, b.inserted_mm
+    );
+    assert!((b.inserted_mm - a.inserted_mm).abs() < 0.5);
+    close(&mut client, &victim).await;
+    // GetHistory names the field it refuses.
+    let named = client
+        .get_history(authed(
+            pb::GetHistoryRequest {
+                account_id: "../x".into(),
+            },
+            INSTRUCTOR_KEY,
+        ))
+        .await;
+    // The instructor key is throttled with the address (a human-chosen secret).
+    assert_eq!(named.unwrap_err().code(), tonic::Code::ResourceExhausted);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn history_errors_name_account_id() {
+    let _exclusive = EXCLUSIVE.lock().await;
+    let (server, _dir) = server_with("history", "");
+    let mut client = server.client().await;
+    let e = client
+        .get_history(authed(
+            pb::GetHistoryRequest {
+                account_id: "../x".into(),
+            },
+            INSTRUCTOR_KEY,
+        ))
+        .await
+        .unwrap_err();
+    println!("{:?}: {}", e.code(), e.message());
+    assert_eq!(e.code(), tonic::Code::InvalidArgument);
+    assert!(e.message().starts_with("account_id"), "{}", e.message());
+    assert!(!e.message().contains("session_id"), "{}", e.message());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_client_cannot_take_every_place_nor_keep_them_with_reads() {
+    let _exclusive = EXCLUSIVE.lock().await;
+    let (server, _dir) = server_with(
+        "hoarder",
+        "max_sessions = 4\nunattended_session_timeout_s = 2\nsession_creations_per_minute = 3\n",
+    );
+    let mut client = server.client().await;
+    // An anonymous client gets half the places.
+    let held = [create(&mut client).await, create(&mut client).await];
+    let third = client
+        .create_session(pb::CreateSessionRequest {
+            scene: Some(pb::create_session_request::Scene::SceneName(
+                "arch_to_cow_lcca".into(),
+            )),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
+    println!(
+        "the hoarder's third: {:?} {}",
+        third.code(),
+        third.message()
+    );
+    assert_eq!(third.code(), tonic::Code::ResourceExhausted);
+    assert!(third.message().contains("max_sessions_per_client"));
+    // A trainee (another client) still gets a place.
+    let trainee = account(&mut client, "Rita").await;
+    let hers = client
+        .create_session(authed(
+            pb::CreateSessionRequest {
+                scene: Some(pb::create_session_request::Scene::SceneName(
+                    "arch_to_cow_lcca".into(),
+                )),
+                ..Default::default()
+            },
+            &trainee.token,
+        ))
+        .await
+        .expect("the trainee gets a place")
+        .into_inner();
+    // Cheap reads do not keep the hoarder's sessions: they close one timeout later, while
+    // the trainee's, with a stream open, stays.
+    let mut stream = client
+        .stream_state(authed(
+            pb::StreamStateRequest {
+                session_id: hers.session_id.clone(),
+                tip_only: true,
+            },
+            &hers.controller_token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let keep_reading = async { while stream.message().await.ok().flatten().is_some() {} };
+    let poll = async {
+        let started = std::time::Instant::now();
+        let mut closed_at = None;
+        while started.elapsed() < std::time::Duration::from_secs(12) {
+            let mut open = 0;
+            for s in &held {
+                let info = client
+                    .get_session(authed(
+                        pb::GetSessionRequest {
+                            session_id: s.session_id.clone(),
+                        },
+                        &s.controller_token,
+                    ))
+                    .await;
+                if info.is_ok_and(|i| i.into_inner().status == pb::SessionStatus::Running as i32) {
+                    open += 1;
+                }
+            }
+            if open == 0 {
+                closed_at = Some(started.elapsed());
+                break;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(400)).await;
+        }
+        closed_at
+    };
+    let closed_at = tokio::select! {
+        c = poll => c,
+        _ = keep_reading => None,
+    };
+    println!("the hoarder's sessions, read every 400 ms, closed after {closed_at:?}");
+    assert!(closed_at.is_some_and(|t| t < std::time::Duration::from_secs(8)));
+    let info = client
+        .get_session(authed(
+            pb::GetSessionRequest {
+                session_id: hers.session_id.clone(),
+            },
+            &hers.controller_token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(info.status, pb::SessionStatus::Running as i32, "{info:?}");
+    // Its places back, the hoarder may create again, but no faster than its rate.
+    let again = create(&mut client).await;
+    let fast = client
+        .create_session(pb::CreateSessionRequest {
+            scene: Some(pb::create_session_request::Scene::SceneName(
+                "arch_to_cow_lcca".into(),
+            )),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
+    println!(
+        "a fourth creation in a minute: {:?} {}",
+        fast.code(),
+        fast.message()
+    );
+    assert_eq!(fast.code(), tonic::Code::ResourceExhausted);
+    assert!(fast.message().contains("session_creations_per_minute"));
+    close(&mut client, &again).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn recorded_sessions_are_paged_and_pruned_by_the_retention_settings() {
+    let _exclusive = EXCLUSIVE.lock().await;
+    let dir = temp_dir("retention");
+    let config = dir.join("server.toml");
+    std::fs::write(
+        &config,
+        "session_creations_per_minute = 100\nmax_recorded_anonymous_sessions = 3\n",
+    )
+    .unwrap();
+    let database = dir.join("db.sqlite");
+    let start = || ServerProcess::start(&database, &["--config", config.to_str().unwrap()]);
+    let mut server = start();
+    let mut client = server.client().await;
+    let trainee = account(&mut client, "Ada").await;
+    let mut anonymous = Vec::new();
+    for _ in 0..7 {
+        let s = create(&mut client).await;
+        close(&mut client, &s).await;
+        anonymous.push(s.session_id);
+    }
+    let hers = client
+        .create_session(authed(
+            pb::CreateSessionRequest {
+                scene: Some(pb::create_session_request::Scene::SceneName(
+                    "arch_to_cow_lcca".into(),
+                )),
+                ..Default::default()
+            },
+            &trainee.token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    close(&mut client, &hers).await;
+    // Pages of two: every recorded session once, newest first.
+    let mut paged = Vec::new();
+    let mut page_token = String::new();
+    let mut pages = 0;
+    loop {
+        let page = client
+            .list_sessions(authed(
+                pb::ListSessionsRequest {
+                    include_recorded: true,
+                    page_size: 2,
+                    page_token,
+                },
+                INSTRUCTOR_KEY,
+            ))
+            .await
+            .unwrap()
+            .into_inner();
+        pages += 1;
+        assert!(page.sessions.len() <= 2);
+        paged.extend(page.sessions.into_iter().map(|s| s.session_id));
+        if page.next_page_token.is_empty() {
+            break;
+        }
+        page_token = page.next_page_token;
+    }
+    println!("{} recorded sessions in {pages} pages of two", paged.len());
+    assert_eq!(paged.len(), 8);
+    assert_eq!(pages, 4);
+    let unique: std::collections::HashSet<_> = paged.iter().collect();
+    assert_eq!(unique.len(), 8);
+    let bad = client
+        .list_sessions(authed(
+            pb::ListSessionsRequest {
+                include_recorded: true,
+                page_size: 2,
+                page_token: "forged".into(),
+            },
+            INSTRUCTOR_KEY,
+        ))
+        .await
+        .unwrap_err();
+    assert_eq!(bad.code(), tonic::Code::InvalidArgument);
+    assert!(bad.message().contains("page_token"));
+    // Pruned at start (and each minute): the newest three anonymous sessions stay, and the
+    // trainee's (her history) stays whatever its age.
+    assert!(server.stop());
+    let server = start();
+    let mut client = server.client().await;
+    tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    let kept: Vec<String> = list_all(&mut client)
+        .await
+        .into_iter()
+        .map(|s| s.session_id)
+        .collect();
+    println!("kept after pruning: {} of 8", kept.len());
+    assert_eq!(kept.len(), 4, "{kept:?}");
+    assert!(kept.contains(&hers.session_id));
+    for id in &anonymous[4..] {
+        assert!(kept.contains(id), "a newest anonymous session went");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_store_removed_under_the_server_acknowledges_nothing_and_shows_no_path() {
+    use tonic_health::pb::health_client::HealthClient;
+    let _exclusive = EXCLUSIVE.lock().await;
+    let dir = temp_dir("removed");
+    let store_dir = dir.join("store");
+    std::fs::create_dir_all(&store_dir).unwrap();
+    let server = ServerProcess::start(&store_dir.join("db.sqlite"), &[]);
+    let mut client = server.client().await;
+    let session = create(&mut client).await;
+    send(&mut client, &session, 1, push(1.0)).await.unwrap();
+    std::fs::remove_dir_all(&store_dir).unwrap();
+    let channel = tonic::transport::Channel::from_shared(server.url())
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    let mut health = HealthClient::new(channel);
+    let started = std::time::Instant::now();
+    let mut seq = 2;
+    let mut refused = None;
+    while started.elapsed() < std::time::Duration::from_secs(10) {
+        seq += 1;
+        if let Err(e) = send(&mut client, &session, seq, push(1.0)).await {
+            refused = Some(e);
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    }
+    let refused = refused.expect("a command was refused once the store was gone");
+    println!(
+        "after {:.1} s a command got {:?}: {}",
+        started.elapsed().as_secs_f64(),
+        refused.code(),
+        refused.message()
+    );
+    assert_eq!(refused.code(), tonic::Code::Unavailable);
+    assert!(!refused.message().contains("/tmp"), "{}", refused.message());
+    let mut status = 0;
+    for _ in 0..20 {
+        status = health
+            .check(tonic_health::pb::HealthCheckRequest {
+                service: String::new(),
+            })
+            .await
+            .unwrap()
+            .into_inner()
+            .status;
+        if status == tonic_health::pb::health_check_response::ServingStatus::NotServing as i32 {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(250)).await;
+    }
+    assert_eq!(
+        status,
+        tonic_health::pb::health_check_response::ServingStatus::NotServing as i32
+    );
+    let (code, _, body) = http_get(&server.address, "/allocate").await;
+    println!("/allocate: {code} {}", body.trim());
+    assert_eq!(code, 503);
+    assert!(!body.contains("/tmp") && !body.contains("sqlite"), "{body}");
 }
