@@ -2,16 +2,33 @@
 //! open it read-only (with the session's observer token: the instructor key never goes into a
 //! URL), its event timeline, and the recorded sessions (closed, or interrupted by a restart).
 import { Code, ConnectError } from "@connectrpc/connect";
-import { type SimulatorClient, serverUrl, simulatorClient } from "./api.js";
+import {
+  AllowList,
+  type SimulatorClient,
+  type TrustedServer,
+  pageServer,
+  showRefused,
+  simulatorClient,
+  takeSecretsFromAddress,
+} from "./api.js";
 import { type Event, type Metrics, type SessionInfo, SessionStatus } from "./gen/cathlab/v1/simulator_pb.js";
 import { showFrames } from "./frames.js";
 import { metricRows } from "./hud.js";
 import { Backoff, keepOpen } from "./reconnect.js";
 import { timelineRows } from "./timeline.js";
+import { httpOrigin } from "./origin.js";
 
 const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
-const params = new URLSearchParams(location.search);
-const base = serverUrl(location);
+// A link's secrets leave the address before anything else. The key lives in the page's
+// storage, never in its URL: an old link's `?key=` only fills the form (Connect uses and
+// keeps it), so a link cannot swap the key this browser uses.
+const linked = takeSecretsFromAddress();
+/** The server: this page's origin, or a `?server=` its server lists (set before any call). */
+let base: TrustedServer | undefined;
+/** The `?server=` this page's own links carry on (none for this page's origin). */
+let serverParam: string | null = null;
+/** The fleet's servers this page's server lists: the only others the key is sent to. */
+const allowList = new AllowList(location.origin);
 const KEY = "cathlab.instructor.key";
 const POLL_MS = 1000;
 
@@ -19,21 +36,14 @@ const POLL_MS = 1000;
 interface Card {
   element: HTMLElement;
   stop: AbortController;
-  /** The client of the server that runs the session (another server of the fleet, or this one). */
-  client: SimulatorClient;
+  /** The client of the server that runs the session (another server of the fleet, or this
+   *  one); none for a server this page's server does not list (nothing is sent there). */
+  client: SimulatorClient | undefined;
 }
 
 const cards = new Map<string, Card>();
 let accountsShown = false;
 let selected = "";
-// The key lives in the page's storage, never in its URL: an old link's `?key=` is taken and
-// scrubbed from the address bar and history.
-if (params.has("key")) {
-  localStorage.setItem(KEY, params.get("key") ?? "");
-  const url = new URL(location.href);
-  url.searchParams.delete("key");
-  history.replaceState(null, "", url);
-}
 let instructorKey = localStorage.getItem(KEY) ?? "";
 
 /** "label · scene · started 14:02" (local time), so that two sessions can be told apart. */
@@ -116,7 +126,7 @@ function select(client: SimulatorClient, id: string) {
 const MAX_THUMBNAIL_STREAMS = location.protocol === "https:" ? Number.POSITIVE_INFINITY : 3;
 let thumbnailStreams = 0;
 
-function addCard(client: SimulatorClient, info: SessionInfo): Card {
+function addCard(client: SimulatorClient | undefined, info: SessionInfo): Card {
   const element = document.createElement("article");
   element.className = "card";
   element.dataset.session = info.sessionId;
@@ -129,26 +139,39 @@ function addCard(client: SimulatorClient, info: SessionInfo): Card {
   const open = document.createElement("a");
   open.textContent = "Open read-only";
   open.target = "_blank";
-  open.href = `/?${new URLSearchParams({ session: info.sessionId, token: info.observerToken, role: "observer" })}`;
+  open.href = `/?${new URLSearchParams({
+    ...(serverParam ? { server: serverParam } : {}),
+    session: info.sessionId,
+    token: info.observerToken,
+    role: "observer",
+  })}`;
   const timeline = document.createElement("button");
   timeline.textContent = "Timeline";
-  timeline.addEventListener("click", () => select(client, info.sessionId));
+  if (client) timeline.addEventListener("click", () => select(client, info.sessionId));
+  else timeline.disabled = true;
   const where: HTMLElement[] = [];
   if (info.serverAddress) {
     // Another server of the fleet runs it: its streams come from there (with the instructor
-    // key); its observer token stays on that server, so the read-only page is opened there.
-    open.href = new URL(`/dashboard.html`, info.serverAddress).toString();
+    // key, when this page's server lists it); its observer token stays on that server, so
+    // the read-only page is opened there.
+    const there = httpOrigin(info.serverAddress);
+    if (there) open.href = new URL(`/dashboard.html`, there).toString();
+    else open.removeAttribute("href");
     open.textContent = "Its server";
     const address = document.createElement("p");
     address.className = "muted server-address";
-    address.textContent = `on ${info.serverAddress}`;
+    address.textContent = client
+      ? `on ${info.serverAddress}`
+      : `on ${info.serverAddress}, which this server does not list among its fleet's servers: not contacted (the instructor key is not sent there)`;
     where.push(address);
   }
   actions.append(open, timeline);
   element.append(title, ...where, image, document.createElement("dl"), actions);
   $("sessions").append(element);
   const card: Card = { element, stop: new AbortController(), client };
-  if (thumbnailStreams < MAX_THUMBNAIL_STREAMS) {
+  if (!client) {
+    image.hidden = true;
+  } else if (thumbnailStreams < MAX_THUMBNAIL_STREAMS) {
     thumbnailStreams += 1;
     card.stop.signal.addEventListener("abort", () => {
       thumbnailStreams -= 1;
@@ -169,7 +192,7 @@ function reportLink(sessionId: string): HTMLAnchorElement {
   const a = document.createElement("a");
   const url = new URL("report.html", location.href);
   url.search = "";
-  if (params.get("server")) url.searchParams.set("server", params.get("server")!);
+  if (serverParam) url.searchParams.set("server", serverParam);
   url.searchParams.set("session", sessionId);
   a.href = url.toString();
   a.className = "report-link";
@@ -242,6 +265,7 @@ function showStatus(status: string, detail = "") {
 }
 
 async function poll(signal: AbortSignal) {
+  if (!base) return;
   const client = simulatorClient(base, instructorKey);
   const backoff = new Backoff(500, 5000);
   while (!signal.aborted) {
@@ -261,9 +285,21 @@ async function poll(signal: AbortSignal) {
         }
       }
       for (const info of live) {
-        const card =
-          cards.get(info.sessionId) ??
-          addCard(info.serverAddress ? simulatorClient(info.serverAddress, instructorKey) : client, info);
+        let card = cards.get(info.sessionId);
+        if (!card || (!card.client && info.serverAddress)) {
+          // A session another server of the fleet runs: the key goes there only when this
+          // page's server lists that server (ListSessions' addresses come from the fleet's
+          // registry; the allow-list is read again, at most every 5 s, while one is not on it).
+          const there = info.serverAddress ? await allowList.trust(info.serverAddress) : base;
+          if (signal.aborted) return;
+          if (card && there) {
+            // Listed since: the card again, with its streams.
+            card.stop.abort();
+            card.element.remove();
+            card = undefined;
+          }
+          card ??= addCard(there ? simulatorClient(there, instructorKey) : undefined, info);
+        }
         cards.set(info.sessionId, card);
         renderMetrics(card.element, info.metrics);
       }
@@ -275,8 +311,8 @@ async function poll(signal: AbortSignal) {
         });
       }
       renderRecorded(sessions.filter((s) => s.status !== SessionStatus.RUNNING));
-      if (!cards.has(selected)) {
-        const [first] = cards.entries();
+      if (!cards.get(selected)?.client) {
+        const first = [...cards.entries()].find(([, card]) => card.client);
         select(first?.[1].client ?? client, first?.[0] ?? "");
       }
     } catch (e) {
@@ -295,9 +331,10 @@ async function poll(signal: AbortSignal) {
 }
 
 let polling = new AbortController();
-$<HTMLInputElement>("key").value = instructorKey;
+$<HTMLInputElement>("key").value = linked.key ?? instructorKey;
 $("key-form").addEventListener("submit", (e) => {
   e.preventDefault();
+  if (!base) return;
   instructorKey = $<HTMLInputElement>("key").value;
   localStorage.setItem(KEY, instructorKey);
   polling.abort();
@@ -311,11 +348,39 @@ $("key-form").addEventListener("submit", (e) => {
   polling = new AbortController();
   void poll(polling.signal);
 });
-void poll(polling.signal);
+
+/** The server first (nothing is sent before it is known to be trusted), then the poll. */
+async function start() {
+  const server = await pageServer(location);
+  if (!server.ok) {
+    const status = $("connection");
+    status.dataset.status = "refused";
+    status.textContent = "not connected";
+    showRefused($("message"), server);
+    for (const c of document.querySelectorAll<HTMLButtonElement | HTMLInputElement | HTMLSelectElement>(
+      "form button, form input, form select",
+    )) {
+      c.disabled = true;
+    }
+    return;
+  }
+  base = server.base;
+  serverParam = server.param;
+  if (linked.key && linked.key !== instructorKey) {
+    // Not used until the instructor says so.
+    showStatus("connecting", "instructor key needed");
+    $("message").textContent =
+      "This link carried an instructor key: it was taken out of the address and is not used or kept until you press Connect.";
+  } else {
+    void poll(polling.signal);
+  }
+  void fillScenes(base);
+}
+void start();
 
 // A session started here for a trainee: guided, or an assessment without guidance. The
 // trainee gets the controller link; the instructor watches it like any other.
-void (async () => {
+async function fillScenes(base: TrustedServer) {
   try {
     const { scenes, defaultScene } = await simulatorClient(base).listScenes({});
     const select = $<HTMLSelectElement>("new-scene");
@@ -324,9 +389,10 @@ void (async () => {
   } catch {
     // The poll reports an unreachable server.
   }
-})();
+}
 $("new-account").addEventListener("submit", async (e) => {
   e.preventDefault();
+  if (!base) return;
   const out = $("account-link");
   const client = simulatorClient(base, instructorKey);
   try {
@@ -336,7 +402,8 @@ $("new-account").addEventListener("submit", async (e) => {
     });
     const url = new URL("index.html", location.href);
     url.search = "";
-    if (params.get("server")) url.searchParams.set("server", params.get("server")!);
+    if (serverParam) url.searchParams.set("server", serverParam);
+    // The trainee's page asks before it signs their browser in with it.
     url.searchParams.set("account", account.token);
     out.textContent = `${account.name}'s sign-in link (shown once; it carries their token): `;
     const a = document.createElement("a");
@@ -351,6 +418,7 @@ $("new-account").addEventListener("submit", async (e) => {
 });
 $("new-session").addEventListener("submit", async (e) => {
   e.preventDefault();
+  if (!base) return;
   const link = $("new-link");
   try {
     const assessment = $<HTMLInputElement>("new-assessment").checked;
@@ -361,7 +429,7 @@ $("new-session").addEventListener("submit", async (e) => {
     });
     const url = new URL("index.html", location.href);
     url.search = "";
-    if (params.get("server")) url.searchParams.set("server", params.get("server")!);
+    if (serverParam) url.searchParams.set("server", serverParam);
     url.searchParams.set("session", created.sessionId);
     url.searchParams.set("token", created.controllerToken);
     link.textContent = `${assessment ? "Assessment" : "Guided"} session started. The trainee's link: `;

@@ -5,7 +5,15 @@
 import { Code, ConnectError } from "@connectrpc/connect";
 import uPlot from "uplot";
 import "uplot/dist/uPlot.min.css";
-import { type SimulatorClient, serverUrl, simulatorClient } from "./api.js";
+import {
+  type SimulatorClient,
+  type TrustedServer,
+  pageServer,
+  showRefused,
+  simulatorClient,
+  takeSecretsFromAddress,
+} from "./api.js";
+import { savedSessionFor } from "./origin.js";
 import {
   type HistoryPoint,
   type SessionReport,
@@ -20,12 +28,18 @@ import {
 } from "./reportData.js";
 
 const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
+// A link's secrets leave the address before anything else: the session token of the
+// trainee's "Finish" link is kept in this tab's storage (for reloads), for this server only.
+const linked = takeSecretsFromAddress();
 const params = new URLSearchParams(location.search);
-const base = serverUrl(location);
+/** The server: this page's origin, or a `?server=` its server lists (set by main first). */
+let base: TrustedServer;
 const sessionId = params.get("session") ?? "";
 /** Where the trainee page keeps an account token, and the dashboard the instructor key. */
 export const ACCOUNT = "cathlab.account.token";
 const KEY = "cathlab.instructor.key";
+/** The session token a link brought, `{origin, id, token}` (this tab only). */
+const LINKED = "cathlab.report.session";
 
 function describe(e: unknown): string {
   if (e instanceof ConnectError) return `${Code[e.code]}: ${e.rawMessage}`;
@@ -45,10 +59,13 @@ function fail(text: string) {
   el.textContent = text;
 }
 
-/** The credentials to try, in order: the link's token, this browser's account, the instructor key. */
+/** The credentials to try, in order: the link's token (or the one this tab kept from it, for
+ *  this server and session only), this browser's account, the instructor key. Only ever sent
+ *  to `base`: this page's origin or a server its server lists. */
 function credentials(): string[] {
-  const out = [params.get("token"), localStorage.getItem(ACCOUNT), localStorage.getItem(KEY)];
-  return out.filter((t): t is string => !!t);
+  const kept = savedSessionFor(sessionStorage.getItem(LINKED), base, sessionId)?.token;
+  const out = [linked.token ?? kept, localStorage.getItem(ACCOUNT), localStorage.getItem(KEY)];
+  return [...new Set(out.filter((t): t is string => !!t))];
 }
 
 function refused(e: unknown): boolean {
@@ -339,6 +356,16 @@ async function renderCurve(client: SimulatorClient, report: SessionReport, accou
 }
 
 async function main() {
+  const server = await pageServer(location);
+  if (!server.ok) {
+    status("not connected", "refused");
+    showRefused($("report-error"), server);
+    return;
+  }
+  base = server.base;
+  if (linked.token && sessionId) {
+    sessionStorage.setItem(LINKED, JSON.stringify({ origin: base, id: sessionId, token: linked.token }));
+  }
   if (!sessionId) {
     fail("No session: open this page as report.html?session=ID.");
     return;
@@ -384,6 +411,7 @@ async function main() {
 
 $("token-form").addEventListener("submit", (e) => {
   e.preventDefault();
+  if (!base) return;
   const token = $<HTMLInputElement>("token").value.trim();
   if (token) localStorage.setItem(ACCOUNT, token);
   location.reload();

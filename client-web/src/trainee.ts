@@ -1,7 +1,14 @@
 //! The trainee view: the live X-ray image, the controls and the HUD of one session.
 import { type MessageInitShape, create } from "@bufbuild/protobuf";
 import { Code, ConnectError } from "@connectrpc/connect";
-import { type SimulatorClient, serverUrl, simulatorClient } from "./api.js";
+import {
+  type SimulatorClient,
+  type TrustedServer,
+  pageServer,
+  showRefused,
+  simulatorClient,
+  takeSecretsFromAddress,
+} from "./api.js";
 import {
   DriveCommands,
   HOLD_REPEAT_MS,
@@ -29,21 +36,22 @@ import { doseLine, hudLines, reperfusionRows } from "./hud.js";
 import { drawMarker } from "./marker.js";
 import { shortName, stackLines } from "./stack.js";
 import { type ConnectionStatus, keepOpen } from "./reconnect.js";
+import { accountOffer, savedSessionFor } from "./origin.js";
 
 const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
+// A link's secrets leave the address before anything else: the session token (kept in this
+// tab's storage for reloads) and an account token (kept only once the trainee accepts it).
+const linked = takeSecretsFromAddress();
 const params = new URLSearchParams(location.search);
-const base = serverUrl(location);
+/** This tab's session: `{origin, id, token, readOnly}`, its token only for that origin. */
 const STORAGE = "cathlab.trainee.session";
-/** The trainee's account token (from a `?account=` link, kept in this browser, not the URL). */
+/** The trainee's account token, kept in this browser (accepted from a sign-in link). */
 const ACCOUNT = "cathlab.account.token";
-if (params.has("account")) {
-  localStorage.setItem(ACCOUNT, params.get("account") ?? "");
-  params.delete("account");
-  const url = new URL(location.href);
-  url.searchParams.delete("account");
-  history.replaceState(null, "", url);
-}
-const accountToken = localStorage.getItem(ACCOUNT) ?? "";
+/** The server: this page's origin, or a `?server=` its server lists (set by main first). */
+let base: TrustedServer;
+/** The `?server=` this page's own links carry on (none for this page's origin). */
+let serverParam: string | null = null;
+let accountToken = "";
 
 interface Joined {
   id: string;
@@ -54,14 +62,14 @@ interface Joined {
 /** The session to show: from the URL, from this tab's last session, or a new one. */
 async function join(): Promise<Joined> {
   const id = params.get("session");
-  const token = params.get("token");
-  if (id && token) return { id, token, readOnly: params.get("role") === "observer" };
-  const saved = sessionStorage.getItem(STORAGE);
+  const token = linked.token;
+  if (id && token) return remember({ id, token, readOnly: params.get("role") === "observer" });
+  // This tab's last session, on this server only (its token is for the server that gave it).
+  const saved = savedSessionFor(sessionStorage.getItem(STORAGE), base);
   if (saved) {
-    const { id, token } = JSON.parse(saved) as { id: string; token: string };
     try {
-      await simulatorClient(base, token).getSession({ sessionId: id });
-      return remember({ id, token, readOnly: false });
+      await simulatorClient(base, saved.token).getSession({ sessionId: saved.id });
+      return remember({ id: saved.id, token: saved.token, readOnly: saved.readOnly });
     } catch {
       sessionStorage.removeItem(STORAGE);
     }
@@ -79,13 +87,62 @@ async function join(): Promise<Joined> {
   return remember({ id: created.sessionId, token: created.controllerToken, readOnly: false });
 }
 
+/** Keeps the session for reloads: its id in the URL, its token in this tab's storage (never
+ *  in the URL). */
 function remember(joined: Joined): Joined {
-  sessionStorage.setItem(STORAGE, JSON.stringify({ id: joined.id, token: joined.token }));
+  sessionStorage.setItem(
+    STORAGE,
+    JSON.stringify({ origin: base, id: joined.id, token: joined.token, readOnly: joined.readOnly }),
+  );
   const url = new URL(location.href);
   url.searchParams.set("session", joined.id);
-  url.searchParams.set("token", joined.token);
   history.replaceState(null, "", url);
   return joined;
+}
+
+/** The account this page uses: the one kept in this browser, or the sign-in link's once the
+ *  trainee accepts it here (a link alone never changes the account: a link from someone else
+ *  would otherwise sign this browser into their account, and the trainee's sessions with it). */
+async function settleAccount(): Promise<string> {
+  const stored = localStorage.getItem(ACCOUNT) ?? "";
+  const offer = accountOffer(linked.account, stored);
+  if (offer.kind !== "ask") return stored;
+  const box = $("account-offer");
+  const name = (token: string, el: HTMLElement) =>
+    simulatorClient(base, token)
+      .whoAmI({})
+      .then((me) => {
+        el.textContent = `${me.name} (${me.role})`;
+      })
+      .catch(() => {
+        el.textContent = "an account this server does not recognise";
+      });
+  $("account-offer-new").textContent = "the account in this link";
+  void name(offer.token, $("account-offer-new"));
+  const replaces = $("account-offer-replaces");
+  if (offer.replaces) {
+    replaces.textContent = "This replaces the account signed in in this browser: ";
+    const current = document.createElement("strong");
+    current.id = "account-offer-current";
+    current.textContent = "the current account";
+    replaces.append(current, ".");
+    void name(stored, current);
+  } else {
+    replaces.textContent = "No account is signed in in this browser yet. Accept only a link you were given for yourself.";
+  }
+  box.hidden = false;
+  $("account-ignore").focus();
+  return new Promise((resolve) => {
+    $("account-accept").addEventListener("click", () => {
+      localStorage.setItem(ACCOUNT, offer.token);
+      box.hidden = true;
+      resolve(offer.token);
+    });
+    $("account-ignore").addEventListener("click", () => {
+      box.hidden = true;
+      resolve(stored);
+    });
+  });
 }
 
 function showStatus(status: ConnectionStatus, detail?: string) {
@@ -132,7 +189,7 @@ function sessionEnded() {
   el.dataset.kind = "warning";
   el.textContent = "This session has ended (the server restarted or the session was closed). ";
   const fresh = document.createElement("a");
-  fresh.href = `${location.pathname}${params.get("server") ? `?server=${encodeURIComponent(params.get("server")!)}` : ""}`;
+  fresh.href = `${location.pathname}${serverParam ? `?server=${encodeURIComponent(serverParam)}` : ""}`;
   fresh.textContent = "Start a new session";
   fresh.id = "new-session";
   el.append(fresh);
@@ -149,6 +206,22 @@ function describe(e: unknown): string {
 }
 
 async function main() {
+  const server = await pageServer(location);
+  if (!server.ok) {
+    const status = $("connection");
+    status.dataset.status = "refused";
+    status.textContent = "not connected";
+    showRefused($("message"), server);
+    for (const c of document.querySelectorAll<HTMLButtonElement | HTMLInputElement | HTMLSelectElement>(
+      "#controls button, #controls input, #controls select",
+    )) {
+      c.disabled = true;
+    }
+    return;
+  }
+  base = server.base;
+  serverParam = server.param;
+  accountToken = await settleAccount();
   let joined: Joined;
   try {
     joined = await join();
@@ -309,7 +382,7 @@ async function main() {
     sessionStorage.removeItem(STORAGE);
     const report = new URL("report.html", location.href);
     report.search = "";
-    if (params.get("server")) report.searchParams.set("server", params.get("server")!);
+    if (serverParam) report.searchParams.set("server", serverParam);
     report.searchParams.set("session", joined.id);
     report.searchParams.set("token", joined.token);
     finishedReport = report.toString();
