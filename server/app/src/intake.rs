@@ -265,6 +265,10 @@ impl HttpBody for Metered {
             // sent (bad base64, a reset) is the caller's error.
             Poll::Ready(Some(Err(e))) => {
                 let status = match e.into_inner().downcast::<Status>() {
+                    // gRPC-Web's decoder calls bad base64 INTERNAL; it is what the caller sent.
+                    Ok(status) if status.code() == tonic::Code::Internal => {
+                        Status::invalid_argument(format!("request body: {}", status.message()))
+                    }
                     Ok(status) => *status,
                     Err(e) => Status::invalid_argument(format!("request body: {e}")),
                 };

@@ -270,6 +270,10 @@ pub async fn serve(
             "/allocate",
             get(move |uri: axum::http::Uri| allocate(allocating.clone(), uri)),
         )
+        .route("/fleet-origins", {
+            let store = store.clone();
+            get(move || fleet_origins(store.clone()))
+        })
         .route(
             "/metrics",
             get(move || {
@@ -499,6 +503,40 @@ async fn allocate(
             (header::LOCATION, location),
             (header::CACHE_CONTROL, "no-store".to_owned()),
         ],
+    )
+        .into_response()
+}
+
+/// `GET /fleet-origins`: the advertised addresses of the fleet's serving servers (this one
+/// included; on SQLite a fleet of one), `{"origins": [...]}`: the only servers other than
+/// its own to which the web client sends a stored credential. Never a redirect, never
+/// cached.
+async fn fleet_origins(store: Arc<Store>) -> axum::response::Response<axum::body::Body> {
+    use axum::http::{StatusCode, header};
+    use axum::response::IntoResponse;
+    let servers = tokio::task::spawn_blocking(move || store.servers()).await;
+    let origins: Vec<String> = match servers {
+        Ok(Ok(servers)) => servers
+            .into_iter()
+            .filter(|s| s.status == "serving")
+            .map(|s| s.address)
+            .collect(),
+        Ok(Err(e)) => {
+            tracing::warn!("/fleet-origins: the fleet's registry: {e}");
+            Vec::new()
+        }
+        Err(e) => {
+            tracing::warn!("/fleet-origins: {e}");
+            Vec::new()
+        }
+    };
+    (
+        StatusCode::OK,
+        [
+            (header::CONTENT_TYPE, "application/json"),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        serde_json::json!({ "origins": origins }).to_string(),
     )
         .into_response()
 }
