@@ -623,3 +623,22 @@ pub async fn stdin_closed() {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::allocation_query;
+
+    #[test]
+    fn allocate_passes_on_only_the_scene_and_the_label() {
+        assert_eq!(
+            allocation_query("scene=neuro_phantom_m1&label=Rita%20T"),
+            "?scene=neuro_phantom_m1&label=Rita%20T"
+        );
+        assert_eq!(
+            allocation_query("server=https://evil.example&scene=a&account=T0K&token=x&key=k"),
+            "?scene=a"
+        );
+        assert_eq!(allocation_query("server=https://evil.example"), "");
+        assert_eq!(allocation_query(""), "");
+    }
+}

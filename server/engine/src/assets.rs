@@ -364,7 +364,18 @@ impl AssetCache {
             |p: &Path| self.roots.is_empty() || self.roots.iter().any(|r| p.starts_with(r));
         // One answer for "missing" and "outside": the error tells nothing of files outside.
         let refused = || scene_error(field, "names no file in the server's data directories");
-        let canonical = joined.canonicalize().map_err(|_| refused())?;
+        let canonical = joined.canonicalize().map_err(|e| {
+            // Out of file descriptors is the server's state, not the scene's fault: said as
+            // what it is (EMFILE, ENFILE).
+            if matches!(e.raw_os_error(), Some(24) | Some(23)) {
+                tracing::error!("{field}: out of file descriptors: {e}");
+                EngineError::Exhausted(
+                    "the server is out of file descriptors; try again shortly".into(),
+                )
+            } else {
+                refused()
+            }
+        })?;
         if !inside(&canonical) {
             return Err(refused());
         }
