@@ -171,7 +171,8 @@ pub fn split_files(data: &[u8]) -> Vec<&[u8]> {
 }
 
 /// This process's scratch folder, emptied: in /dev/shm when there is one (memory, fast),
-/// else the system's temporary folder. Each fuzzing process (`-jobs`, `-fork`) has its own.
+/// else the system's temporary folder. Each fuzzing process (`-jobs`, `-fork`) has its own;
+/// those of processes that have ended are removed when the next one starts.
 pub fn scratch_dir() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     let dir = DIR.get_or_init(|| {
@@ -180,6 +181,23 @@ pub fn scratch_dir() -> PathBuf {
         } else {
             std::env::temp_dir()
         };
+        // Folders of fuzzing processes that have ended (libFuzzer exits without unwinding,
+        // so none removes its own): removed here.
+        if let Ok(entries) = std::fs::read_dir(&base) {
+            for entry in entries.flatten() {
+                let name = entry.file_name();
+                let Some(pid) = name
+                    .to_str()
+                    .and_then(|n| n.strip_prefix("cathlab-fuzz-"))
+                    .and_then(|p| p.parse::<u32>().ok())
+                else {
+                    continue;
+                };
+                if !Path::new(&format!("/proc/{pid}")).exists() {
+                    let _ = std::fs::remove_dir_all(entry.path());
+                }
+            }
+        }
         let dir = base.join(format!("cathlab-fuzz-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("scratch folder for the fuzz inputs");
         dir
