@@ -1,24 +1,30 @@
 //! `cathlab-soak`: the server under a long, seeded, random mix of what clients do, valid and
 //! invalid — sessions created and closed, commands in and out of range, frame, state and
 //! control streams opened and abandoned or stalled, wrong secrets, hostile scenes, garbage on
-//! the port — beside one well-behaved control session, until the server has run a given
-//! number of physics steps. It runs in rounds; after each, the random clients stop, their
-//! sessions close and the server's resident memory is read at rest. It fails (exit status 1)
-//! on a panic in the server's log, an INTERNAL or UNKNOWN answer, a missed step in the
-//! control session, resting resident memory (VmRSS) or resting live heap (the bytes the
-//! server's counting allocator has out: what a leak grows, whatever the allocator keeps) more
-//! than 10 % above the first round's, or a server that stops answering. Resting anonymous
-//! memory is shown beside them.
+//! the port, floods of HTTP/2 streams that never finish their messages, HTTP/1.1 bodies that
+//! stall or never start, sockets that say nothing, scenes naming decompression bombs — beside
+//! one well-behaved control session, until the server has run a given number of physics
+//! steps. It runs in rounds; after each, the random clients stop, their sessions close and the
+//! server's resident memory is read at rest. It fails (exit status 1) on a panic in the
+//! server's log, an INTERNAL or UNKNOWN answer, another answer the server must not give (a
+//! bomb accepted or refused without naming its field, a stalled connection the server keeps
+//! past its timeouts), a missed step in the control session, resting resident memory (VmRSS)
+//! or resting live heap (the bytes the server's counting allocator has out: what a leak
+//! grows, whatever the allocator keeps) more than 10 % above the first round's, or a server
+//! that stops answering. Resting anonymous memory is shown beside them. Every connection goes
+//! to the server it started on 127.0.0.1.
 
 mod harness;
 
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+use bytes::Bytes;
 use cathlab_api::authorized as authed;
 use cathlab_api::pb;
 use cathlab_api::pb::simulator_client::SimulatorClient;
@@ -65,7 +71,7 @@ struct Cli {
     target: ServerArgs,
 }
 
-/// What a random client may do, and how often (weights out of 100).
+/// What a random client may do, and how often (relative weights).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum Action {
     Create,
@@ -79,10 +85,20 @@ enum Action {
     HostileScene,
     Garbage,
     Replay,
+    /// An HTTP/2 connection opening up to 100 streams, each a message begun and stalled.
+    H2Flood,
+    /// HTTP/1.1 gRPC-Web requests whose bodies stop part-way.
+    StalledBody,
+    /// Requests (HTTP/1.1 and HTTP/2) whose bodies never start.
+    BodyNeverStarts,
+    /// Sockets that never send a byte.
+    IdleSockets,
+    /// Inline scenes whose CT is a decompression bomb or a header declaring too many voxels.
+    BombFile,
 }
 
 impl Action {
-    const ALL: [Action; 11] = [
+    const ALL: [Action; 16] = [
         Action::Create,
         Action::Close,
         Action::ValidCommand,
@@ -94,6 +110,11 @@ impl Action {
         Action::HostileScene,
         Action::Garbage,
         Action::Replay,
+        Action::H2Flood,
+        Action::StalledBody,
+        Action::BodyNeverStarts,
+        Action::IdleSockets,
+        Action::BombFile,
     ];
 
     fn weight(self) -> u32 {
@@ -109,6 +130,22 @@ impl Action {
             Action::HostileScene => 5,
             Action::Garbage => 3,
             Action::Replay => 2,
+            Action::H2Flood => 3,
+            Action::StalledBody => 3,
+            Action::BodyNeverStarts => 2,
+            Action::IdleSockets => 3,
+            Action::BombFile => 4,
+        }
+    }
+
+    /// How many times one client may start it in a round (the connection attacks run in
+    /// tasks of their own, each bounded in time; these bound how many sockets they hold).
+    fn per_round(self) -> u32 {
+        match self {
+            Action::H2Flood | Action::BodyNeverStarts => 2,
+            Action::StalledBody | Action::IdleSockets => 3,
+            Action::BombFile => 6,
+            _ => u32::MAX,
         }
     }
 }
@@ -116,12 +153,46 @@ impl Action {
 const KEY: &str = "soak-instructor-key";
 const SCENE: &str = "arch_to_cow_lcca";
 
+/// How long a connection may be idle, and a request message take to arrive (the soak's
+/// `connection_idle_timeout_s` and `message_read_timeout_s`: short, so that the connection
+/// attacks resolve within a round).
+const IDLE_TIMEOUT_S: u64 = 5;
+const MESSAGE_TIMEOUT_S: u64 = 3;
+
 /// The server's limits for the soak: tight timeouts so that stalls and silences are met often;
 /// a throttle high enough that the random wrong secrets do not lock the control session out
-/// (the throttle has its own attack test).
-const CONFIG: &str = "max_sessions = 8\nmax_replays = 1\ncontrol_timeout_ms = 250\n\
-stream_stall_timeout_ms = 2000\nstream_buffer_mib = 64\nauth_failures_per_minute = 100000\n\
-control_inputs_per_second = 2000\n";
+/// (the throttle has its own attack test); per-client session limits and a per-address
+/// connection limit high enough that the random clients, all on 127.0.0.1, and the soak's own
+/// reads of `/metrics` are never refused for them (those limits have their own attack tests);
+/// a small request buffer, so that HTTP/2 floods meet it; and `data_roots` with the directory
+/// of the bomb files.
+fn config(data_roots: &[PathBuf]) -> String {
+    let roots: Vec<String> = data_roots
+        .iter()
+        .map(|r| format!("{:?}", r.display().to_string()))
+        .collect();
+    format!(
+        "max_sessions = 8\nmax_replays = 1\ncontrol_timeout_ms = 250\n\
+         stream_stall_timeout_ms = 2000\nstream_buffer_mib = 64\n\
+         auth_failures_per_minute = 100000\ncontrol_inputs_per_second = 2000\n\
+         max_sessions_per_client = 8\nsession_creations_per_minute = 100000\n\
+         max_connections_per_address = 192\nconnection_idle_timeout_s = {IDLE_TIMEOUT_S}\n\
+         message_read_timeout_s = {MESSAGE_TIMEOUT_S}\nrequest_buffer_mib = 16\n\
+         data_roots = [{}]\n",
+        roots.join(", ")
+    )
+}
+
+/// The tally's rows of the connection and file attacks, printed after each round.
+const ATTACK_ROWS: [&str; 7] = [
+    "h2 flood",
+    "h2 flood stream",
+    "stalled body",
+    "body never starts",
+    "body never starts h2",
+    "idle socket",
+    "bomb file",
+];
 
 /// What the random clients saw: answers by kind of action and status code.
 #[derive(Default)]
@@ -129,12 +200,29 @@ struct Tally {
     answers: Mutex<BTreeMap<(&'static str, String), u64>>,
     /// The first message seen for each (action, code).
     examples: Mutex<BTreeMap<(&'static str, String), String>>,
-    /// INTERNAL or UNKNOWN answers, with what was asked.
+    /// INTERNAL or UNKNOWN answers, and other answers the server must not give, with what
+    /// was asked.
     faults: Mutex<Vec<String>>,
     actions: AtomicU64,
 }
 
 impl Tally {
+    /// Counts one outcome that is not a tonic status (a socket closed, a stream reset).
+    fn row(&self, action: &'static str, outcome: impl Into<String>, n: u64) {
+        if n > 0 {
+            *self
+                .answers
+                .lock()
+                .entry((action, outcome.into()))
+                .or_default() += n;
+        }
+    }
+
+    /// An answer the server must not give.
+    fn wrong(&self, what: String) {
+        self.faults.lock().push(what);
+    }
+
     fn answer<T>(&self, action: &'static str, result: &Result<T, tonic::Status>) {
         let code = match result {
             Ok(_) => "OK".to_owned(),
@@ -170,6 +258,10 @@ struct Chaos {
     stalls: Vec<tokio::task::JoinHandle<()>>,
     /// What it may do (never empty).
     actions: Vec<Action>,
+    /// The bomb scenes.
+    bombs: Arc<Bombs>,
+    /// How many times each action was started this round.
+    started: BTreeMap<&'static str, u32>,
 }
 
 fn command(kind: pb::command::Kind) -> Option<pb::Command> {
@@ -193,6 +285,7 @@ impl Chaos {
         seed: u64,
         tally: Arc<Tally>,
         actions: Vec<Action>,
+        bombs: Arc<Bombs>,
     ) -> Result<Self> {
         let client = SimulatorClient::connect(url.clone())
             .await?
@@ -207,7 +300,24 @@ impl Chaos {
             tally,
             stalls: Vec::new(),
             actions,
+            bombs,
+            started: BTreeMap::new(),
         })
+    }
+
+    /// Whether `action` may start again this round (and counts it).
+    fn budget(&mut self, action: Action) -> bool {
+        let name: &'static str = match action {
+            Action::H2Flood => "h2 flood",
+            Action::StalledBody => "stalled body",
+            Action::BodyNeverStarts => "body never starts",
+            Action::IdleSockets => "idle socket",
+            Action::BombFile => "bomb file",
+            _ => return true,
+        };
+        let n = self.started.entry(name).or_default();
+        *n += 1;
+        *n <= action.per_round()
     }
 
     fn pick<T: Clone>(&mut self, items: &[T]) -> T {
@@ -252,6 +362,12 @@ impl Chaos {
             Action::HostileScene => self.hostile_scene().await,
             Action::Garbage => self.garbage().await,
             Action::Replay => self.replay().await,
+            _ if !self.budget(action) => Ok(()),
+            Action::H2Flood => self.h2_flood(),
+            Action::StalledBody => self.stalled_body(),
+            Action::BodyNeverStarts => self.body_never_starts(),
+            Action::IdleSockets => self.idle_sockets(),
+            Action::BombFile => self.bomb_file().await,
         };
         if let Err(e) = acted {
             // Transport failures of abandoned streams are part of the game; record them.
@@ -754,6 +870,150 @@ impl Chaos {
         Ok(())
     }
 
+    /// An HTTP/2 connection (prior knowledge) opening 16–100 streams to GetSession, each a
+    /// gRPC message header declaring 900 KiB and part of it, then nothing more: the server
+    /// must cut each (DEADLINE_EXCEEDED after `message_read_timeout_s`, RESOURCE_EXHAUSTED
+    /// when the request buffer is full, or a reset). Runs in a task of its own; streams not
+    /// opened within the first wave's timeout and a half are counted and given up.
+    fn h2_flood(&mut self) -> Result<()> {
+        let streams = self.rng.random_range(16..=100);
+        let sent = [1 << 10, 64 << 10, 256 << 10, 880 << 10][self.rng.random_range(0..4)];
+        let body = partial_message(900 << 10, sent);
+        let (tally, address) = (self.tally.clone(), self.address.clone());
+        self.stalls.push(tokio::spawn(async move {
+            h2_streams(&tally, "h2 flood", &address, streams, Some(body)).await;
+        }));
+        Ok(())
+    }
+
+    /// 1–3 HTTP/1.1 gRPC-Web POSTs whose content-length says 900 KiB more than the body's
+    /// first 3 bytes to 512 KiB, then silence: answered DEADLINE_EXCEEDED (or
+    /// RESOURCE_EXHAUSTED) and closed. Runs in a task of its own.
+    fn stalled_body(&mut self) -> Result<()> {
+        for _ in 0..self.rng.random_range(1..=3) {
+            let sent = [3, 1 << 10, 64 << 10, 512 << 10][self.rng.random_range(0..4)];
+            let mut request = web_post_head(&self.address, 5 + (900 << 10));
+            request.extend_from_slice(&partial_message(900 << 10, sent)[..sent.max(3)]);
+            let (tally, address) = (self.tally.clone(), self.address.clone());
+            self.stalls.push(tokio::spawn(async move {
+                http1_stall(&tally, "stalled body", &address, request).await;
+            }));
+        }
+        Ok(())
+    }
+
+    /// Requests whose bodies never start: 1–3 HTTP/1.1 gRPC-Web POSTs declaring a body and
+    /// sending only their headers, or an HTTP/2 connection with 1–8 streams of headers only.
+    /// Neither timeout may be dodged: each must be answered or closed. Runs in a task of
+    /// its own.
+    fn body_never_starts(&mut self) -> Result<()> {
+        let (tally, address) = (self.tally.clone(), self.address.clone());
+        if self.rng.random_bool(0.5) {
+            let streams = self.rng.random_range(1..=8);
+            self.stalls.push(tokio::spawn(async move {
+                h2_streams(&tally, "body never starts h2", &address, streams, None).await;
+            }));
+        } else {
+            for _ in 0..self.rng.random_range(1..=3) {
+                let request = web_post_head(&self.address, 5 + (900 << 10));
+                let (tally, address) = (tally.clone(), address.clone());
+                self.stalls.push(tokio::spawn(async move {
+                    http1_stall(&tally, "body never starts", &address, request).await;
+                }));
+            }
+        }
+        Ok(())
+    }
+
+    /// 1–4 sockets that connect and send nothing: the server closes each after
+    /// `connection_idle_timeout_s`. Runs in a task of its own.
+    fn idle_sockets(&mut self) -> Result<()> {
+        for _ in 0..self.rng.random_range(1..=4) {
+            let (tally, address) = (self.tally.clone(), self.address.clone());
+            self.stalls.push(tokio::spawn(async move {
+                let end = raw_exchange(&address, Vec::new(), stall_limit()).await;
+                match end.closed_after {
+                    None => tally.wrong(format!(
+                        "an idle socket was still open after {} s \
+                         (connection_idle_timeout_s {IDLE_TIMEOUT_S})",
+                        stall_limit().as_secs()
+                    )),
+                    Some(after) if after.as_secs_f64() < IDLE_TIMEOUT_S as f64 - 0.5 => {
+                        tally.row("idle socket", "closed at once", 1);
+                    }
+                    Some(_) => tally.row("idle socket", "closed by the idle timeout", 1),
+                }
+                if !end.received.is_empty() {
+                    tally.row("idle socket", "sent bytes it was not asked for", 1);
+                }
+            }));
+        }
+        Ok(())
+    }
+
+    /// An instructor's inline scene whose CT is one of the bomb files: INVALID_ARGUMENT
+    /// naming `ct.path` and saying "refused:", no path.
+    async fn bomb_file(&mut self) -> Result<()> {
+        let bombs = self.bombs.clone();
+        let (name, text) = self.pick(&bombs.scenes);
+        let r = self
+            .client
+            .create_session(authed(
+                pb::CreateSessionRequest {
+                    scene: Some(pb::create_session_request::Scene::SceneToml(text)),
+                    label: "bomb".into(),
+                    ..Default::default()
+                },
+                KEY,
+            ))
+            .await;
+        match &r {
+            Ok(created) => {
+                self.tally.wrong(format!("the bomb {name} was accepted"));
+                let _ = self
+                    .client
+                    .close_session(authed(
+                        pb::CloseSessionRequest {
+                            session_id: created.get_ref().session_id.clone(),
+                        },
+                        &created.get_ref().controller_token,
+                    ))
+                    .await;
+            }
+            Err(s) if s.code() == tonic::Code::InvalidArgument => {
+                let m = s.message();
+                if !m.contains("ct.path") || !m.contains("refused:") {
+                    self.tally.wrong(format!(
+                        "the bomb {name} was refused without naming ct.path and saying \
+                         \"refused:\": {m}"
+                    ));
+                }
+                if m.contains(&self.bombs.dir) {
+                    self.tally.wrong(format!(
+                        "the refusal of the bomb {name} shows its path: {m}"
+                    ));
+                }
+            }
+            // A full server or a throttle may answer first: counted, not judged.
+            Err(s)
+                if matches!(
+                    s.code(),
+                    tonic::Code::ResourceExhausted | tonic::Code::Unavailable
+                ) => {}
+            Err(s) => {
+                if !matches!(s.code(), tonic::Code::Internal | tonic::Code::Unknown) {
+                    self.tally.wrong(format!(
+                        "the bomb {name} was answered {:?}: {}",
+                        s.code(),
+                        s.message()
+                    ));
+                }
+            }
+        }
+        self.tally.answer("bomb file", &r);
+        Ok(())
+    }
+
     /// Closes this client's session and waits for its stalled streams to be dropped.
     async fn finish(mut self) {
         let _ = self.close().await;
@@ -761,6 +1021,392 @@ impl Chaos {
             let _ = s.await;
         }
     }
+}
+
+/// A gRPC message header declaring `declared` bytes, then `sent` zero bytes of it.
+fn partial_message(declared: usize, sent: usize) -> Bytes {
+    let mut body = Vec::with_capacity(5 + sent);
+    body.push(0);
+    body.extend_from_slice(&(declared as u32).to_be_bytes());
+    body.resize(5 + sent, 0);
+    Bytes::from(body)
+}
+
+/// How long a stalled request or a silent socket is given before it counts as kept open:
+/// both timeouts and a margin for a loaded machine.
+fn stall_limit() -> Duration {
+    Duration::from_secs(MESSAGE_TIMEOUT_S + IDLE_TIMEOUT_S + 4)
+}
+
+/// The head of an HTTP/1.1 gRPC-Web POST to GetSession declaring a body of `length` bytes.
+fn web_post_head(address: &str, length: usize) -> Vec<u8> {
+    format!(
+        "POST /cathlab.v1.Simulator/GetSession HTTP/1.1\r\nHost: {address}\r\n\
+         content-type: application/grpc-web+proto\r\nx-grpc-web: 1\r\n\
+         content-length: {length}\r\n\r\n"
+    )
+    .into_bytes()
+}
+
+/// The number after the first `grpc-status:` in `bytes` (HTTP/1.1 headers or a gRPC-Web
+/// trailers frame).
+fn grpc_status_in(bytes: &[u8]) -> Option<u32> {
+    let text = String::from_utf8_lossy(bytes).to_ascii_lowercase();
+    let at = text.find("grpc-status:")? + "grpc-status:".len();
+    text[at..]
+        .trim_start()
+        .chars()
+        .take_while(char::is_ascii_digit)
+        .collect::<String>()
+        .parse()
+        .ok()
+}
+
+/// The name of a gRPC status code.
+fn code_name(code: u32) -> String {
+    format!("{:?}", tonic::Code::from_i32(code as i32))
+}
+
+/// What became of one raw connection: what the server sent, and when it closed (None:
+/// still open at the limit).
+struct RawEnd {
+    received: Vec<u8>,
+    closed_after: Option<Duration>,
+}
+
+/// Connects to `address`, writes `request` (keeping the connection open) and reads until the
+/// server closes it or `limit` passes; the socket is closed then.
+async fn raw_exchange(address: &str, request: Vec<u8>, limit: Duration) -> RawEnd {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let started = Instant::now();
+    let deadline = tokio::time::Instant::now() + limit;
+    let mut received = Vec::new();
+    let closed = |received| RawEnd {
+        received,
+        closed_after: Some(started.elapsed()),
+    };
+    let Ok(Ok(mut stream)) =
+        tokio::time::timeout_at(deadline, tokio::net::TcpStream::connect(address)).await
+    else {
+        return closed(received);
+    };
+    match tokio::time::timeout_at(deadline, stream.write_all(&request)).await {
+        Ok(Ok(())) => {}
+        Ok(Err(_)) => return closed(received),
+        Err(_) => {
+            return RawEnd {
+                received,
+                closed_after: None,
+            };
+        }
+    }
+    let mut buffer = vec![0u8; 16 << 10];
+    loop {
+        match tokio::time::timeout_at(deadline, stream.read(&mut buffer)).await {
+            Ok(Ok(0)) | Ok(Err(_)) => return closed(received),
+            Ok(Ok(n)) => received.extend_from_slice(&buffer[..n]),
+            Err(_) => {
+                return RawEnd {
+                    received,
+                    closed_after: None,
+                };
+            }
+        }
+    }
+}
+
+/// One HTTP/1.1 request that stalls (`request` is all of it the server gets): counted under
+/// `action` by the grpc-status it was answered with, or as closed unanswered; a status of
+/// INTERNAL or UNKNOWN, or a connection kept past both timeouts, is a fault.
+async fn http1_stall(tally: &Tally, action: &'static str, address: &str, request: Vec<u8>) {
+    let end = raw_exchange(address, request, stall_limit()).await;
+    let status = grpc_status_in(&end.received);
+    if let Some(code @ (2 | 13)) = status {
+        tally.wrong(format!(
+            "{action}: answered {}: {}",
+            code_name(code),
+            String::from_utf8_lossy(&end.received)
+                .chars()
+                .take(300)
+                .collect::<String>()
+        ));
+    }
+    let answer = match (status, end.received.is_empty()) {
+        (Some(code), _) => code_name(code),
+        (None, true) => "unanswered".to_owned(),
+        (None, false) => String::from_utf8_lossy(&end.received)
+            .lines()
+            .next()
+            .unwrap_or("")
+            .chars()
+            .take(40)
+            .collect(),
+    };
+    match end.closed_after {
+        Some(_) => tally.row(action, format!("{answer}, closed"), 1),
+        None => {
+            tally.row(action, format!("{answer}, kept open"), 1);
+            tally.wrong(format!(
+                "{action}: the server kept the connection open {} s \
+                 (message_read_timeout_s {MESSAGE_TIMEOUT_S}, connection_idle_timeout_s \
+                 {IDLE_TIMEOUT_S}), answered: {answer}",
+                stall_limit().as_secs()
+            ));
+        }
+    }
+}
+
+/// How an HTTP/2 gRPC stream ended: its grpc-status and message, or None when the response
+/// carried none.
+async fn h2_status(
+    response: h2::client::ResponseFuture,
+) -> Result<Option<(u32, String)>, h2::Error> {
+    let status = |headers: &http::HeaderMap| {
+        let code = headers
+            .get("grpc-status")?
+            .to_str()
+            .ok()?
+            .trim()
+            .parse()
+            .ok()?;
+        let message = headers
+            .get("grpc-message")
+            .and_then(|m| m.to_str().ok())
+            .unwrap_or("")
+            .to_owned();
+        Some((code, message))
+    };
+    let (parts, mut body) = response.await?.into_parts();
+    if let Some(s) = status(&parts.headers) {
+        return Ok(Some(s));
+    }
+    while let Some(chunk) = body.data().await {
+        let chunk = chunk?;
+        let _ = body.flow_control().release_capacity(chunk.len());
+    }
+    Ok(body.trailers().await?.as_ref().and_then(status))
+}
+
+/// An HTTP/2 connection (prior knowledge) to `address` opening `streams` streams to
+/// GetSession, each sending `body` (a message it never finishes) or, with None, only its
+/// headers. Streams are opened as the server's SETTINGS_MAX_CONCURRENT_STREAMS lets them,
+/// until one message timeout and a half has passed; those left are counted "not opened".
+/// Each opened stream must end within [`stall_limit`]: with DEADLINE_EXCEEDED or
+/// RESOURCE_EXHAUSTED, a reset, or the connection closed; another status, INTERNAL or
+/// UNKNOWN (or a reset with INTERNAL_ERROR, which a gRPC client reads as INTERNAL) or no end
+/// at all is a fault. Counted under `action` and "h2 flood stream" or `action` alone.
+async fn h2_streams(
+    tally: &Arc<Tally>,
+    action: &'static str,
+    address: &str,
+    streams: usize,
+    body: Option<Bytes>,
+) {
+    let row: &'static str = if body.is_some() {
+        "h2 flood stream"
+    } else {
+        action
+    };
+    let connected = async {
+        let tcp = tokio::net::TcpStream::connect(address).await?;
+        tcp.set_nodelay(true)?;
+        let (sender, connection) = h2::client::Builder::new()
+            .max_send_buffer_size(4 << 20)
+            .handshake::<_, Bytes>(tcp)
+            .await?;
+        anyhow::Ok((sender, connection))
+    };
+    let (mut sender, connection) =
+        match tokio::time::timeout(Duration::from_secs(3), connected).await {
+            Ok(Ok(c)) => c,
+            Ok(Err(e)) => {
+                tally.row(action, format!("connection failed: {e:#}"), 1);
+                return;
+            }
+            Err(_) => {
+                tally.row(action, "connection not made within 3 s", 1);
+                return;
+            }
+        };
+    let driver = tokio::spawn(async move {
+        let _ = connection.await;
+    });
+    let opening_ends =
+        tokio::time::Instant::now() + Duration::from_millis(MESSAGE_TIMEOUT_S * 1000 + 1500);
+    let mut ends = Vec::new();
+    for _ in 0..streams {
+        sender = match tokio::time::timeout_at(opening_ends, sender.ready()).await {
+            Ok(Ok(s)) => s,
+            Ok(Err(e)) => {
+                tally.row(action, format!("connection ended: {e}"), 1);
+                break;
+            }
+            Err(_) => break,
+        };
+        let request = http::Request::builder()
+            .method("POST")
+            .uri(format!("http://{address}/cathlab.v1.Simulator/GetSession"))
+            .header("content-type", "application/grpc")
+            .header("te", "trailers")
+            .body(())
+            .expect("a valid request");
+        let (response, mut send) = match sender.send_request(request, false) {
+            Ok(r) => r,
+            Err(e) => {
+                tally.row(action, format!("not sent: {e}"), 1);
+                break;
+            }
+        };
+        if let Some(body) = &body {
+            let _ = send.send_data(body.clone(), false);
+        }
+        ends.push(tokio::spawn(async move {
+            let end = tokio::time::timeout(stall_limit(), h2_status(response)).await;
+            drop(send);
+            end
+        }));
+    }
+    tally.row(
+        row,
+        "not opened (waiting for the stream limit)",
+        (streams - ends.len()) as u64,
+    );
+    tally.row(action, "connections", 1);
+    for end in ends {
+        let Ok(end) = end.await else { continue };
+        let outcome = match end {
+            Err(_) => {
+                tally.wrong(format!(
+                    "{action}: a stream had no end within {} s (message_read_timeout_s \
+                     {MESSAGE_TIMEOUT_S}, connection_idle_timeout_s {IDLE_TIMEOUT_S})",
+                    stall_limit().as_secs()
+                ));
+                "no end".to_owned()
+            }
+            Ok(Ok(Some((code, message)))) => {
+                if !matches!(code, 4 | 8) {
+                    tally.wrong(format!("{action}: answered {}: {message}", code_name(code)));
+                }
+                code_name(code)
+            }
+            Ok(Ok(None)) => {
+                tally.wrong(format!("{action}: a response without a grpc-status"));
+                "no grpc-status".to_owned()
+            }
+            Ok(Err(e)) => match e.reason() {
+                Some(reason) if e.is_reset() => {
+                    if reason == h2::Reason::INTERNAL_ERROR {
+                        tally.wrong(format!("{action}: a stream reset with INTERNAL_ERROR"));
+                    }
+                    format!("reset {reason:?}")
+                }
+                Some(reason) if e.is_go_away() => format!("GOAWAY {reason:?}"),
+                _ => "connection closed".to_owned(),
+            },
+        };
+        tally.row(row, outcome, 1);
+    }
+    driver.abort();
+}
+
+/// The bomb files and the inline scenes naming them.
+struct Bombs {
+    /// The directory they are in (a data root), as a refusal must not show it.
+    dir: String,
+    /// (file name, scene text).
+    scenes: Vec<(&'static str, String)>,
+}
+
+/// `bytes` of zeros through `encoder`, a mebibyte at a time.
+fn zeros_into<W: std::io::Write>(mut encoder: W, bytes: usize) -> std::io::Result<W> {
+    let chunk = vec![0u8; 1 << 20];
+    for _ in 0..bytes >> 20 {
+        encoder.write_all(&chunk)?;
+    }
+    Ok(encoder)
+}
+
+/// A MetaImage (MET_UCHAR) with its data inline.
+fn metaimage(dims: &str, compressed: bool, data: &[u8]) -> Vec<u8> {
+    let mut out = format!(
+        "ObjectType = Image\nNDims = 3\nDimSize = {dims}\nElementType = MET_UCHAR\n\
+         CompressedData = {}\nElementDataFile = LOCAL\n",
+        if compressed { "True" } else { "False" }
+    )
+    .into_bytes();
+    out.extend_from_slice(data);
+    out
+}
+
+/// A gzip NIfTI-1 declaring 1024³ bytes, whose data inflates to `bytes` of zeros.
+fn nifti_gzip_bomb(bytes: usize) -> std::io::Result<Vec<u8>> {
+    use std::io::Write as _;
+    let mut header = vec![0u8; 352];
+    header[0..4].copy_from_slice(&348i32.to_le_bytes());
+    for (o, v) in [
+        (40, 3i16),
+        (42, 1024),
+        (44, 1024),
+        (46, 1024),
+        (70, 2),
+        (72, 8),
+    ] {
+        header[o..o + 2].copy_from_slice(&v.to_le_bytes());
+    }
+    for o in [80, 84, 88] {
+        header[o..o + 4].copy_from_slice(&1.0f32.to_le_bytes());
+    }
+    header[108..112].copy_from_slice(&352.0f32.to_le_bytes());
+    header[344..348].copy_from_slice(b"n+1\0");
+    let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
+    gz.write_all(&header)?;
+    zeros_into(gz, bytes)?.finish()
+}
+
+/// Writes the bomb files into `dir` and makes the scenes naming them: the default scene
+/// (read from `scenes`) with its `[ct]` a file.
+fn write_bombs(dir: &Path, scenes: &Path) -> Result<Bombs> {
+    std::fs::create_dir_all(dir)?;
+    let zlib_zeros = zeros_into(
+        flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::best()),
+        64 << 20,
+    )?
+    .finish()?;
+    let files: [(&'static str, Vec<u8>); 3] = [
+        // 150 bytes declaring 10¹⁵ voxels.
+        (
+            "tiny.mha",
+            metaimage(
+                "100000 100000 100000",
+                true,
+                &[0x78, 0x9c, 0x03, 0, 0, 0, 0, 1],
+            ),
+        ),
+        // 64³ declared, 64 MiB inflated.
+        ("lying.mha", metaimage("64 64 64", true, &zlib_zeros)),
+        // 1024³ declared, 64 MiB inflated.
+        ("bomb.nii.gz", nifti_gzip_bomb(64 << 20)?),
+    ];
+    let template = std::fs::read_to_string(scenes.join(format!("{SCENE}.toml")))
+        .with_context(|| format!("the scene {SCENE} in {}", scenes.display()))?;
+    let phantom = "[ct]\nkind = \"phantom\"\nspacing_mm = 2.0";
+    if !template.contains(phantom) {
+        bail!("the scene {SCENE} has no phantom [ct] for the bombs to replace");
+    }
+    let mut bombs = Bombs {
+        dir: dir.display().to_string(),
+        scenes: Vec::new(),
+    };
+    for (name, bytes) in files {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes)?;
+        let ct = format!(
+            "[ct]\nkind = \"file\"\npath = {:?}",
+            path.display().to_string()
+        );
+        bombs.scenes.push((name, template.replace(phantom, &ct)));
+    }
+    Ok(bombs)
 }
 
 /// The well-behaved session: fluoroscopy on, its frames read by a reader that keeps up, the
@@ -850,7 +1496,18 @@ async fn main() -> Result<()> {
     let cli = Cli::parse();
     let dir = std::env::temp_dir().join(format!("cathlab-soak-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
-    std::fs::write(dir.join("server.toml"), CONFIG)?;
+    // The data roots: the scenes and the data beside them, as by default, and the bombs'.
+    let scenes = cli
+        .target
+        .scenes
+        .canonicalize()
+        .with_context(|| format!("the scenes directory {}", cli.target.scenes.display()))?;
+    let bomb_dir = dir.join("bombs");
+    let bombs = Arc::new(write_bombs(&bomb_dir, &scenes)?);
+    let mut roots = vec![scenes.clone()];
+    roots.extend(scenes.join("../data").canonicalize().ok());
+    roots.push(bomb_dir.canonicalize()?);
+    std::fs::write(dir.join("server.toml"), config(&roots))?;
     let config = dir.join("server.toml");
     let mut server = Server::start(
         &Server::binary(cli.target.server.as_deref())?,
@@ -920,6 +1577,7 @@ async fn main() -> Result<()> {
         cli.actions.clone()
     };
     for round in 0u64.. {
+        let before: BTreeMap<_, _> = tally.answers.lock().clone();
         let stop = Arc::new(AtomicBool::new(false));
         let mut clients = Vec::new();
         for i in 0..cli.clients as u64 {
@@ -929,6 +1587,7 @@ async fn main() -> Result<()> {
                 cli.seed.wrapping_mul(1_000_003) ^ (round << 16) ^ i,
                 tally.clone(),
                 actions.clone(),
+                bombs.clone(),
             )
             .await?;
             let stop = stop.clone();
@@ -974,6 +1633,20 @@ async fn main() -> Result<()> {
             t.missed_steps - first.missed_steps,
             watched.frames.load(Ordering::Relaxed)
         );
+        // This round's connection and file attacks, by outcome.
+        let mut attacks: BTreeMap<&str, Vec<String>> = BTreeMap::new();
+        for ((action, answer), n) in tally.answers.lock().iter() {
+            let n = n - before.get(&(*action, answer.clone())).copied().unwrap_or(0);
+            if n > 0 && ATTACK_ROWS.contains(action) {
+                attacks
+                    .entry(action)
+                    .or_default()
+                    .push(format!("{answer} {n}"));
+            }
+        }
+        for (action, outcomes) in &attacks {
+            println!("  {action}: {}", outcomes.join(", "));
+        }
         if let Ok(Some(status)) = server.child.try_wait() {
             failures.push(format!("the server exited: {status}"));
             break;
@@ -1078,8 +1751,16 @@ async fn main() -> Result<()> {
             panics.load(Ordering::Relaxed)
         ));
     }
-    for f in tally.faults.lock().iter().take(10) {
-        failures.push(f.clone());
+    // Each kind of fault once, with how often it was met.
+    let mut faults: Vec<(String, usize)> = Vec::new();
+    for f in tally.faults.lock().iter() {
+        match faults.iter_mut().find(|(seen, _)| seen == f) {
+            Some((_, n)) => *n += 1,
+            None => faults.push((f.clone(), 1)),
+        }
+    }
+    for (f, n) in faults.into_iter().take(10) {
+        failures.push(if n > 1 { format!("{n} times: {f}") } else { f });
     }
     let watched_steps = last.steps.saturating_sub(first.steps).max(1);
     if missed as f64 > cli.missed_tolerance * watched_steps as f64 {
