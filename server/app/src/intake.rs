@@ -1,6 +1,7 @@
 //! Request messages as they arrive, before tonic decodes them: the bytes of messages still
 //! arriving are held within one budget for all connections, each message must arrive whole
-//! within a timeout once its first byte has, malformed gRPC framing (a bad compression flag,
+//! within a timeout once its first byte has (the first message, once its request has),
+//! malformed gRPC framing (a bad compression flag,
 //! a body that ends inside a message) is the caller's error (INVALID_ARGUMENT), and the
 //! connection counts as busy, not idle, while a handler works on its request.
 
@@ -111,13 +112,18 @@ where
             })
             .map(Peer::busy);
         let (parts, body) = request.into_parts();
+        // The first message's clock starts with the request, not with its first byte: a
+        // request whose body never starts would otherwise hold its connection (busy, so never
+        // idle) for ever.
+        let deadline = (!body.is_end_stream())
+            .then(|| Box::pin(tokio::time::sleep(self.layer.message_timeout)));
         let metered = Metered {
             inner: body,
             buffer: self.layer.buffer.clone(),
             timeout: self.layer.message_timeout,
             framing: Framing::default(),
             held: 0,
-            deadline: None,
+            deadline,
             failed: false,
         };
         let future = self

@@ -127,6 +127,23 @@ fn integer(obj: &DefaultDicomObject, tag: dicom_core::Tag) -> Option<i64> {
         .and_then(|e| e.to_int::<i64>().ok())
 }
 
+/// Refuses a file one of whose elements declares more bytes than the file holds, before
+/// dicom-rs (which reserves a value's declared length) reads it.
+fn checked_lengths(dir: &Path, file: &Path) -> Result<()> {
+    let bytes = cathlab_anatomy::io::limits::read_regular_file(file)
+        .map_err(|e| error(dir, format!("{}: cannot be read: {e}", file_name(file))))?;
+    crate::dicom_lengths::check(&bytes).map_err(|why| {
+        error(
+            dir,
+            format!(
+                "{}: {}{why}",
+                file_name(file),
+                cathlab_anatomy::io::limits::REFUSED
+            ),
+        )
+    })
+}
+
 /// Reads one slice's header; `Ok(None)` for a file that is not DICOM or holds no image.
 fn read_header(dir: &Path, file: &Path) -> Result<Option<Slice>> {
     let limit = cathlab_anatomy::io::limits::read_limits().max_file_bytes;
@@ -143,6 +160,7 @@ fn read_header(dir: &Path, file: &Path) -> Result<Option<Slice>> {
             ),
         ));
     }
+    checked_lengths(dir, file)?;
     let Ok(obj) = OpenFileOptions::new()
         .read_until(tags::PIXEL_DATA)
         .open_file(file)
@@ -425,6 +443,7 @@ fn describe(series: &[SeriesInfo]) -> String {
 /// One slice's pixels in HU (rescale slope and intercept applied), row by row.
 fn decode(dir: &Path, slice: &Slice, count: usize) -> Result<Vec<f32>> {
     let name = file_name(&slice.file);
+    checked_lengths(dir, &slice.file)?;
     let obj = dicom_object::open_file(&slice.file)
         .map_err(|e| error(dir, format!("{name}: cannot be read: {e}")))?;
     let syntax = obj

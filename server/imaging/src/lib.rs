@@ -8,6 +8,7 @@
 pub mod case;
 pub mod circle_of_willis;
 pub mod dicom;
+pub mod dicom_lengths;
 pub mod error;
 pub mod preview;
 pub mod segment;

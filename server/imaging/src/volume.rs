@@ -281,7 +281,13 @@ fn inflate_nifti(path: &Path, compressed: &[u8]) -> Result<Vec<u8>> {
     } else {
         f32::from_le_bytes(raw_offset)
     });
-    let needed = vox_offset.clamp(348.0, 1e12) as u64 + voxels as u64 * size;
+    if !(vox_offset.is_finite() && (348.0..=1e9).contains(&vox_offset)) {
+        return Err(bad(
+            path,
+            format!("vox_offset {vox_offset} (must be 348 to 10⁹)"),
+        ));
+    }
+    let needed = (vox_offset as u64).saturating_add((voxels as u64).saturating_mul(size));
     let cap = limits::read_limits().max_inflated_bytes;
     if needed > cap {
         return Err(gzip(format!(
@@ -292,7 +298,7 @@ fn inflate_nifti(path: &Path, compressed: &[u8]) -> Result<Vec<u8>> {
     }
     // Anything after the voxels is not read: a bomb stops at the header's size.
     decoder
-        .take(needed - 348)
+        .take(needed.saturating_sub(348))
         .read_to_end(&mut out)
         .map_err(|e| gzip(e.to_string()))?;
     Ok(out)

@@ -113,7 +113,7 @@ fn block_data(
     name: &str,
     file: &str,
 ) -> Result<Vec<u8>> {
-    let with_values = |n: usize| n as u64 + (n / width) as u64 * 8;
+    let with_values = |n: usize| (n as u64).saturating_add(((n / width) as u64).saturating_mul(8));
     let width = if enc.header_u64 { 8 } else { 4 };
     let truncated = || parse_error(file, format!("array {name}: truncated binary block"));
     let word = |i: usize| -> Result<usize> {
@@ -130,8 +130,9 @@ fn block_data(
     if !enc.zlib {
         let declared = word(0)?;
         enc.budget.charge(with_values(declared), name, file)?;
-        return bytes
-            .get(width..width + declared)
+        return width
+            .checked_add(declared)
+            .and_then(|end| bytes.get(width..end))
             .map(<[u8]>::to_vec)
             .ok_or_else(|| {
                 parse_error(
