@@ -133,6 +133,14 @@ unsafe impl GlobalAlloc for LimitedAlloc {
 pub fn start() {
     static ONCE: OnceLock<()> = OnceLock::new();
     ONCE.get_or_init(|| {
+        // The readers' own limits, as a server would configure them (max_file_mib = 64,
+        // max_inflated_mib = 256, max_volume_voxels = 2²⁴): what the readers may allocate
+        // within them stays far below the 1 GiB an input may not pass.
+        cathlab_anatomy::io::limits::set_read_limits(cathlab_anatomy::io::limits::ReadLimits {
+            max_file_bytes: 64 << 20,
+            max_inflated_bytes: 256 << 20,
+            max_voxels: 1 << 24,
+        });
         if let Some(mb) = std::env::var("CATHLAB_FUZZ_ALLOC_LIMIT_MB")
             .ok()
             .and_then(|v| v.parse::<usize>().ok())

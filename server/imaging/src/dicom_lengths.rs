@@ -111,10 +111,8 @@ fn walk(bytes: &[u8], mut at: usize, explicit: bool) -> Result<(), String> {
                 0xE000 if length != UNDEFINED && in_pixel_items => {
                     at = fits(bytes, at, length, group, element)?;
                 }
-                0xE000 => {
-                    if length != UNDEFINED {
-                        fits(bytes, at, length, group, element)?;
-                    }
+                0xE000 if length != UNDEFINED => {
+                    fits(bytes, at, length, group, element)?;
                 }
                 0xE0DD => in_pixel_items = false,
                 _ => {}
