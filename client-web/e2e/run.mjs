@@ -9,7 +9,7 @@
 // the first rely on the ones before them, the link-safety ones do not).
 import { spawn } from "node:child_process";
 import { createServer } from "node:http";
-import { mkdirSync, mkdtempSync, readFileSync, rmSync } from "node:fs";
+import { mkdirSync, mkdtempSync, readFileSync, rmSync, writeFileSync } from "node:fs";
 import { tmpdir } from "node:os";
 import { join, resolve } from "node:path";
 import { createInterface } from "node:readline";
@@ -30,6 +30,10 @@ const KEY = "e2e-instructor-key";
 
 /** Starts the server on a free port; resolves with its base URL once it listens. */
 function startServer(dir, listen = "127.0.0.1:0") {
+  // One browser, one address: the per-client session and creation limits (attacked in the
+  // server's attack tests) are lifted for the pages these tests open.
+  const config = join(dir, "e2e-server.toml");
+  writeFileSync(config, "max_sessions_per_client = 16\nsession_creations_per_minute = 1000\n");
   const child = spawn(
     serverBinary,
     [
@@ -38,6 +42,7 @@ function startServer(dir, listen = "127.0.0.1:0") {
       "--scenes", join(repo, "scenes"),
       "--web-root", join(here, "dist"),
       "--exit-on-stdin-eof",
+      "--config", config,
       // The sessions a finished test's pages left are closed 20 s after their pages went,
       // as the server's 10-minute default would in a day's use, so that they do not load
       // the two cores for the tests after them.

@@ -26,7 +26,11 @@ fn server_with(name: &str, config: &str) -> (ServerProcess, PathBuf) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn concurrent_creates_never_pass_the_session_limit() {
     let _exclusive = EXCLUSIVE.lock().await;
-    let (server, _dir) = server_with("admission", "max_sessions = 16\n");
+    // One client here: its own limits (tested below) lifted.
+    let (server, _dir) = server_with(
+        "admission",
+        "max_sessions = 16\nmax_sessions_per_client = 16\nsession_creations_per_minute = 100\n",
+    );
     // Load the scene once, so that the 30 creates race on admission, not on loading.
     let mut client = server.client().await;
     let first = create(&mut client).await;
@@ -1455,4 +1459,93 @@ async fn a_store_removed_under_the_server_acknowledges_nothing_and_shows_no_path
     println!("/allocate: {code} {}", body.trim());
     assert_eq!(code, 503);
     assert!(!body.contains("/tmp") && !body.contains("sqlite"), "{body}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_replaying_token_holder_cannot_keep_a_trainee_from_her_report() {
+    let _exclusive = EXCLUSIVE.lock().await;
+    let (server, _dir) = server_with("replay-queue", "max_replays = 1\n");
+    let mut client = server.client().await;
+    let trainee = account(&mut client, "Rita").await;
+    let scene = || {
+        Some(pb::create_session_request::Scene::SceneName(
+            "arch_to_cow_lcca".into(),
+        ))
+    };
+    let hers = client
+        .create_session(authed(
+            pb::CreateSessionRequest {
+                scene: scene(),
+                ..Default::default()
+            },
+            &trainee.token,
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    let mallorys = create(&mut client).await;
+    send(&mut client, &hers, 1, push(20.0)).await.unwrap();
+    send(&mut client, &mallorys, 1, push(20.0)).await.unwrap();
+    tokio::time::sleep(std::time::Duration::from_secs(6)).await;
+    // Mallory replays her own session back to back, and tries to queue more at once.
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let replays = std::sync::Arc::new(std::sync::atomic::AtomicU32::new(0));
+    let hog = {
+        let (c, stop, replays) = (client.clone(), stop.clone(), replays.clone());
+        let (id, token) = (
+            mallorys.session_id.clone(),
+            mallorys.controller_token.clone(),
+        );
+        tokio::spawn(async move {
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                let calls: Vec<_> = (0..3)
+                    .map(|_| {
+                        let mut c = c.clone();
+                        let (id, token) = (id.clone(), token.clone());
+                        tokio::spawn(async move {
+                            c.replay_session(authed(
+                                pb::ReplaySessionRequest { session_id: id },
+                                &token,
+                            ))
+                            .await
+                        })
+                    })
+                    .collect();
+                let mut ran = 0;
+                for call in calls {
+                    if call.await.is_ok_and(|a| a.is_ok()) {
+                        ran += 1;
+                    }
+                }
+                replays.fetch_add(ran, std::sync::atomic::Ordering::Relaxed);
+                assert!(ran <= 1, "one replay per caller at a time");
+                if ran == 0 {
+                    tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+                }
+            }
+        })
+    };
+    tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+    // Rita finishes: her report is made at close and she reads it, waiting her turn.
+    close(&mut client, &hers).await;
+    let started = std::time::Instant::now();
+    let report = client
+        .get_report(authed(
+            pb::GetReportRequest {
+                session_id: hers.session_id.clone(),
+            },
+            &trainee.token,
+        ))
+        .await;
+    let took = started.elapsed();
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let _ = hog.await;
+    println!(
+        "the trainee's report beside a replaying token holder: {} in {:.1} s (Mallory's replays meanwhile: {})",
+        if report.is_ok() { "made" } else { "refused" },
+        took.as_secs_f64(),
+        replays.load(std::sync::atomic::Ordering::Relaxed)
+    );
+    let report = report.expect("the trainee's report is made, not refused");
+    assert_eq!(report.into_inner().session_id, hers.session_id);
 }
