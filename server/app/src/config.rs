@@ -138,9 +138,10 @@ pub struct ConfigFile {
     pub request_buffer_mib: Option<usize>,
     /// How long one request message may take to arrive once its first byte has (s).
     pub message_read_timeout_s: Option<u64>,
-    /// Proxies (IP addresses) whose `X-Forwarded-For` header names the real client: behind
-    /// them, throttles and per-address limits apply to that client, not to the proxy.
-    pub trusted_proxies: Option<Vec<std::net::IpAddr>>,
+    /// Proxies (IP addresses, or ranges such as `10.0.0.0/8`) whose `X-Forwarded-For` header
+    /// names the real client: behind them, throttles and per-address limits apply to that
+    /// client, not to the proxy.
+    pub trusted_proxies: Option<Vec<crate::connections::ProxyRange>>,
     /// Most running sessions one client (an account, else an address) may have created;
     /// instructors are not limited (default: half of `max_sessions`).
     pub max_sessions_per_client: Option<usize>,
@@ -247,7 +248,7 @@ pub struct ServerConfig {
     /// How long one request message may take to arrive once its first byte has (s).
     pub message_read_timeout_s: u64,
     /// Proxies whose `X-Forwarded-For` names the real client.
-    pub trusted_proxies: Vec<std::net::IpAddr>,
+    pub trusted_proxies: Vec<crate::connections::ProxyRange>,
     /// Most running sessions one client may have created (`None`: half of `max_sessions`).
     pub max_sessions_per_client: Option<usize>,
     /// Most sessions one client may create a minute.

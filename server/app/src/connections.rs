@@ -19,6 +19,65 @@ use tokio::time::{Instant, Sleep};
 use tokio_stream::{Stream, StreamExt};
 use tonic::transport::server::{Connected, TcpConnectInfo, TlsConnectInfo};
 
+/// A proxy's address, or a range of them (`10.0.0.0/8`, `fd00::/8`, `127.0.0.1`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(try_from = "String")]
+pub struct ProxyRange {
+    network: IpAddr,
+    prefix: u8,
+}
+
+impl TryFrom<String> for ProxyRange {
+    type Error = String;
+
+    fn try_from(text: String) -> Result<Self, String> {
+        text.parse()
+    }
+}
+
+impl std::str::FromStr for ProxyRange {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        let bad = || format!("{text:?} is not an IP address or a range such as 10.0.0.0/8");
+        let (address, prefix) = match text.split_once('/') {
+            Some((a, p)) => (a, Some(p.parse::<u8>().map_err(|_| bad())?)),
+            None => (text, None),
+        };
+        let network: IpAddr = address.trim().parse().map_err(|_| bad())?;
+        let bits = if network.is_ipv4() { 32 } else { 128 };
+        let prefix = prefix.unwrap_or(bits);
+        if prefix > bits {
+            return Err(bad());
+        }
+        Ok(Self { network, prefix })
+    }
+}
+
+impl ProxyRange {
+    /// Whether `address` is in the range.
+    pub fn contains(&self, address: IpAddr) -> bool {
+        let (a, n, bits) = match (address, self.network) {
+            (IpAddr::V4(a), IpAddr::V4(n)) => {
+                (u128::from(a.to_bits()), u128::from(n.to_bits()), 32)
+            }
+            (IpAddr::V6(a), IpAddr::V6(n)) => (a.to_bits(), n.to_bits(), 128),
+            (IpAddr::V6(a), IpAddr::V4(n)) => match a.to_ipv4_mapped() {
+                Some(a) => (u128::from(a.to_bits()), u128::from(n.to_bits()), 32),
+                None => return false,
+            },
+            (IpAddr::V4(_), IpAddr::V6(_)) => return false,
+        };
+        let shift = bits - u32::from(self.prefix);
+        shift >= 128 || (a >> shift) == (n >> shift)
+    }
+}
+
+/// Whether `address` is one of `proxies`.
+pub fn is_trusted(proxies: &[ProxyRange], address: IpAddr) -> bool {
+    proxies.iter().any(|r| r.contains(address))
+}
+
 /// How many connections may be open, and for how long one may be idle.
 #[derive(Debug, Clone)]
 pub struct ConnectionLimits {
@@ -29,7 +88,7 @@ pub struct ConnectionLimits {
     /// A connection that passes no byte either way for this long is closed.
     pub idle_timeout: Duration,
     /// Proxies whose `X-Forwarded-For` header names the real client.
-    pub trusted_proxies: Vec<IpAddr>,
+    pub trusted_proxies: Vec<ProxyRange>,
 }
 
 /// What cutting a connection and its transport's tasks share: whether it was cut, and who
@@ -204,7 +263,7 @@ impl Admission {
         if open.total >= self.limits.max_total {
             return Err("the server's connections are all taken (max_connections)");
         }
-        let trusted = self.limits.trusted_proxies.contains(&address);
+        let trusted = is_trusted(&self.limits.trusted_proxies, address);
         let from = open.per_address.get(&address).copied().unwrap_or(0);
         if !trusted && from >= self.limits.max_per_address {
             return Err(
@@ -412,7 +471,7 @@ pub fn tracked(
                     Some(Ok(Tracked {
                         inner: stream,
                         shared: Arc::new(Shared::default()),
-                        trusted_proxy: admission.limits.trusted_proxies.contains(&address),
+                        trusted_proxy: is_trusted(&admission.limits.trusted_proxies, address),
                         idle_timeout,
                         idle: Box::pin(tokio::time::sleep(idle_timeout)),
                         last_active: Instant::now(),
@@ -430,6 +489,35 @@ pub fn tracked(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    use std::str::FromStr;
+
+    #[test]
+    fn proxy_ranges_hold_their_addresses_only() {
+        let pods = ProxyRange::from_str("10.0.0.0/8").unwrap();
+        assert!(pods.contains("10.42.7.3".parse().unwrap()));
+        assert!(!pods.contains("11.0.0.1".parse().unwrap()));
+        assert!(pods.contains("::ffff:10.1.2.3".parse().unwrap()));
+        let one = ProxyRange::from_str("127.0.0.1").unwrap();
+        assert!(one.contains("127.0.0.1".parse().unwrap()));
+        assert!(!one.contains("127.0.0.2".parse().unwrap()));
+        let v6 = ProxyRange::from_str("fd00::/8").unwrap();
+        assert!(
+            v6.contains("fd12::1".parse().unwrap()) && !v6.contains("fe80::1".parse().unwrap())
+        );
+        assert!(
+            ProxyRange::from_str("0.0.0.0/0")
+                .unwrap()
+                .contains("8.8.8.8".parse().unwrap())
+        );
+        for bad in ["10.0.0.0/33", "ten", "10.0.0.0/x"] {
+            assert!(
+                ProxyRange::from_str(bad)
+                    .unwrap_err()
+                    .contains("not an IP address")
+            );
+        }
+    }
 
     #[test]
     fn the_forwarded_client_is_the_proxys_own_entry() {
@@ -452,7 +540,7 @@ mod tests {
             max_total: 3,
             max_per_address: 2,
             idle_timeout: Duration::from_secs(1),
-            trusted_proxies: vec![proxy],
+            trusted_proxies: vec![ProxyRange::from_str("10.0.0.9").unwrap()],
         });
         let a: IpAddr = "10.0.0.1".parse().unwrap();
         let first = admission.admit(a).unwrap();

@@ -96,6 +96,14 @@ struct Options {
     /// Most sessions at once (also the capacity this server publishes to a fleet).
     #[arg(long, global = true)]
     max_sessions: Option<usize>,
+    /// Most running sessions one client (an account, else an address) may have created
+    /// (default: half of --max-sessions).
+    #[arg(long, global = true)]
+    max_sessions_per_client: Option<usize>,
+    /// A proxy (an address or a range such as 10.0.0.0/8) whose X-Forwarded-For names the
+    /// real client; repeatable.
+    #[arg(long = "trusted-proxy", global = true)]
+    trusted_proxies: Vec<cathlab_app::connections::ProxyRange>,
     /// Speak the Agones SDK to the sidecar (`AGONES_SDK_GRPC_PORT`, default 9357).
     #[arg(long, global = true)]
     agones: bool,
@@ -187,6 +195,12 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
     }
     if let Some(v) = options.max_sessions {
         config.max_sessions = v;
+    }
+    if let Some(v) = options.max_sessions_per_client {
+        config.max_sessions_per_client = Some(v);
+    }
+    if !options.trusted_proxies.is_empty() {
+        config.trusted_proxies = options.trusted_proxies.clone();
     }
     if options.agones {
         config.agones = true;

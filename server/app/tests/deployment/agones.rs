@@ -53,6 +53,8 @@ async fn the_server_follows_the_agones_lifecycle_against_a_recording_stand_in() 
             "arch_to_cow_lcca_coaxial",
             "--max-sessions",
             "3",
+            "--max-sessions-per-client",
+            "3",
             "--renderer",
             "cpu",
         ],

@@ -33,6 +33,9 @@ async fn three_servers_on_one_postgres_share_sessions_and_survive_one_being_kill
                     "cpu",
                     "--max-sessions",
                     "2",
+                    // Every trainee here is one address (127.0.0.1).
+                    "--max-sessions-per-client",
+                    "2",
                 ],
             )
         })
