@@ -8,12 +8,17 @@
 /// then skips); otherwise the element's tag, its declared length and what remains. Datasets
 /// in big-endian or deflated transfer syntaxes cannot be walked and are refused.
 pub fn check(bytes: &[u8]) -> Result<(), String> {
-    if bytes.len() < 132 || &bytes[128..132] != b"DICM" {
+    // The meta group follows "DICM", after a 128-byte preamble or (as dicom-rs also reads
+    // it) with none.
+    let mut at = if bytes.len() >= 132 && &bytes[128..132] == b"DICM" {
+        132
+    } else if bytes.starts_with(b"DICM") {
+        4
+    } else {
         return Ok(());
-    }
+    };
     // The file meta group (0002) is explicit VR little endian; its transfer syntax says how
     // the dataset is written.
-    let mut at = 132;
     let mut syntax = String::new();
     while at + 8 <= bytes.len() && u16::from_le_bytes([bytes[at], bytes[at + 1]]) == 0x0002 {
         let element = u16::from_le_bytes([bytes[at + 2], bytes[at + 3]]);
@@ -53,22 +58,33 @@ fn is_sequence(group: u16, element: u16) -> bool {
 fn explicit_header(bytes: &[u8], at: usize) -> Result<(usize, u32), String> {
     let short = || format!("an element header at byte {at} is cut short");
     let vr = bytes.get(at + 4..at + 6).ok_or_else(short)?;
-    if matches!(
+    // The VRs with a 2-byte length; any other, an unknown one included (read as UN, as
+    // dicom-rs reads it), has 2 reserved bytes and a 4-byte length.
+    let short_length = matches!(
         vr,
-        b"OB"
-            | b"OW"
-            | b"OF"
-            | b"SQ"
-            | b"UT"
-            | b"UN"
-            | b"OD"
-            | b"OL"
-            | b"OV"
-            | b"UC"
-            | b"UR"
-            | b"SV"
-            | b"UV"
-    ) {
+        b"AE"
+            | b"AS"
+            | b"AT"
+            | b"CS"
+            | b"DA"
+            | b"DS"
+            | b"DT"
+            | b"FL"
+            | b"FD"
+            | b"IS"
+            | b"LO"
+            | b"LT"
+            | b"PN"
+            | b"SH"
+            | b"SL"
+            | b"SS"
+            | b"ST"
+            | b"TM"
+            | b"UI"
+            | b"UL"
+            | b"US"
+    );
+    if !short_length {
         let l = bytes.get(at + 8..at + 12).ok_or_else(short)?;
         Ok((12, u32::from_le_bytes([l[0], l[1], l[2], l[3]])))
     } else {
@@ -177,6 +193,9 @@ mod tests {
             0x08, 0x00, 0x50, 0x11, b'U', b'I', 0xFF, 0x7F, // (0008,1150) UI 32767 bytes
         ]);
         assert!(check(&nested).unwrap_err().contains("(0008,1150)"));
+        // An element with a VR no one knows has a 4-byte length, as dicom-rs reads it.
+        let unknown = file(&[0x28, 0x00, 0x54, 0x10, b'L', b'S', 8, 0, 0x10, 0, 0, 0x5C]);
+        assert!(check(&unknown).unwrap_err().contains("(0028,1054)"));
         // Not DICOM: left to the reader.
         assert_eq!(check(b"not a dicom file"), Ok(()));
     }
