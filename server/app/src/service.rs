@@ -31,8 +31,8 @@ use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
 
-use crate::reports::{AccountRole, Caller, Reports, token_hash};
-use crate::store::{Store, StoreError, StoredAccount, StoredSession};
+use crate::reports::{AccountRole, Caller, Reports, store_status, token_hash};
+use crate::store::{Store, StoredAccount, StoredSession};
 
 /// A boxed response stream.
 pub type ResponseStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send + 'static>>;
@@ -263,10 +263,6 @@ fn engine_status(e: EngineError) -> Status {
 }
 
 /// A database that cannot answer is UNAVAILABLE (retry later); a corrupt value INTERNAL.
-fn store_status(e: StoreError) -> Status {
-    crate::reports::store_status(e)
-}
-
 impl SimulatorService {
     /// A service over `engine`, recording to `store`; `instructor_key` unlocks listing and
     /// watching every session.

@@ -146,20 +146,6 @@ fn checked_lengths(dir: &Path, file: &Path) -> Result<()> {
 
 /// Reads one slice's header; `Ok(None)` for a file that is not DICOM or holds no image.
 fn read_header(dir: &Path, file: &Path) -> Result<Option<Slice>> {
-    let limit = cathlab_anatomy::io::limits::read_limits().max_file_bytes;
-    if let Ok(meta) = std::fs::metadata(file)
-        && meta.len() > limit
-    {
-        return Err(error(
-            dir,
-            format!(
-                "{}: {}{} bytes, more than the {limit} a file may have (max_file_bytes)",
-                file_name(file),
-                cathlab_anatomy::io::limits::REFUSED,
-                meta.len()
-            ),
-        ));
-    }
     checked_lengths(dir, file)?;
     let Ok(obj) = OpenFileOptions::new()
         .read_until(tags::PIXEL_DATA)
