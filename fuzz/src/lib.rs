@@ -141,6 +141,19 @@ pub fn start() {
             max_inflated_bytes: 256 << 20,
             max_voxels: 1 << 24,
         });
+        // A panic inside dicom-rs's codecs is caught by `cathlab_imaging::dicom` (it runs
+        // them under `catch_unwind` and names the file); libfuzzer's hook would abort on it
+        // first. Any other panic is still a crash.
+        let libfuzzer_hook = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            let in_codec = info.location().is_some_and(|l| {
+                l.file().contains("dicom-transfer-syntax-registry-")
+                    || l.file().contains("dicom-pixeldata-")
+            });
+            if !in_codec {
+                libfuzzer_hook(info);
+            }
+        }));
         if let Some(mb) = std::env::var("CATHLAB_FUZZ_ALLOC_LIMIT_MB")
             .ok()
             .and_then(|v| v.parse::<usize>().ok())

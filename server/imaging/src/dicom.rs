@@ -127,12 +127,18 @@ fn integer(obj: &DefaultDicomObject, tag: dicom_core::Tag) -> Option<i64> {
         .and_then(|e| e.to_int::<i64>().ok())
 }
 
-/// Refuses a file one of whose elements declares more bytes than the file holds, before
-/// dicom-rs (which reserves a value's declared length) reads it.
-fn checked_lengths(dir: &Path, file: &Path) -> Result<()> {
+/// Reads `file` once, checks every element's declared length against it (dicom-rs reserves
+/// a value's declared length before reading it, [`crate::dicom_lengths`]) and opens it with
+/// dicom-rs from those bytes, up to `until` when given; `Ok(None)` for a file that is not
+/// DICOM, `Ok(Some(Err))` for one dicom-rs cannot parse.
+fn open(
+    dir: &Path,
+    file: &Path,
+    until: Option<dicom_core::Tag>,
+) -> Result<Option<std::result::Result<DefaultDicomObject, dicom_object::ReadError>>> {
     let bytes = cathlab_anatomy::io::limits::read_regular_file(file)
         .map_err(|e| error(dir, format!("{}: cannot be read: {e}", file_name(file))))?;
-    crate::dicom_lengths::check(&bytes).map_err(|why| {
+    let stream = crate::dicom_lengths::checked(&bytes).map_err(|why| {
         error(
             dir,
             format!(
@@ -141,16 +147,20 @@ fn checked_lengths(dir: &Path, file: &Path) -> Result<()> {
                 cathlab_anatomy::io::limits::REFUSED
             ),
         )
-    })
+    })?;
+    let Some(stream) = stream else {
+        return Ok(None);
+    };
+    let options = match until {
+        Some(tag) => OpenFileOptions::new().read_until(tag),
+        None => OpenFileOptions::new(),
+    };
+    Ok(Some(options.from_reader(stream)))
 }
 
 /// Reads one slice's header; `Ok(None)` for a file that is not DICOM or holds no image.
 fn read_header(dir: &Path, file: &Path) -> Result<Option<Slice>> {
-    checked_lengths(dir, file)?;
-    let Ok(obj) = OpenFileOptions::new()
-        .read_until(tags::PIXEL_DATA)
-        .open_file(file)
-    else {
+    let Some(Ok(obj)) = open(dir, file, Some(tags::PIXEL_DATA))? else {
         return Ok(None);
     };
     let name = file_name(file);
@@ -429,15 +439,39 @@ fn describe(series: &[SeriesInfo]) -> String {
 /// One slice's pixels in HU (rescale slope and intercept applied), row by row.
 fn decode(dir: &Path, slice: &Slice, count: usize) -> Result<Vec<f32>> {
     let name = file_name(&slice.file);
-    checked_lengths(dir, &slice.file)?;
-    let obj = dicom_object::open_file(&slice.file)
+    let obj = open(dir, &slice.file, None)?
+        .ok_or_else(|| error(dir, format!("{name}: no longer reads as DICOM")))?
         .map_err(|e| error(dir, format!("{name}: cannot be read: {e}")))?;
     let syntax = obj
         .meta()
         .transfer_syntax()
         .trim_end_matches('\0')
         .to_owned();
-    let decoded = obj.decode_pixel_data().map_err(|e| {
+    // The pixel format dicom-rs's rescale table asserts on (it panics otherwise).
+    let allocated = integer(&obj, tags::BITS_ALLOCATED).unwrap_or(0);
+    let stored = integer(&obj, tags::BITS_STORED).unwrap_or(allocated);
+    if ![8, 16, 32].contains(&allocated) || !(1..=allocated).contains(&stored) {
+        return Err(error(
+            dir,
+            format!(
+                "{name}: BitsAllocated {allocated} and BitsStored {stored}: a CT slice has \
+                 8, 16 or 32 bits allocated and 1 to that many stored"
+            ),
+        ));
+    }
+    // The codecs are third-party code run on the file's bytes: a panic in one (dicom-rs
+    // 0.10's RLE decoder indexes past a short segment) is this file's error, not the
+    // process's end.
+    let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        obj.decode_pixel_data()
+    }))
+    .map_err(|_| {
+        error(
+            dir,
+            format!("{name}: pixel data in transfer syntax {syntax}: the decoder failed on it"),
+        )
+    })?
+    .map_err(|e| {
         error(
             dir,
             format!(
@@ -455,9 +489,10 @@ fn decode(dir: &Path, slice: &Slice, count: usize) -> Result<Vec<f32>> {
             ),
         ));
     }
-    let values: Vec<f32> = decoded
-        .to_vec()
-        .map_err(|e| error(dir, format!("{name}: pixel values: {e}")))?;
+    let values: Vec<f32> =
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| decoded.to_vec()))
+            .map_err(|_| error(dir, format!("{name}: pixel values: the conversion failed")))?
+            .map_err(|e| error(dir, format!("{name}: pixel values: {e}")))?;
     if values.len() != count {
         return Err(error(
             dir,
