@@ -1,10 +1,10 @@
-//! Server configuration: a TOML file, overridden by command-line flags and environment.
+//! Server configuration: a TOML file, overridden by command-line flags and environment; every
+//! limit and its default (the service and the rest of the server read them from here).
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use serde::Deserialize;
-
-use crate::service;
 
 /// Which renderer the sessions share.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, clap::ValueEnum, Default)]
@@ -262,6 +262,30 @@ pub struct ServerConfig {
 /// The scene clients start by default: the coaxial approach to the left common carotid.
 pub const DEFAULT_SCENE: &str = "arch_to_cow_lcca_coaxial";
 
+/// Wrong keys or tokens one address may send a minute before it is refused.
+pub const AUTH_FAILURES_PER_MINUTE: u32 = 20;
+
+/// The bytes all frame streams' encoded frames may hold together (the configuration's
+/// default).
+pub const STREAM_BUFFER_BYTES: usize = 256 << 20;
+
+/// How long an encoded frame may wait for its reader before the reader's connection is cut
+/// (the configuration's default).
+pub const STREAM_STALL: Duration = Duration::from_secs(10);
+
+/// Control inputs one stream may send a second (the configuration's default): twice the
+/// haptic bridge's 1 kHz, which is already more than the 500 Hz physics can apply.
+pub const CONTROL_INPUTS_PER_SECOND: u32 = 2000;
+
+/// How long a running session may go without its controller (no stream open with its
+/// controller token, no call with it) before the server closes it (the configuration's
+/// default): a trainee whose network dropped has this long to come back.
+pub const UNATTENDED_SESSION_TIMEOUT: Duration = Duration::from_secs(600);
+
+/// How long a control stream may go quiet before its setpoints are zeroed (the dead-man
+/// rule; the configuration's default).
+pub const CONTROL_TIMEOUT: Duration = Duration::from_millis(250);
+
 impl Default for ServerConfig {
     fn default() -> Self {
         Self {
@@ -286,14 +310,14 @@ impl Default for ServerConfig {
             inline_scenes: InlineScenes::Instructors,
             asset_cache_mib: 2048,
             data_roots: Vec::new(),
-            auth_failures_per_minute: service::AUTH_FAILURES_PER_MINUTE,
-            control_timeout_ms: service::CONTROL_TIMEOUT.as_millis() as u64,
-            stream_buffer_mib: service::STREAM_BUFFER_BYTES >> 20,
-            control_inputs_per_second: service::CONTROL_INPUTS_PER_SECOND,
+            auth_failures_per_minute: AUTH_FAILURES_PER_MINUTE,
+            control_timeout_ms: CONTROL_TIMEOUT.as_millis() as u64,
+            stream_buffer_mib: STREAM_BUFFER_BYTES >> 20,
+            control_inputs_per_second: CONTROL_INPUTS_PER_SECOND,
             cors_origins: Vec::new(),
-            stream_stall_timeout_ms: service::STREAM_STALL.as_millis() as u64,
+            stream_stall_timeout_ms: STREAM_STALL.as_millis() as u64,
             default_scene: None,
-            unattended_session_timeout_s: service::UNATTENDED_SESSION_TIMEOUT.as_secs(),
+            unattended_session_timeout_s: UNATTENDED_SESSION_TIMEOUT.as_secs(),
             max_file_mib: 2048,
             max_inflated_mib: 2048,
             max_volume_voxels: 1 << 28,

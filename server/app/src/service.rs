@@ -19,7 +19,10 @@ use cathlab_engine::engine::SceneSource;
 use cathlab_engine::scene::GuidanceSpec;
 
 use crate::auth::{Throttle, same_secret};
-use crate::config::InlineScenes;
+use crate::config::{
+    AUTH_FAILURES_PER_MINUTE, CONTROL_INPUTS_PER_SECOND, CONTROL_TIMEOUT, InlineScenes,
+    STREAM_BUFFER_BYTES, STREAM_STALL, UNATTENDED_SESSION_TIMEOUT,
+};
 use crate::connections;
 use crate::streams::{FrameRequest, FrameStream, StreamBudget};
 use cathlab_engine::session::Session;
@@ -187,30 +190,6 @@ fn unix_us() -> u64 {
 fn peer_of<T>(request: &Request<T>) -> IpAddr {
     connections::address(request)
 }
-
-/// Wrong keys or tokens one address may send a minute before it is refused.
-pub const AUTH_FAILURES_PER_MINUTE: u32 = 20;
-
-/// The bytes all frame streams' encoded frames may hold together (the configuration's
-/// default).
-pub const STREAM_BUFFER_BYTES: usize = 256 << 20;
-
-/// How long an encoded frame may wait for its reader before the reader's connection is cut
-/// (the configuration's default).
-pub const STREAM_STALL: Duration = Duration::from_secs(10);
-
-/// Control inputs one stream may send a second (the configuration's default): twice the
-/// haptic bridge's 1 kHz, which is already more than the 500 Hz physics can apply.
-pub const CONTROL_INPUTS_PER_SECOND: u32 = 2000;
-
-/// How long a running session may go without its controller (no stream open with its
-/// controller token, no call with it) before the server closes it (the configuration's
-/// default): a trainee whose network dropped has this long to come back.
-pub const UNATTENDED_SESSION_TIMEOUT: Duration = Duration::from_secs(600);
-
-/// How long a control stream may go quiet before its setpoints are zeroed (the dead-man
-/// rule; the configuration's default).
-pub const CONTROL_TIMEOUT: Duration = Duration::from_millis(250);
 
 /// `id` if it can be a session id (at most 64 letters, digits, `-` or `_`); else
 /// INVALID_ARGUMENT that says what it is without echoing it.
