@@ -3,13 +3,11 @@
 //! refused to another trainee; the history lists it with the report's scores; a corrupt
 //! recording gives a report error that names what is corrupt.
 
-mod common;
-
 use std::time::Duration;
 
 use cathlab_api::pb;
 use cathlab_api::pb::simulator_client::SimulatorClient;
-use common::*;
+use cathlab_tests::*;
 use tonic::Code;
 use tonic::transport::Channel;
 

@@ -4,13 +4,11 @@
 //! dropped each way; and the server is stopped and started again under the bridge, which
 //! reconnects, makes a new session and renders again.
 
-mod common;
-
-use common::{Rig, Server, device, mean_force};
+use cathlab_tests::haptic::{Rig, Server, device, mean_force};
 
 #[test]
 fn a_virtual_device_feels_the_wall_through_loss_and_a_server_restart() {
-    let _alone = common::one_at_a_time();
+    let _alone = cathlab_tests::haptic::one_at_a_time();
     let dir = std::env::temp_dir().join(format!("cathlab-haptic-{}", std::process::id()));
     let database = dir.join("haptic.sqlite");
     let Rig {
@@ -97,7 +95,7 @@ fn a_virtual_device_feels_the_wall_through_loss_and_a_server_restart() {
 /// same bridge and scene drives the innermost instrument, as before.
 #[test]
 fn a_two_hand_device_feels_the_wire_apart_from_the_catheter() {
-    let _alone = common::one_at_a_time();
+    let _alone = cathlab_tests::haptic::one_at_a_time();
     let dir = std::env::temp_dir().join(format!("cathlab-haptic-two-{}", std::process::id()));
     let database = dir.join("haptic.sqlite");
     let Rig {
@@ -105,15 +103,19 @@ fn a_two_hand_device_feels_the_wire_apart_from_the_catheter() {
         mut bridge,
         udp,
         ..
-    } = Rig::start_with(&dir, &database, &common::coaxial_wall_scene());
+    } = Rig::start_with(
+        &dir,
+        &database,
+        &cathlab_tests::haptic::coaxial_wall_scene(),
+    );
     let field = |v: &serde_json::Value, name: &str| v[name].as_f64().unwrap();
     // Hold (the baseline), then the wire goes 36 mm at 15 mm/s: free for ~26 mm, then 10 mm
     // into the cap, and is held there. The hands are compared by their peak force over the
     // push and the hold against their rest: a wire pressed on the cap may buckle and relax, so
     // a mean over a late window depends on how it folded.
-    let samples = common::two_hand_device(&udp, "hold:1,push:15:2.4,hold:1.2");
+    let samples = cathlab_tests::haptic::two_hand_device(&udp, "hold:1,push:15:2.4,hold:1.2");
     let report = bridge.latest();
-    let rest = |f: &str| common::mean_of(&samples, f, 0.5, 1.0);
+    let rest = |f: &str| cathlab_tests::haptic::mean_of(&samples, f, 0.5, 1.0);
     let peak = |f: &str| {
         samples
             .iter()
@@ -151,7 +153,7 @@ fn a_two_hand_device_feels_the_wire_apart_from_the_catheter() {
 
     // The outer hand pulls the catheter back 10 mm; the wire stays.
     let before = bridge.latest();
-    common::two_hand_device(&udp, "hold:0.5,outer-push:-10:1,hold:0.3");
+    cathlab_tests::haptic::two_hand_device(&udp, "hold:0.5,outer-push:-10:1,hold:0.3");
     let after = bridge.latest();
     let catheter = field(&after, "outer_inserted_mm") - field(&before, "outer_inserted_mm");
     let wire = field(&after, "inserted_mm") - field(&before, "inserted_mm");

@@ -2,11 +2,9 @@
 //! a session streams frames at the pulse rate, and the latency probes complete. The figures
 //! in the README come from the full run (`cathlab-load`, see the README).
 
-mod common;
-
 #[test]
 fn the_load_benchmark_runs() {
-    let output = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-load"))
+    let output = std::process::Command::new(cathlab_tests::binary("cathlab-load"))
         .args([
             "--sessions",
             "1",
@@ -16,9 +14,9 @@ fn the_load_benchmark_runs() {
             "100",
             "--server",
         ])
-        .arg(env!("CARGO_BIN_EXE_cathlab-server"))
+        .arg(cathlab_tests::binary("cathlab-server"))
         .arg("--scenes")
-        .arg(common::repo_root().join("scenes"))
+        .arg(cathlab_tests::repo_root().join("scenes"))
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&output.stdout);

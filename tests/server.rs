@@ -2,13 +2,11 @@
 //! request): sessions, pushing, frames, roles, gRPC-Web, reflection and health, bad input,
 //! the haptic control stream, metrics and events.
 
-mod common;
-
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use cathlab_api::pb;
-use common::*;
+use cathlab_tests::*;
 use prost::Message;
 
 fn shared() -> &'static ServerProcess {

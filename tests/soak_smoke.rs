@@ -5,11 +5,9 @@
 //! release soak in the README allows none) or resting memory more than 10 % over the first
 //! round's.
 
-mod common;
-
 #[test]
 fn a_short_soak_passes() {
-    let output = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-soak"))
+    let output = std::process::Command::new(cathlab_tests::binary("cathlab-soak"))
         .args([
             "--steps",
             "40000",
@@ -21,9 +19,9 @@ fn a_short_soak_passes() {
             "0.002",
         ])
         .arg("--server")
-        .arg(env!("CARGO_BIN_EXE_cathlab-server"))
+        .arg(cathlab_tests::binary("cathlab-server"))
         .arg("--scenes")
-        .arg(common::repo_root().join("scenes"))
+        .arg(cathlab_tests::repo_root().join("scenes"))
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&output.stdout);

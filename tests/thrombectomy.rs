@@ -8,13 +8,11 @@
 //! `tests/scenes/case.rs` and the scene check `tests/scenes/every_scene.rs`: the
 //! same operator in the same world, without half a minute of access in real time here.)
 
-mod common;
-
 use std::time::{Duration, Instant};
 
 use cathlab_api::pb;
 use cathlab_api::pb::simulator_client::SimulatorClient;
-use common::*;
+use cathlab_tests::*;
 use tonic::transport::Channel;
 
 struct Driver {

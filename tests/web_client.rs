@@ -3,13 +3,11 @@
 //! (`npm ci && npm run build` in client-web) and Chromium; `scripts/test.sh` provides both and
 //! sets CATHLAB_REQUIRE_BROWSER=1, so there a missing piece fails instead of skipping.
 
-mod common;
-
 use std::process::Command;
 
 #[test]
 fn the_web_client_works_in_a_real_browser() {
-    let root = common::repo_root();
+    let root = cathlab_tests::repo_root();
     let client = root.join("client-web");
     let chromium = std::env::var("CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into());
     let missing: Vec<String> = [
@@ -37,7 +35,8 @@ fn the_web_client_works_in_a_real_browser() {
     }
     let output = Command::new("node")
         .arg(client.join("e2e/run.mjs"))
-        .args(["--server", env!("CARGO_BIN_EXE_cathlab-server")])
+        .arg("--server")
+        .arg(cathlab_tests::binary("cathlab-server"))
         .args(["--chromium", &chromium])
         .current_dir(&client)
         .output()

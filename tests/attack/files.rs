@@ -211,7 +211,7 @@ async fn bomb_files_are_refused_by_check_scenes_and_a_running_server_that_keeps_
     let out = std::process::Command::new("sh")
         .arg("-c")
         .arg("ulimit -d 1048576 && exec \"$0\" \"$@\"")
-        .arg(env!("CARGO_BIN_EXE_cathlab-server"))
+        .arg(cathlab_tests::binary("cathlab-server"))
         .arg("--config")
         .arg(&config_file)
         .arg("--check-scenes")

@@ -1,15 +1,13 @@
 //! The server attacked from outside, as a hostile or careless client would: each test starts
 //! the real `cathlab-server` with a configuration file and goes at one of its limits.
 
-#[path = "../common/mod.rs"]
-mod common;
 mod connections;
 mod files;
 
 use std::path::PathBuf;
 
 use cathlab_api::pb;
-use common::*;
+use cathlab_tests::*;
 
 /// A server started with `config` (TOML) written into a fresh directory.
 fn server_with(name: &str, config: &str) -> (ServerProcess, PathBuf) {
@@ -293,7 +291,7 @@ fn a_weak_instructor_key_is_refused_beyond_loopback() {
         ("0.0.0.0:0", "short", false),
         ("127.0.0.1:0", "instructor", true),
     ] {
-        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+        let mut child = std::process::Command::new(cathlab_tests::binary("cathlab-server"))
             .args(["--listen", listen, "--database"])
             .arg(dir.join(format!("{key}.sqlite")))
             .arg("--scenes")
@@ -338,7 +336,7 @@ fn a_catalog_scene_naming_a_missing_file_stops_the_server_at_start() {
     );
     assert!(scene.contains("moved-away"));
     std::fs::write(scenes.join("moved.toml"), scene).unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+    let out = std::process::Command::new(cathlab_tests::binary("cathlab-server"))
         .args(["--listen", "127.0.0.1:0", "--database"])
         .arg(dir.join("db.sqlite"))
         .arg("--scenes")
@@ -1023,10 +1021,7 @@ fn check_scenes_prints_a_line_per_scene_and_fails_if_one_fails() {
     let dir = temp_dir("check-scenes");
     let scenes = dir.join("scenes");
     std::fs::create_dir_all(&scenes).unwrap();
-    let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../data")
-        .canonicalize()
-        .unwrap();
+    let data = repo_root().join("data").canonicalize().unwrap();
     let good = default_scene_text().replace(
         "dir = \"../data/anatomy/arch-to-cow\"",
         &format!(
@@ -1046,7 +1041,7 @@ fn check_scenes_prints_a_line_per_scene_and_fails_if_one_fails() {
     )
     .unwrap();
     let run = || {
-        std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+        std::process::Command::new(cathlab_tests::binary("cathlab-server"))
             .arg("--config")
             .arg(&config)
             .arg("--check-scenes")

@@ -1,13 +1,10 @@
 //! Bridge timing: a real server (in this process), the bridge and a virtual device (processes)
 //! pushing a 0.014" microwire into the capped end of the real LCCA with 10 % datagram loss.
 //! Prints the bridge's loop period, setpoint → state round trip, server state age and loss
-//! counts. `cargo bench -p cathlab-haptic-bridge --bench latency` runs the full 5.5 s script;
+//! counts. `cargo bench -p cathlab-tests --bench haptic_latency` runs the full 5.5 s script;
 //! under `cargo test` (no `--bench` argument) a 1.5 s smoke run.
 
-#[path = "../tests/common/mod.rs"]
-mod common;
-
-use common::{Rig, device};
+use cathlab_tests::haptic::{Rig, device};
 
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");

@@ -10,8 +10,8 @@
 
 use std::time::{Duration, Instant};
 
-use crate::common::*;
 use cathlab_agones::standin::{Call, StandIn};
+use cathlab_tests::*;
 
 async fn wait_for(standin: &StandIn, what: &str, seconds: u64, done: impl Fn(&[Call]) -> bool) {
     let deadline = Instant::now() + Duration::from_secs(seconds);
@@ -141,7 +141,7 @@ fn without_a_sidecar_agones_mode_stops_the_server_naming_where_it_looked() {
         .port()
         .to_string();
     let dir = temp_dir("agones-none");
-    let output = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+    let output = std::process::Command::new(cathlab_tests::binary("cathlab-server"))
         .args(["--listen", "127.0.0.1:0", "--agones", "--database"])
         .arg(dir.join("cathlab.sqlite"))
         .args(["--agones-connect-timeout", "2"])
@@ -156,7 +156,7 @@ fn without_a_sidecar_agones_mode_stops_the_server_naming_where_it_looked() {
         stderr.contains(&format!("127.0.0.1:{port}")) && stderr.contains("did not answer"),
         "{stderr}"
     );
-    let output = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+    let output = std::process::Command::new(cathlab_tests::binary("cathlab-server"))
         .args(["--listen", "127.0.0.1:0", "--agones", "--database"])
         .arg(dir.join("cathlab.sqlite"))
         .env("AGONES_SDK_GRPC_PORT", "ninety")

@@ -7,9 +7,9 @@
 
 use std::time::{Duration, Instant};
 
-use crate::common::*;
 use cathlab_api::pb;
 use cathlab_app::store::cluster::PgCluster;
+use cathlab_tests::*;
 
 async fn listed(server: &ServerProcess) -> Vec<pb::SessionInfo> {
     list_all(&mut server.client().await).await

@@ -12,7 +12,7 @@ use serde::Deserialize;
 use serde_json::{Value, json};
 
 fn deploy() -> PathBuf {
-    crate::common::repo_root().join("deploy/kubernetes")
+    cathlab_tests::repo_root().join("deploy/kubernetes")
 }
 
 fn schemas() -> PathBuf {
@@ -205,7 +205,7 @@ fn every_manifest_matches_its_schema_and_the_pieces_agree() {
     assert_eq!(gs["ports"][0]["containerPort"], port);
     assert_eq!(container["ports"][0]["containerPort"], port);
     let catalog =
-        cathlab_engine::SceneCatalog::read_dir(&crate::common::repo_root().join("scenes")).unwrap();
+        cathlab_engine::SceneCatalog::read_dir(&cathlab_tests::repo_root().join("scenes")).unwrap();
     let scenes = catalog.names();
     for scene in arg(args, "--warm") {
         assert!(scenes.contains(&scene), "--warm {scene}: no such scene");
@@ -217,7 +217,7 @@ fn every_manifest_matches_its_schema_and_the_pieces_agree() {
     assert_eq!(security["runAsNonRoot"], true);
     assert_eq!(security["runAsUser"], 10001);
     let dockerfile =
-        std::fs::read_to_string(crate::common::repo_root().join("deploy/Dockerfile")).unwrap();
+        std::fs::read_to_string(cathlab_tests::repo_root().join("deploy/Dockerfile")).unwrap();
     assert!(dockerfile.contains("USER 10001:10001"));
     assert!(
         dockerfile.contains("mesa-vulkan-drivers"),

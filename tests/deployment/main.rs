@@ -4,9 +4,6 @@
 //! of servers on one database (`fleet`), the Agones lifecycle (`agones`) and the Kubernetes
 //! manifests (`kubernetes`).
 
-#[path = "../common/mod.rs"]
-mod common;
-
 mod agones;
 mod fleet;
 mod kubernetes;

@@ -7,15 +7,15 @@
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::common::*;
 use cathlab_app::store::cluster::PgCluster;
+use cathlab_tests::*;
 use tonic_health::pb::health_check_response::ServingStatus;
 use tonic_health::pb::health_client::HealthClient;
 
 /// Runs the server with `url` and returns its exit status and standard error (it must not
 /// start).
 fn refused_start(url: &str) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+    let out = Command::new(cathlab_tests::binary("cathlab-server"))
         .args(["--listen", "127.0.0.1:0", "--database-url", url, "--scenes"])
         .arg(repo_root().join("scenes"))
         .args(["--renderer", "cpu"])

@@ -4,8 +4,8 @@
 
 use std::time::Duration;
 
-use crate::common::*;
 use cathlab_api::pb;
+use cathlab_tests::*;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_killed_server_keeps_every_acknowledged_command_and_replays_exactly() {
@@ -116,7 +116,7 @@ async fn kill_and_recover(database: &std::path::Path, store: &[&str]) {
 
     // The command-line replay agrees.
     drop(server);
-    let output = std::process::Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+    let output = std::process::Command::new(cathlab_tests::binary("cathlab-server"))
         .arg("--database")
         .arg(database)
         .args(store)

@@ -1,9 +1,9 @@
 //! TLS from configuration: a server started with a certificate and key (PEM) answers a client
 //! that trusts the certificate, and refuses plaintext.
 
-use crate::common::*;
 use cathlab_api::pb;
 use cathlab_api::pb::simulator_client::SimulatorClient;
+use cathlab_tests::*;
 use tonic::transport::{Certificate, ClientTlsConfig, Endpoint};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -1,9 +1,8 @@
 //! Shared by the bridge's end-to-end test and its latency benchmark: a real cathlab server in
 //! this process, the bridge and virtual-device processes, their JSON lines, the wall scene.
-#![allow(dead_code)]
 
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -19,14 +18,11 @@ pub fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
-pub fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
 /// The default scene with a 0.014" microwire started 46 mm before the end of the LCCA route
 /// (416 mm long), where the lumen is capped.
 pub fn wall_scene() -> String {
-    let text = std::fs::read_to_string(repo().join("scenes/arch_to_cow_lcca.toml")).unwrap();
+    let text =
+        std::fs::read_to_string(crate::repo_root().join("scenes/arch_to_cow_lcca.toml")).unwrap();
     let start = text.find("[[devices]]").unwrap();
     let end = text.find("[start]").unwrap();
     let text = format!(
@@ -66,6 +62,7 @@ pub struct Rig {
 }
 
 impl Rig {
+    /// [`Rig::start_with`] the wall scene.
     pub fn start(dir: &Path, database: &Path) -> Self {
         Self::start_with(dir, database, &wall_scene())
     }
@@ -110,19 +107,21 @@ impl Rig {
     }
 }
 
+/// The cathlab server running in this process (on its own runtime thread).
 pub struct Server {
     stop: Option<tokio::sync::oneshot::Sender<()>>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl Server {
+    /// Starts a server on 127.0.0.1:`port` recording to `database`, once it answers.
     pub fn start(port: u16, database: &Path) -> Self {
         let config = ServerConfig {
             listen: format!("127.0.0.1:{port}"),
             database: database.to_path_buf(),
-            scenes: repo().join("scenes"),
+            scenes: crate::repo_root().join("scenes"),
             renderer: RendererChoice::Cpu,
-            web_root: repo().join("no-web-client"),
+            web_root: crate::repo_root().join("no-web-client"),
             // The bridge sends its wall scene as a scene text.
             inline_scenes: InlineScenes::Anyone,
             ..ServerConfig::default()
@@ -148,6 +147,7 @@ impl Server {
         }
     }
 
+    /// Shuts the server down gracefully and joins its thread.
     pub fn stop(mut self) {
         let _ = self.stop.take().unwrap().send(());
         self.thread.take().unwrap().join().unwrap();
@@ -156,13 +156,16 @@ impl Server {
 
 /// A child printing JSON lines, read on a thread.
 pub struct Lines {
+    /// The process.
     pub child: Child,
+    /// Its stdout lines that parse as JSON.
     pub lines: mpsc::Receiver<Value>,
 }
 
 impl Lines {
+    /// Starts `cathlab-haptic-bridge` with `args`.
     pub fn spawn(args: &[&str]) -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_cathlab-haptic-bridge"))
+        let mut child = Command::new(crate::binary("cathlab-haptic-bridge"))
             .args(args)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
@@ -180,6 +183,7 @@ impl Lines {
         Self { child, lines }
     }
 
+    /// The next JSON line (60 s at most; `what` names it in the panic).
     pub fn next(&self, what: &str) -> Value {
         self.lines
             .recv_timeout(Duration::from_secs(60))
@@ -251,6 +255,7 @@ fn run_device([bridge, script, loss]: &[&str; 3], two_hands: bool) -> Vec<Value>
     samples
 }
 
+/// The mean rendered force (N) of `samples` between `from_s` and `to_s` (s).
 pub fn mean_force(samples: &[Value], from_s: f64, to_s: f64) -> f64 {
     mean_of(samples, "force_n", from_s, to_s)
 }

@@ -1,12 +1,12 @@
 //! Starting the real `cathlab-server` binary on 127.0.0.1 and talking to it with the
 //! generated gRPC client.
 
-#![allow(dead_code)]
-
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
+
+use crate::repo_root;
 
 use cathlab_api::pb;
 use cathlab_api::pb::simulator_client::SimulatorClient;
@@ -17,27 +17,12 @@ pub const INSTRUCTOR_KEY: &str = "test-instructor-key";
 
 /// A server process; killed (SIGKILL) when dropped unless shut down first.
 pub struct ServerProcess {
+    /// The process.
     pub child: Child,
+    /// The address it printed (host:port).
     pub address: String,
+    /// Its database file.
     pub database: PathBuf,
-}
-
-pub fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// A fresh temporary directory for a test.
-pub fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "cathlab-test-{name}-{}-{}",
-        std::process::id(),
-        std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .unwrap()
-            .as_nanos()
-    ));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 impl ServerProcess {
@@ -48,7 +33,7 @@ impl ServerProcess {
 
     /// [`ServerProcess::start`] with extra environment variables.
     pub fn start_with_env(database: &Path, extra: &[&str], env: &[(&str, &str)]) -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_cathlab-server"))
+        let mut child = Command::new(crate::binary("cathlab-server"))
             .args(["--listen", "127.0.0.1:0", "--database"])
             .arg(database)
             .arg("--scenes")
@@ -88,6 +73,7 @@ impl ServerProcess {
         format!("http://{}", self.address)
     }
 
+    /// A gRPC client connected to it (retried while it starts).
     pub async fn client(&self) -> SimulatorClient<Channel> {
         for _ in 0..50 {
             if let Ok(c) = SimulatorClient::connect(self.url()).await {
@@ -143,6 +129,7 @@ pub async fn create(client: &mut SimulatorClient<Channel>) -> pb::CreateSessionR
         .into_inner()
 }
 
+/// A command of `kind` for the first instrument.
 pub fn command(kind: pb::command::Kind) -> Option<pb::Command> {
     Some(pb::Command {
         kind: Some(kind),
@@ -150,6 +137,7 @@ pub fn command(kind: pb::command::Kind) -> Option<pb::Command> {
     })
 }
 
+/// A velocity insertion command (mm/s; negative pulls).
 pub fn push(mm_s: f64) -> Option<pb::Command> {
     command(pb::command::Kind::Insertion(pb::Insertion {
         mode: Some(pb::insertion::Mode::VelocityMmS(mm_s)),
@@ -157,6 +145,7 @@ pub fn push(mm_s: f64) -> Option<pb::Command> {
     }))
 }
 
+/// Sends `command` with sequence number `seq` to `session`.
 pub async fn send(
     client: &mut SimulatorClient<Channel>,
     session: &pb::CreateSessionResponse,

@@ -462,24 +462,25 @@ fn decode(dir: &Path, slice: &Slice, count: usize) -> Result<Vec<f32>> {
     // The codecs are third-party code run on the file's bytes: a panic in one (dicom-rs
     // 0.10's RLE decoder indexes past a short segment) is this file's error, not the
     // process's end.
-    let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        obj.decode_pixel_data()
-    }))
-    .map_err(|_| {
-        error(
-            dir,
-            format!("{name}: pixel data in transfer syntax {syntax}: the decoder failed on it"),
-        )
-    })?
-    .map_err(|e| {
-        error(
-            dir,
-            format!(
-                "{name}: pixel data in transfer syntax {syntax} cannot be decoded ({e}); \
+    let decoded =
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| obj.decode_pixel_data()))
+            .map_err(|_| {
+                error(
+                    dir,
+                    format!(
+                        "{name}: pixel data in transfer syntax {syntax}: the decoder failed on it"
+                    ),
+                )
+            })?
+            .map_err(|e| {
+                error(
+                    dir,
+                    format!(
+                        "{name}: pixel data in transfer syntax {syntax} cannot be decoded ({e}); \
                  supported: uncompressed, deflate, RLE, JPEG, JPEG 2000"
-            ),
-        )
-    })?;
+                    ),
+                )
+            })?;
     if decoded.samples_per_pixel() != 1 {
         return Err(error(
             dir,
