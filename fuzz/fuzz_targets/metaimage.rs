@@ -1,9 +1,9 @@
-//! MetaImage volumes: `cathlab_imaging::volume::read_metaimage`, which reads from a path only,
+//! MetaImage volumes: `cathlab_imaging::read_metaimage`, which reads from a path only,
 //! so the input is written to a scratch file `f.mha` first. An input of two files (split by
 //! `cathlab_fuzz::NEXT_FILE`) is a `.mhd` header and the data file `f.raw` it may name.
 #![no_main]
 
-use cathlab_imaging::volume::read_metaimage;
+use cathlab_imaging::read_metaimage;
 
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {
     cathlab_fuzz::start();

@@ -10,10 +10,16 @@ pub mod circle_of_willis;
 pub mod dicom;
 pub mod dicom_lengths;
 pub mod error;
+mod load;
+pub mod metaimage;
+pub mod nifti;
 pub mod preview;
 pub mod segment;
 pub mod surface_centerlines;
 pub mod volume;
+mod voxels;
 
 pub use error::{ImagingError, Result};
+pub use metaimage::read_metaimage;
+pub use nifti::read_nifti;
 pub use volume::ScalarVolume;

@@ -7,7 +7,7 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
-use cathlab_imaging::volume::{read_metaimage, read_nifti};
+use cathlab_imaging::{read_metaimage, read_nifti};
 
 fn dir() -> PathBuf {
     let dir = std::env::temp_dir().join(format!("cathlab-bombs-{}", std::process::id()));

@@ -408,11 +408,11 @@ impl Volume {
 /// Reads a MetaImage volume (`.mha` with the data inline, or `.mhd` with a separate data
 /// file), raw or zlib-compressed, in mm, converted to m (see [`cathlab_imaging::volume`]).
 pub fn read_metaimage(path: &Path) -> Result<Volume> {
-    Volume::from_scalar(cathlab_imaging::volume::read_metaimage(path).map_err(from_imaging)?)
+    Volume::from_scalar(cathlab_imaging::read_metaimage(path).map_err(from_imaging)?)
 }
 
 /// Reads a NIfTI-1 volume (`.nii`, or gzip-compressed `.nii.gz`), RAS+ turned into LPS
 /// (see [`cathlab_imaging::volume`]).
 pub fn read_nifti(path: &Path) -> Result<Volume> {
-    Volume::from_scalar(cathlab_imaging::volume::read_nifti(path).map_err(from_imaging)?)
+    Volume::from_scalar(cathlab_imaging::read_nifti(path).map_err(from_imaging)?)
 }
