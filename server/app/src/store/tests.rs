@@ -2,6 +2,7 @@
 //! database that cannot be reached, and old databases migrated (a newer one refused).
 
 use super::*;
+use cathlab_engine::Metrics;
 use cathlab_engine::world::Command;
 
 fn sqlite(name: &str) -> StoreLocation {
