@@ -10,7 +10,10 @@
 
 use nalgebra::{UnitQuaternion, Vector3, Vector6};
 
-use super::{InstrumentSpec, ProximalReaction, Stack, StackReport};
+use super::instrument::InstrumentSpec;
+use super::loads::ProximalReaction;
+use super::state::{NestedStep, Stack};
+use super::step::StackReport;
 use crate::beam::hermite_point;
 use crate::contact::point_displacement;
 use crate::coupled::{ChainPoint, CoupledContact, Lumen, coupled_gauss_seidel};
@@ -28,19 +31,6 @@ const TIP_INSET_M: f64 = 1e-4;
 /// A lumen contact is violated by at most this fraction of its clearance before another
 /// detection round runs (capped by the wall tolerance).
 const LUMEN_TOLERANCE_FRACTION: f64 = 0.05;
-
-/// Nested mode's record of the last step.
-#[derive(Debug, Clone, Default)]
-pub(super) struct NestedStep {
-    /// The contacts, in the order they were solved.
-    pub(super) contacts: Vec<CoupledContact>,
-    /// Path coordinate of each contact's first side (m).
-    pub(super) sigma: Vec<f64>,
-    /// Local forces of each contact (N).
-    pub(super) local: Vec<Vector3<f64>>,
-    /// Largest penetration found after the solve (m).
-    pub(super) penetration_m: f64,
-}
 
 /// A detected contact with the path coordinates of its sides (m).
 struct Detected {

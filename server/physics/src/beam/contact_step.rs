@@ -1,0 +1,223 @@
+//! The beam step with contacts: free solve, detection, Gauss–Seidel through the flexibility
+//! blocks, correction solve, with repeated detection rounds; and the halves of a step whose
+//! contacts couple several chains (nested coaxial instruments).
+
+use nalgebra::{UnitQuaternion, Vector3, Vector6};
+
+use super::model::BeamModel;
+use super::report::{ContactStep, StepReport};
+use super::settings::StepMode;
+use crate::contact::{Contact, ContactResponse, ContactSettings, gauss_seidel, point_displacement};
+use crate::error::{PhysicsError, Result};
+
+impl BeamModel {
+    /// One paper-mode step with contact: the free increment is solved, `detect` turns the
+    /// configuration and the free increment into contacts (positions, rotations, free increment
+    /// per unknown node), Gauss–Seidel finds the contact forces through the flexibility blocks,
+    /// and one more O(N) solve adds their effect. The contact forces are totals, not increments:
+    /// the next step's residual no longer contains them, and its contact solve finds them again
+    /// (warm-started from what `warm_start` returns for the detected contacts: local forces per
+    /// contact). With `settings.detection_rounds` > 1, detection runs again at the solved
+    /// configuration, and if it finds a wall penetrated by more than
+    /// `settings.penetration_tolerance_m` that the contact set lacks, the contacts are solved
+    /// again with it (the report's `iterations` counts the rounds). Nothing changes on error.
+    pub fn step_with_contacts(
+        &mut self,
+        detect: impl FnMut(
+            &[Vector3<f64>],
+            &[UnitQuaternion<f64>],
+            &[Vector6<f64>],
+        ) -> Result<Vec<Contact>>,
+        settings: &ContactSettings,
+        warm_start: impl FnOnce(&[Contact]) -> Option<Vec<Vector3<f64>>>,
+    ) -> Result<ContactStep> {
+        self.saved_positions.clone_from(&self.positions);
+        self.saved_rotations.clone_from(&self.rotations);
+        let mut result = self.step_with_contacts_inner(detect, settings, warm_start);
+        if let Err(PhysicsError::Diverged { step, .. }) = &mut result
+            && *step == 0
+        {
+            *step = self.step_count + 1;
+        }
+        self.step_count += 1;
+        if result.is_err() {
+            self.positions.clone_from(&self.saved_positions);
+            self.rotations.clone_from(&self.saved_rotations);
+        }
+        result
+    }
+
+    fn step_with_contacts_inner(
+        &mut self,
+        mut detect: impl FnMut(
+            &[Vector3<f64>],
+            &[UnitQuaternion<f64>],
+            &[Vector6<f64>],
+        ) -> Result<Vec<Contact>>,
+        settings: &ContactSettings,
+        warm_start: impl FnOnce(&[Contact]) -> Option<Vec<Vector3<f64>>>,
+    ) -> Result<ContactStep> {
+        // Step-size control on the free motion only: the contact solve then makes the end
+        // state feasible whatever the scale.
+        let free = self.begin_coupled_step()?;
+        let mut contacts = detect(&self.positions, &self.rotations, &free)?;
+        let mut warm = if contacts.is_empty() {
+            None
+        } else {
+            warm_start(&contacts)
+        };
+        let rounds = settings.detection_rounds.max(1);
+        let mut increments;
+        let mut response;
+        let mut round = 0;
+        let mut penetration: f64 = 0.0;
+        loop {
+            response = if contacts.is_empty() {
+                ContactResponse {
+                    nodal_loads: vec![Vector6::zeros(); free.len()],
+                    converged: true,
+                    ..Default::default()
+                }
+            } else {
+                gauss_seidel(
+                    &self.flexibility,
+                    &free,
+                    &contacts,
+                    settings,
+                    warm.as_deref(),
+                )?
+            };
+            increments = response.nodal_loads.clone();
+            if !contacts.is_empty() {
+                self.substructure.solve_in_place(&mut increments);
+            }
+            for (du, f) in increments.iter_mut().zip(&free) {
+                *du += f;
+            }
+            round += 1;
+            if rounds == 1 || contacts.is_empty() {
+                break;
+            }
+            // Look again where the contact forces moved the device: a wall it now penetrates
+            // (one the contact set lacks, such as a corner's other wall, or one whose
+            // linearization went stale as the device slid along a curved wall) means another
+            // round with fresh contacts there.
+            let mut next = detect(&self.positions, &self.rotations, &increments)?;
+            let depth = |c: &Contact| {
+                -(c.gap
+                    + c.normal
+                        .dot(&point_displacement(&increments, c.element, c.t)))
+            };
+            penetration = next.iter().map(depth).fold(0.0, f64::max);
+            if penetration <= settings.penetration_tolerance_m || round >= rounds {
+                break;
+            }
+            // Keep the earlier rounds' contacts too (a wall the contact forces pushed the device
+            // away from still bounds it), ordered along the device.
+            for old in &contacts {
+                if !next.iter().any(|c| same_contact(c, old)) {
+                    next.push(*old);
+                }
+            }
+            next.sort_by(|a, b| {
+                (a.element, a.t)
+                    .partial_cmp(&(b.element, b.t))
+                    .unwrap_or(std::cmp::Ordering::Equal)
+            });
+            warm = Some(carry_forces(&next, &contacts, &response.local));
+            contacts = next;
+        }
+        let (dx, dtheta) = self.apply_increments(&increments)?;
+        Ok(ContactStep {
+            report: StepReport {
+                iterations: round,
+                converged: response.converged,
+                last_translation_increment_m: dx,
+                last_rotation_increment_rad: dtheta,
+            },
+            contacts,
+            response,
+            penetration_m: penetration,
+        })
+    }
+
+    /// The first half of a step whose contacts couple this chain to others (nested coaxial
+    /// instruments): assembles, factors, and returns the free increment of every unknown node
+    /// (step-size controlled as in [`Self::step_with_contacts`]), leaving the flexibility
+    /// blocks for the coupled contact solve. Nothing moves until [`Self::finish_coupled_step`].
+    pub(crate) fn begin_coupled_step(&mut self) -> Result<Vec<Vector6<f64>>> {
+        let gamma = match self.settings.mode {
+            StepMode::Incremental { gamma } => gamma,
+            StepMode::Converged { .. } => 1.0,
+        };
+        self.solve_free(gamma, true)?;
+        let mut free = self.rhs.clone();
+        if let Some((max_dx, max_dtheta)) = self.settings.max_step_increment {
+            let (dx, dtheta) = free.iter().fold((0.0f64, 0.0f64), |(a, b), du| {
+                (
+                    a.max(du.fixed_rows::<3>(0).norm()),
+                    b.max(du.fixed_rows::<3>(3).norm()),
+                )
+            });
+            let scale = (max_dx / dx).min(max_dtheta / dtheta).min(1.0);
+            if scale < 1.0 {
+                free.iter_mut().for_each(|du| *du *= scale);
+            }
+        }
+        Ok(free)
+    }
+
+    /// The increments of a coupled step: `free` plus K⁻¹ `loads` (contact loads per unknown
+    /// node, N and N·m), by one O(N) solve with the factorization of
+    /// [`Self::begin_coupled_step`].
+    pub(crate) fn coupled_increments(
+        &mut self,
+        free: &[Vector6<f64>],
+        loads: &[Vector6<f64>],
+    ) -> Vec<Vector6<f64>> {
+        let mut increments = loads.to_vec();
+        self.substructure.solve_in_place(&mut increments);
+        for (du, f) in increments.iter_mut().zip(free) {
+            *du += f;
+        }
+        increments
+    }
+
+    /// The second half of a coupled step: applies `increments` after the divergence checks
+    /// (nothing moves if one trips) and counts the step.
+    pub(crate) fn finish_coupled_step(
+        &mut self,
+        increments: &[Vector6<f64>],
+    ) -> Result<StepReport> {
+        let result = self.apply_increments(increments);
+        self.step_count += 1;
+        let (dx, dtheta) = result?;
+        Ok(StepReport {
+            iterations: 1,
+            converged: true,
+            last_translation_increment_m: dx,
+            last_rotation_increment_rad: dtheta,
+        })
+    }
+}
+
+/// Whether two contacts are the same wall touching the same point: same element and
+/// parameter, normals within about 25°.
+fn same_contact(a: &Contact, b: &Contact) -> bool {
+    a.element == b.element && (a.t - b.t).abs() <= 1e-9 && a.normal.dot(&b.normal) > 0.9
+}
+
+/// Forces of `old` contacts carried over to the same `new` ones (zero for the rest): the
+/// warm start of a repeated detection round.
+fn carry_forces(new: &[Contact], old: &[Contact], forces: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+    new.iter()
+        .map(|c| {
+            old.iter()
+                .zip(forces)
+                .filter(|(o, _)| same_contact(o, c))
+                .map(|(_, f)| *f)
+                .next()
+                .unwrap_or_else(Vector3::zeros)
+        })
+        .collect()
+}

@@ -1,0 +1,174 @@
+//! A navigation's settings: discretization, control limits, contact and refinement; the
+//! work caps an overload governor lowers ([`Effort`]); and the node spacing they give along a
+//! device.
+
+use crate::contact::ContactSettings;
+use crate::error::{PhysicsError, Result};
+
+/// Discretization, control limits and contact settings of a navigation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NavigationSettings {
+    /// Physics time step (s); 1/500 s by default.
+    pub time_step_s: f64,
+    /// Largest insertion speed either way (m/s).
+    pub max_insertion_speed_m_s: f64,
+    /// Largest twist rate either way (rad/s).
+    pub max_twist_rate_rad_s: f64,
+    /// Element length near the tip (m).
+    pub tip_element_m: f64,
+    /// Element length along the shaft (m).
+    pub shaft_element_m: f64,
+    /// Length from the tip discretized with `tip_element_m`; the spacing then grows linearly to
+    /// `shaft_element_m` over the same length again (m).
+    pub tip_zone_m: f64,
+    /// Points closer to the wall than this (device surface to wall, m) become contacts, whose
+    /// force may still come out zero.
+    pub contact_margin_m: f64,
+    /// Collision points along each element are at most this far apart (m).
+    pub sample_spacing_m: f64,
+    /// Viscous drag per unit length (N·s/m²) regularizing each step (see
+    /// [`crate::beam::ViscousDrag`]): it slows motion in directions the device offers no
+    /// stiffness (buckling) without changing any equilibrium.
+    pub drag_n_s_per_m2: f64,
+    /// Largest translation (m) of any node in one step, beyond the commanded sliding.
+    pub max_step_m: f64,
+    /// Largest rotation (rad) of any node in one step.
+    pub max_step_rad: f64,
+    /// A step whose solved configuration still penetrates the wall by more than this (m) is
+    /// redone as two half steps.
+    pub substep_penetration_m: f64,
+    /// Gauss–Seidel settings.
+    pub contact: ContactSettings,
+    /// Local refinement where the device bends or touches the wall (`None`: the nominal
+    /// spacing only).
+    pub refinement: Option<Refinement>,
+}
+
+/// Where the device gets nodes beyond its nominal spacing. Before each step, elements that
+/// bend by more than `max_bend_rad` between their two nodes, or that carry an active contact
+/// and are longer than `contact_element_m`, are halved (down to `tip_element_m`), the new node
+/// placed on the smooth curve through the old ones so that the shape does not jump. Two
+/// halves merge back when together they bend less than a third of `max_bend_rad`, carry no
+/// active contact and are shorter than 1.25 nominal spacings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Refinement {
+    /// Largest angle between the tangents at an element's two nodes (rad).
+    pub max_bend_rad: f64,
+    /// Longest element allowed to carry an active contact (m).
+    pub contact_element_m: f64,
+}
+
+impl Default for Refinement {
+    fn default() -> Self {
+        Self {
+            max_bend_rad: 0.1,
+            contact_element_m: 2.5e-3,
+        }
+    }
+}
+
+impl Default for NavigationSettings {
+    fn default() -> Self {
+        Self {
+            time_step_s: 1.0 / 500.0,
+            max_insertion_speed_m_s: 0.15,
+            max_twist_rate_rad_s: 4.0 * std::f64::consts::PI,
+            tip_element_m: 1.5e-3,
+            shaft_element_m: 5e-3,
+            tip_zone_m: 30e-3,
+            contact_margin_m: 0.3e-3,
+            sample_spacing_m: 1e-3,
+            drag_n_s_per_m2: 10.0,
+            max_step_m: 0.2e-3,
+            max_step_rad: 0.2,
+            substep_penetration_m: 0.02e-3,
+            contact: ContactSettings {
+                tolerance: 1e-3,
+                absolute_tolerance_n: 1e-7,
+                violation_tolerance_m: 1e-6,
+                max_iterations: 300,
+                relaxation: 1.0,
+                detection_rounds: 4,
+                penetration_tolerance_m: 0.01e-3,
+                acceleration_depth: 5,
+                polish: true,
+            },
+            refinement: Some(Refinement::default()),
+        }
+    }
+}
+
+/// How many times a step may be halved when it would penetrate the wall.
+pub const MAX_SUBSTEP_DEPTH: usize = 3;
+
+/// How much work a step may do, below what the settings allow: the knobs an overload
+/// governor turns to keep the step rate when a scene gets expensive (a long device looped
+/// against the wall). [`Effort::FULL`] leaves the settings as they are.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Effort {
+    /// Halvings of a step that would penetrate the wall (at most [`MAX_SUBSTEP_DEPTH`]).
+    pub max_substep_depth: usize,
+    /// Detection-and-solve rounds per step (at most the contact settings').
+    pub max_detection_rounds: usize,
+    /// Gauss–Seidel sweeps (at most the contact settings').
+    pub max_sweeps: usize,
+    /// Whether the active-set polish may finish an unconverged contact solve (O(A³)).
+    pub polish: bool,
+    /// Scale of the refinement thresholds (≥ 1): elements bend and touch this much more
+    /// before they split, and merge back sooner.
+    pub refinement_scale: f64,
+}
+
+impl Effort {
+    /// No cap.
+    pub const FULL: Effort = Effort {
+        max_substep_depth: MAX_SUBSTEP_DEPTH,
+        max_detection_rounds: usize::MAX,
+        max_sweeps: usize::MAX,
+        polish: true,
+        refinement_scale: 1.0,
+    };
+
+    /// Checks the effort's values.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.refinement_scale.is_finite() && self.refinement_scale >= 1.0) {
+            return Err(PhysicsError::OutOfRange {
+                what: "effort.refinement_scale".into(),
+                range: "[1, ∞)",
+                value: self.refinement_scale,
+            });
+        }
+        Ok(())
+    }
+
+    /// `base` with its sweeps, detection rounds (at least one) and polish capped by this
+    /// effort.
+    pub fn contact(&self, base: &ContactSettings) -> ContactSettings {
+        ContactSettings {
+            max_iterations: base.max_iterations.min(self.max_sweeps),
+            detection_rounds: base.detection_rounds.min(self.max_detection_rounds).max(1),
+            polish: base.polish && self.polish,
+            ..*base
+        }
+    }
+
+    /// `base` with its thresholds scaled by [`Effort::refinement_scale`].
+    pub fn refinement(&self, base: Refinement) -> Refinement {
+        Refinement {
+            max_bend_rad: base.max_bend_rad * self.refinement_scale,
+            contact_element_m: base.contact_element_m * self.refinement_scale,
+        }
+    }
+
+    /// The deepest step halving allowed, at most `ceiling`.
+    pub fn substep_depth(&self, ceiling: usize) -> usize {
+        self.max_substep_depth.min(ceiling)
+    }
+}
+
+/// Node spacing at material coordinate `s` (m from the proximal end) of a device of `length`.
+pub(crate) fn spacing(settings: &NavigationSettings, length: f64, s: f64) -> f64 {
+    let from_tip = length - s;
+    let ramp = ((from_tip - settings.tip_zone_m) / settings.tip_zone_m).clamp(0.0, 1.0);
+    settings.tip_element_m + ramp * (settings.shaft_element_m - settings.tip_element_m)
+}

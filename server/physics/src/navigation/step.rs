@@ -1,0 +1,298 @@
+//! A navigation's time step: proximal control (clamped speeds), the device slid through the
+//! entry point (base element grown, split or merged), local refinement, detection at the
+//! predicted configuration, the beam solve with contacts, and the step halved where it would
+//! penetrate the wall.
+
+use nalgebra::{UnitQuaternion, Vector3};
+
+use super::command::{Insertion, Twist};
+use super::detection::{Sample, detect, material_of, push_element_samples, warm_start};
+use super::settings::{MAX_SUBSTEP_DEPTH, spacing};
+use super::state::{Navigation, element_spec};
+use crate::beam::BeamModel;
+use crate::error::Result;
+use crate::wall::Wall;
+
+/// What one navigation step did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NavigationReport {
+    /// Contacts detected.
+    pub contacts: usize,
+    /// Contacts with a positive normal force.
+    pub active_contacts: usize,
+    /// Gauss–Seidel sweeps.
+    pub sweeps: usize,
+    /// Whether Gauss–Seidel met its tolerance.
+    pub converged: bool,
+    /// Inserted length after the step (m).
+    pub inserted_m: f64,
+    /// Twist angle after the step (rad).
+    pub twist_rad: f64,
+    /// Elements simulated.
+    pub elements: usize,
+}
+
+impl<W: Wall> Navigation<W> {
+    /// Advances one time step.
+    pub fn step(&mut self) -> Result<NavigationReport> {
+        let dt = self.settings.time_step_s;
+        let length = self.device.length_m();
+        // 1. Proximal control, clamped.
+        let max_push = self.settings.max_insertion_speed_m_s * dt;
+        let inserted = self.inserted_m();
+        let wanted = match self.command.insertion {
+            Insertion::Velocity(v) => v * dt,
+            Insertion::Target(x) => x - inserted,
+        };
+        let min_inserted = self.settings.tip_element_m;
+        let push = wanted
+            .clamp(-max_push, max_push)
+            .clamp(min_inserted - inserted, length - inserted);
+        let max_turn = self.settings.max_twist_rate_rad_s * dt;
+        let turn = match self.command.twist {
+            Twist::Rate(w) => w * dt,
+            Twist::Target(a) => a - self.twist_rad,
+        }
+        .clamp(-max_turn, max_turn);
+        self.refine()?;
+        let report = self.advance(push, turn, 0)?;
+        self.time_s += dt;
+        Ok(report)
+    }
+
+    /// Advances by `push` (m) and `turn` (rad); where the solved step still penetrates the wall
+    /// by more than the sub-step threshold (a violent event: buckling, a slide along a curved
+    /// wall), the step is undone and taken as two halves, up to [`MAX_SUBSTEP_DEPTH`] times.
+    fn advance(&mut self, push: f64, turn: f64, depth: usize) -> Result<NavigationReport> {
+        let max_depth = self.effort.substep_depth(MAX_SUBSTEP_DEPTH);
+        let saved = (depth < max_depth).then(|| {
+            (
+                self.model.snapshot(),
+                self.material.clone(),
+                self.twist_rad,
+                self.previous_contacts.clone(),
+            )
+        });
+        let report = self.single_step(push, turn)?;
+        let penetration = self.last.as_ref().map_or(0.0, |s| s.penetration_m);
+        if penetration > self.settings.substep_penetration_m
+            && let Some((model, material, twist, previous)) = saved
+        {
+            self.model.restore(model);
+            self.material = material;
+            self.twist_rad = twist;
+            self.previous_contacts = previous;
+            self.advance(0.5 * push, 0.5 * turn, depth + 1)?;
+            return self.advance(0.5 * push, 0.5 * turn, depth + 1);
+        }
+        Ok(report)
+    }
+
+    /// One solve: slide, twist, detect, solve.
+    fn single_step(&mut self, push: f64, turn: f64) -> Result<NavigationReport> {
+        self.slide(push)?;
+        self.twist_rad += turn;
+        let twist = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), self.twist_rad);
+        self.model
+            .place_base(self.entry_position, self.entry_rotation * twist)?;
+        // 2–4. Detection at the predicted configuration, beam solve with contacts.
+        let samples = self.sample_layout();
+        let wall = &self.wall;
+        let margin = self.settings.contact_margin_m;
+        let material = &self.material;
+        let previous = &self.previous_contacts;
+        let tolerance = self.settings.sample_spacing_m;
+        let contact = self.effort.contact(&self.settings.contact);
+        let clearance = &mut self.clearance;
+        let step = self.model.step_with_contacts(
+            |positions, _rotations, free| {
+                Ok(detect(wall, &samples, positions, free, margin, clearance))
+            },
+            &contact,
+            |contacts| warm_start(contacts, material, previous, tolerance),
+        )?;
+        self.previous_contacts = step
+            .contacts
+            .iter()
+            .zip(&step.response.local)
+            .map(|(c, l)| (material_of(&self.material, c), *l))
+            .collect();
+        let report = NavigationReport {
+            contacts: step.contacts.len(),
+            active_contacts: step.response.local.iter().filter(|l| l.x > 0.0).count(),
+            sweeps: step.response.iterations,
+            converged: step.response.converged,
+            inserted_m: self.inserted_m(),
+            twist_rad: self.twist_rad,
+            elements: self.model.element_count(),
+        };
+        self.last = Some(step);
+        Ok(report)
+    }
+
+    /// Slides the device in (`push` > 0) or out through the entry point, growing or shrinking
+    /// the element next to it and splitting or merging it as needed.
+    fn slide(&mut self, push: f64) -> Result<()> {
+        if push == 0.0 {
+            return Ok(());
+        }
+        let length = self.device.length_m();
+        // Predictor. Follow the leader along the straight part: every node moves along the
+        // device's current shape by `push` (behind the entry along the entry axis), so the
+        // material slides along its own path and nothing is compressed. A curved rest shape at
+        // the tip (angled or J) is carried rigidly by the last straight node, which moves along
+        // its own axis: sliding material through a bend would strain it.
+        let positions = self.model.positions().to_vec();
+        let rotations = self.model.rotations().to_vec();
+        let last = self.material.len() - 1;
+        let curved_from = self.first_curved_element().map_or(last, |e| e.max(1));
+        let along = |s: f64| -> (Vector3<f64>, UnitQuaternion<f64>) {
+            let m = &self.material;
+            if s <= m[0] {
+                let q = rotations[0];
+                (positions[0] - q * Vector3::x() * (m[0] - s), q)
+            } else {
+                let k = m.partition_point(|&x| x <= s).clamp(1, last) - 1;
+                let f = ((s - m[k]) / (m[k + 1] - m[k])).min(1.0);
+                (
+                    positions[k] + (positions[k + 1] - positions[k]) * f,
+                    rotations[k].slerp(&rotations[k + 1], f),
+                )
+            }
+        };
+        let mut new_positions = positions.clone();
+        let mut new_rotations = rotations.clone();
+        for i in 1..curved_from {
+            (new_positions[i], new_rotations[i]) = along(self.material[i] + push);
+        }
+        let carried = rotations[curved_from] * Vector3::x() * push;
+        for p in &mut new_positions[curved_from..] {
+            *p += carried;
+        }
+        self.model.set_nodes(&new_positions, &new_rotations)?;
+        self.material[0] -= push;
+        loop {
+            let base = self.material[0];
+            let first = self.material[1];
+            let h = spacing(&self.settings, length, first);
+            let element = first - base;
+            // Only split while pushing and only merge while pulling: with a spacing that varies
+            // along the device, doing both could alternate forever.
+            if push > 0.0 && element > 1.5 * h {
+                let split = first - h;
+                self.model.insert_node_after_base(
+                    element_spec(&self.device, base, split),
+                    element_spec(&self.device, split, first),
+                )?;
+                self.material.insert(1, split);
+            } else if push < 0.0 && element < 0.5 * h && self.material.len() > 2 {
+                let second = self.material[2];
+                self.model
+                    .remove_node_after_base(element_spec(&self.device, base, second))?;
+                self.material.remove(1);
+            } else {
+                return self
+                    .model
+                    .set_base_element(element_spec(&self.device, base, first));
+            }
+        }
+    }
+
+    /// Halves elements that bend too much or touch the wall and merges halves that no longer
+    /// need to be apart (see [`Refinement`](super::Refinement)). The element at the entry point is left to
+    /// [`Self::slide`]. Runs between steps, so the last contacts decide.
+    fn refine(&mut self) -> Result<()> {
+        let Some(refinement) = self.settings.refinement else {
+            return Ok(());
+        };
+        let refinement = self.effort.refinement(refinement);
+        let length = self.device.length_m();
+        let shortest = self.settings.tip_element_m;
+        // Material coordinates of the active contacts, ordered along the device.
+        let active: Vec<f64> = self.last.as_ref().map_or_else(Vec::new, |step| {
+            step.contacts
+                .iter()
+                .zip(&step.response.local)
+                .filter(|(_, l)| l.x > 0.0)
+                .map(|(c, _)| material_of(&self.material, c))
+                .collect()
+        });
+        let touching = |a: f64, b: f64| active.iter().any(|&s| s >= a && s <= b);
+        let bend = |model: &BeamModel, e: usize| {
+            let r = model.rotations();
+            (r[e] * Vector3::x()).angle(&(r[e + 1] * Vector3::x()))
+        };
+        // Split, tip first so that the indices still to visit stay valid.
+        for e in (1..self.model.element_count()).rev() {
+            let (a, b) = (self.material[e], self.material[e + 1]);
+            let long = b - a;
+            if long >= 2.0 * shortest
+                && (bend(&self.model, e) > refinement.max_bend_rad
+                    || (long > refinement.contact_element_m && touching(a, b)))
+            {
+                let mid = 0.5 * (a + b);
+                self.model.split_element(
+                    e,
+                    element_spec(&self.device, a, mid),
+                    element_spec(&self.device, mid, b),
+                )?;
+                self.material.insert(e + 1, mid);
+            }
+        }
+        // Merge.
+        let mut e = 1;
+        while e + 1 < self.model.element_count() {
+            let (a, b) = (self.material[e], self.material[e + 2]);
+            let nominal = spacing(&self.settings, length, 0.5 * (a + b));
+            if b - a < 1.25 * nominal
+                && bend(&self.model, e) + bend(&self.model, e + 1) < refinement.max_bend_rad / 3.0
+                && !touching(a, b)
+            {
+                self.model
+                    .merge_elements(e, element_spec(&self.device, a, b))?;
+                self.material.remove(e + 1);
+            } else {
+                e += 1;
+            }
+        }
+        Ok(())
+    }
+
+    /// Collision points per element: (element, t, device radius, friction).
+    fn sample_layout(&self) -> Vec<Sample> {
+        let mut samples = Vec::new();
+        let elements = self.model.element_count();
+        for e in 0..elements {
+            let (a, b) = (self.material[e], self.material[e + 1]);
+            let (section, _) = self.device.section_at(0.5 * (a + b));
+            push_element_samples(
+                &mut samples,
+                (e, elements),
+                b - a,
+                self.settings.sample_spacing_m,
+                section,
+            );
+        }
+        samples
+    }
+
+    /// The largest penetration of the device into the wall in the current configuration (m;
+    /// 0 when nothing penetrates), over the collision points.
+    pub fn max_penetration_m(&self) -> f64 {
+        let positions = self.model.positions();
+        self.sample_layout()
+            .iter()
+            .enumerate()
+            .filter_map(|(i, s)| {
+                let p = positions[s.element] * (1.0 - s.t) + positions[s.element + 1] * s.t;
+                // A point the detection's bounds show clear of the wall cannot penetrate it.
+                if self.clearance.clear_of_wall(i, &p, s.radius) {
+                    return None;
+                }
+                self.wall
+                    .probe(&p, s.radius)
+                    .map(|probe| s.radius - probe.clearance_m)
+            })
+            .fold(0.0, f64::max)
+    }
+}

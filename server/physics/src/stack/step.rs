@@ -1,0 +1,204 @@
+//! A stack's time step: every instrument's proximal control (clamped speeds and ranges), the
+//! kinematic update, detection at the predicted configuration, the beam solve with contacts,
+//! and the step halved where it would penetrate the wall.
+
+use nalgebra::{UnitQuaternion, Vector3};
+
+use super::instrument::{Instrument, inserted_range};
+use super::state::{Coupling, NestedStep, Node, Stack};
+use crate::beam::{BeamSnapshot, ElementSpec};
+use crate::error::Result;
+use crate::navigation::{
+    Insertion, Sample, Twist, detect, material_of, push_element_samples, warm_start,
+};
+use crate::wall::{FreeSpace, Wall};
+
+/// How many times a step may be halved when it would penetrate the wall.
+const MAX_SUBSTEP_DEPTH: usize = 3;
+
+/// What one stack step did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StackReport {
+    /// Contacts detected.
+    pub contacts: usize,
+    /// Contacts with a positive normal force.
+    pub active_contacts: usize,
+    /// Gauss–Seidel sweeps.
+    pub sweeps: usize,
+    /// Whether Gauss–Seidel met its tolerance.
+    pub converged: bool,
+    /// Inserted length of every instrument after the step (m), outermost first.
+    pub inserted_m: Vec<f64>,
+    /// Elements simulated.
+    pub elements: usize,
+}
+
+/// Everything [`Stack::advance`] needs to undo a step.
+#[derive(Debug, Clone)]
+struct Saved {
+    model: BeamSnapshot,
+    nodes: Vec<Node>,
+    specs: Vec<(ElementSpec, u64, u64)>,
+    instruments: Vec<Instrument>,
+    previous_contacts: Vec<(f64, Vector3<f64>)>,
+    next_id: u64,
+    chains: Vec<Option<Stack<FreeSpace>>>,
+    nested_last: NestedStep,
+}
+
+impl<W: Wall> Stack<W> {
+    /// Advances one time step: every instrument's proximal control (clamped speeds and
+    /// ranges, outermost first), the kinematic update of the strand, detection, the beam solve
+    /// with contacts.
+    pub fn step(&mut self) -> Result<StackReport> {
+        let dt = self.settings.time_step_s;
+        let mut targets: Vec<(f64, f64)> = Vec::with_capacity(self.instruments.len());
+        for index in 0..self.instruments.len() {
+            let instrument = &self.instruments[index];
+            let max_push = instrument.max_insertion_speed_m_s * dt;
+            let wanted = match instrument.command.insertion {
+                Insertion::Velocity(v) => v * dt,
+                Insertion::Target(l) => l - instrument.inserted_m,
+            }
+            .clamp(-max_push, max_push);
+            // The range follows the instruments around it at their new positions: a hub
+            // pushes an inner instrument that has nowhere else to go.
+            let outer = index
+                .checked_sub(1)
+                .map(|k| (targets[k].0, self.instruments[k].length_m));
+            let (lo, hi) = inserted_range(outer, instrument.length_m, self.settings.tip_element_m);
+            let inserted = (instrument.inserted_m + wanted).clamp(lo, hi);
+            let max_turn = instrument.max_twist_rate_rad_s * dt;
+            let turn = match instrument.command.twist {
+                Twist::Rate(w) => w * dt,
+                Twist::Target(a) => a - instrument.twist_rad,
+            }
+            .clamp(-max_turn, max_turn);
+            targets.push((inserted, instrument.twist_rad + turn));
+        }
+        let report = self.advance(&targets, 0)?;
+        self.time_s += dt;
+        Ok(report)
+    }
+
+    /// Moves every instrument to `targets` (inserted length m, twist rad) in one solve, or,
+    /// where that solve still penetrates the wall beyond the sub-step threshold, in two halves
+    /// (up to [`MAX_SUBSTEP_DEPTH`] times).
+    fn advance(&mut self, targets: &[(f64, f64)], depth: usize) -> Result<StackReport> {
+        let saved: Option<Saved> =
+            (depth < self.effort.substep_depth(MAX_SUBSTEP_DEPTH)).then(|| Saved {
+                model: self.model.snapshot(),
+                nodes: self.nodes.clone(),
+                specs: self.specs.clone(),
+                instruments: self.instruments.clone(),
+                previous_contacts: self.previous_contacts.clone(),
+                next_id: self.next_id,
+                chains: self.chains.clone(),
+                nested_last: self.nested_last.clone(),
+            });
+        let report = match self.coupling {
+            Coupling::Merged => self.single_step(targets)?,
+            Coupling::Nested => self.nested_step(targets)?,
+        };
+        let penetration = match self.coupling {
+            Coupling::Merged => self.last.as_ref().map_or(0.0, |s| s.penetration_m),
+            Coupling::Nested => self.nested_last.penetration_m,
+        };
+        if penetration > self.settings.substep_penetration_m
+            && let Some(saved) = saved
+        {
+            self.model.restore(saved.model);
+            self.nodes = saved.nodes;
+            self.specs = saved.specs;
+            self.previous_contacts = saved.previous_contacts;
+            self.next_id = saved.next_id;
+            self.chains = saved.chains;
+            self.nested_last = saved.nested_last;
+            let half: Vec<(f64, f64)> = saved
+                .instruments
+                .iter()
+                .zip(targets)
+                .map(|(i, t)| (0.5 * (i.inserted_m + t.0), 0.5 * (i.twist_rad + t.1)))
+                .collect();
+            self.instruments = saved.instruments;
+            self.advance(&half, depth + 1)?;
+            return self.advance(targets, depth + 1);
+        }
+        Ok(report)
+    }
+
+    /// The kinematic part of a step: moves the instruments to `targets` and the nodes with
+    /// them, refines, rebuilds the model and places its base.
+    pub(super) fn prepare(&mut self, targets: &[(f64, f64)]) -> Result<()> {
+        self.sync_nodes();
+        self.move_instruments(targets)?;
+        self.refine();
+        self.rebuild_model()?;
+        self.apply_tip_loads()?;
+        let twist =
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), self.instruments[0].twist_rad);
+        self.model
+            .place_base(self.entry_position, self.entry_rotation * twist)
+    }
+
+    /// One solve: kinematic update, detection, beam solve with contacts.
+    fn single_step(&mut self, targets: &[(f64, f64)]) -> Result<StackReport> {
+        self.prepare(targets)?;
+        let samples = self.sample_layout();
+        let wall = &self.wall;
+        let margin = self.settings.contact_margin_m;
+        let sigma: Vec<f64> = self.nodes.iter().map(|n| n.sigma).collect();
+        let previous = &self.previous_contacts;
+        let tolerance = self.settings.sample_spacing_m;
+        let clearance = &mut self.clearance;
+        let step = self.model.step_with_contacts(
+            |positions, _rotations, free| {
+                Ok(detect(wall, &samples, positions, free, margin, clearance))
+            },
+            &self.effort.contact(&self.settings.contact),
+            |contacts| warm_start(contacts, &sigma, previous, tolerance),
+        )?;
+        self.previous_contacts = step
+            .contacts
+            .iter()
+            .zip(&step.response.local)
+            .map(|(c, l)| (material_of(&sigma, c), *l))
+            .collect();
+        let report = StackReport {
+            contacts: step.contacts.len(),
+            active_contacts: step.response.local.iter().filter(|l| l.x > 0.0).count(),
+            sweeps: step.response.iterations,
+            converged: step.response.converged,
+            inserted_m: self.instruments.iter().map(|i| i.inserted_m).collect(),
+            elements: self.model.element_count(),
+        };
+        self.last = Some(step);
+        self.sync_nodes();
+        Ok(report)
+    }
+
+    /// Collision points per element, with the radius and wall friction of the outermost
+    /// instrument present.
+    pub(super) fn sample_layout(&self) -> Vec<Sample> {
+        let mut samples = Vec::new();
+        let elements = self.model.element_count();
+        for e in 0..elements {
+            let (a, b) = (self.nodes[e].sigma, self.nodes[e + 1].sigma);
+            let mid = 0.5 * (a + b);
+            let Some(outer) = self.instruments.iter().find(|i| i.inserted_m > mid) else {
+                continue;
+            };
+            let (section, _) = outer
+                .device
+                .section_at(outer.length_m - outer.inserted_m + mid);
+            push_element_samples(
+                &mut samples,
+                (e, elements),
+                b - a,
+                self.settings.sample_spacing_m,
+                section,
+            );
+        }
+        samples
+    }
+}

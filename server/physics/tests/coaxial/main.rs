@@ -1,0 +1,18 @@
+//! Coaxial stacks in merged mode: composite stiffness against analytic cantilevers, the
+//! stiffness-weighted blend of rest shapes, twist of one instrument without the other,
+//! invariants of the instruments' positions, and bad input; nested mode against merged; the
+//! device catalogue; and two-hand runs in the real arch-to-circle-of-Willis anatomy.
+//!
+//! Figures print with `cargo test -p cathlab-physics --test coaxial -- --nocapture`.
+//!
+//! One module a topic: `merged` (mechanics of the composite strand), `control` (fit, bad
+//! input, exchange, ranges, effort), `catalogue` (device definitions), `nested` (nested
+//! coupling), `arch_to_cow` (runs in the real anatomy); shared builders and measures in
+//! `support`.
+
+mod arch_to_cow;
+mod catalogue;
+mod control;
+mod merged;
+mod nested;
+mod support;
