@@ -1,10 +1,14 @@
 //! From a world snapshot to an X-ray frame: the renderer shared by all sessions (one copy of
-//! each CT on the device), the layers of a snapshot (contrast and the device), and frame
-//! encodings for clients (raw 8/16-bit, PNG, JPEG, resized).
+//! each CT on the device), a scene's fluoroscope settings, the layers of a snapshot (contrast
+//! and the device), the frames a session renders, and frame encodings for clients (raw
+//! 8/16-bit, PNG, JPEG, resized).
 
 use std::sync::Arc;
 
-use cathlab_xray::{CArm, Layers, MarchSettings, PathImage, Renderer, Volume};
+use cathlab_xray::{
+    CArm, DoseTally, EdgeEnhancement, FluoroscopeSettings, Frame, Layers, MarchSettings, PathImage,
+    Renderer, ScatterSettings, Volume,
+};
 use image::codecs::jpeg::JpegEncoder;
 use image::codecs::png::PngEncoder;
 use image::{ImageBuffer, ImageEncoder, Luma};
@@ -58,6 +62,44 @@ impl Renderer for SharedRenderer {
     }
 }
 
+/// The imaging settings of a scene.
+pub fn fluoroscope_settings(assets: &SceneAssets) -> FluoroscopeSettings {
+    let f = &assets.spec.fluoroscopy;
+    let mut settings = FluoroscopeSettings::angio_suite();
+    settings.detector.photons_per_pixel = f.photons_per_pixel;
+    settings.detector.noise = f.noise;
+    settings.detector.seed = f.seed;
+    settings.detector.auto_window = true;
+    settings.dose.automatic = f.automatic_exposure;
+    settings.recursive_weight = f.recursive_weight;
+    settings.mask_frames = f.dsa_mask_frames;
+    settings.scatter = (f.scatter_to_primary > 0.0).then(|| ScatterSettings {
+        scatter_to_primary: f.scatter_to_primary,
+        ..ScatterSettings::default()
+    });
+    settings.edge_enhancement = (f.edge_enhancement > 0.0).then(|| EdgeEnhancement {
+        amount: f.edge_enhancement,
+        ..EdgeEnhancement::default()
+    });
+    settings
+}
+
+/// A displayed frame with the state it shows.
+#[derive(Debug, Clone)]
+pub struct RenderedFrame {
+    /// The image.
+    pub frame: Frame,
+    /// Last command sequence number applied in the snapshot it shows.
+    pub last_seq: u64,
+    /// Step of that snapshot.
+    pub step: u64,
+    /// Dose accumulated by the session's exposures up to this frame.
+    pub dose: DoseTally,
+    /// The target vessel projected into the image as (x, y) fractions of its width and height
+    /// from the top-left, when the scene's guidance shows the marker; empty otherwise.
+    pub target_outline: Vec<[f32; 2]>,
+}
+
 /// One fluoroscopy exposure of `snapshot` outside any session (tests and tools): a fresh
 /// fluoroscope with the scene's settings on the CPU renderer, at time 0.
 pub fn expose_snapshot(assets: &SceneAssets, snapshot: &Snapshot) -> Result<cathlab_xray::Frame> {
@@ -70,7 +112,7 @@ pub fn expose_snapshot_with(
     snapshot: &Snapshot,
     noise: bool,
 ) -> Result<cathlab_xray::Frame> {
-    let mut settings = crate::session::fluoroscope_settings(assets);
+    let mut settings = fluoroscope_settings(assets);
     settings.detector.noise &= noise;
     let mut chain =
         cathlab_xray::Fluoroscope::new(Box::new(cathlab_xray::CpuRenderer::default()), settings)?;
@@ -196,7 +238,7 @@ pub type Encoded = Result<(Vec<u8>, u32, u32)>;
 /// [`encode_frame`] on the rayon pool (niced below physics, see `priority`); the answer comes
 /// through the returned channel.
 pub fn encode_in_pool(
-    frame: Arc<crate::session::RenderedFrame>,
+    frame: Arc<RenderedFrame>,
     encoding: Encoding,
     width: u32,
     height: u32,

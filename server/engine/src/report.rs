@@ -18,8 +18,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::assets::SceneAssets;
 use crate::error::{EngineError, Result};
-use crate::imaging::{Encoding, carm_of, encode_frame, layers_of};
-use crate::session::{CommandRecord, fluoroscope_settings};
+use crate::imaging::{Encoding, carm_of, encode_frame, fluoroscope_settings, layers_of};
+use crate::session::CommandRecord;
 use crate::world::{Command, Mode, Snapshot, World};
 
 /// Version of the report's layout (stored reports of another version are computed again).

@@ -11,10 +11,7 @@ use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use cathlab_xray::{
-    DoseTally, EdgeEnhancement, Fluoroscope, FluoroscopeSettings, Frame, ImagingMode, Layers,
-    ScatterSettings,
-};
+use cathlab_xray::{Fluoroscope, ImagingMode, Layers};
 use parking_lot::Mutex;
 use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, oneshot, watch};
@@ -22,6 +19,9 @@ use tokio::sync::{broadcast, oneshot, watch};
 use crate::assets::SceneAssets;
 use crate::error::{EngineError, Result};
 use crate::imaging::{SharedRenderer, carm_of, layers_of};
+// A session's frames and its fluoroscope's settings are the imaging's; re-exported here, where
+// clients have found them.
+pub use crate::imaging::{RenderedFrame, fluoroscope_settings};
 use crate::metrics::{Event, EventKind, Metrics};
 use crate::telemetry::{EngineMetrics, SessionTiming};
 use crate::world::{Command, Mode, Snapshot, World};
@@ -74,22 +74,6 @@ pub struct Queued {
     pub command: Command,
     /// Where to say it applied (and is durable) or was refused.
     pub ack: Option<Ack>,
-}
-
-/// A displayed frame with the state it shows.
-#[derive(Debug, Clone)]
-pub struct RenderedFrame {
-    /// The image.
-    pub frame: Frame,
-    /// Last command sequence number applied in the snapshot it shows.
-    pub last_seq: u64,
-    /// Step of that snapshot.
-    pub step: u64,
-    /// Dose accumulated by the session's exposures up to this frame.
-    pub dose: DoseTally,
-    /// The target vessel projected into the image as (x, y) fractions of its width and height
-    /// from the top-left, when the scene's guidance shows the marker; empty otherwise.
-    pub target_outline: Vec<[f32; 2]>,
 }
 
 /// Session threads' knobs.
@@ -344,28 +328,6 @@ fn spawn(name: String, body: impl FnOnce() + Send + 'static) -> Result<JoinHandl
         .name(name.clone())
         .spawn(body)
         .map_err(|e| EngineError::Spawn(format!("{name}: {e}")))
-}
-
-/// The imaging settings of a scene.
-pub fn fluoroscope_settings(assets: &SceneAssets) -> FluoroscopeSettings {
-    let f = &assets.spec.fluoroscopy;
-    let mut settings = FluoroscopeSettings::angio_suite();
-    settings.detector.photons_per_pixel = f.photons_per_pixel;
-    settings.detector.noise = f.noise;
-    settings.detector.seed = f.seed;
-    settings.detector.auto_window = true;
-    settings.dose.automatic = f.automatic_exposure;
-    settings.recursive_weight = f.recursive_weight;
-    settings.mask_frames = f.dsa_mask_frames;
-    settings.scatter = (f.scatter_to_primary > 0.0).then(|| ScatterSettings {
-        scatter_to_primary: f.scatter_to_primary,
-        ..ScatterSettings::default()
-    });
-    settings.edge_enhancement = (f.edge_enhancement > 0.0).then(|| EdgeEnhancement {
-        amount: f.edge_enhancement,
-        ..EdgeEnhancement::default()
-    });
-    settings
 }
 
 /// The world's checkpoint now.

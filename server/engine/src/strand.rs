@@ -1,9 +1,11 @@
 //! What the operator's hands hold: one device (a scene's `devices`, one at a time) or a
 //! coaxial stack (a scene's `stack`, each instrument in its own hand), behind one interface
-//! that the world steps, limits, draws and digests the same way.
+//! that the world steps, limits, draws and digests the same way; and the navigation
+//! settings of a scene's fidelity.
 
 use cathlab_physics::{
-    BeamModel, Command, ContactStep, Device, Effort, InstrumentSpec, Navigation, Stack,
+    BeamModel, Command, ContactStep, Device, Effort, InstrumentSpec, Navigation,
+    NavigationSettings, Refinement, Stack,
 };
 use nalgebra::Vector3;
 
@@ -29,11 +31,25 @@ pub struct HandReaction {
     pub torque_nm: f64,
 }
 
+/// The navigation settings of a scene's fidelity.
+fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
+    let q = &assets.spec.fidelity;
+    let mut settings = NavigationSettings {
+        time_step_s: assets.spec.time_step_s(),
+        tip_element_m: q.tip_element_mm * 1e-3,
+        shaft_element_m: q.shaft_element_mm * 1e-3,
+        refinement: q.refine.then(Refinement::default),
+        ..NavigationSettings::default()
+    };
+    settings.contact.tolerance = q.contact_tolerance;
+    settings
+}
+
 impl Strand {
     /// The scene's start: device `device` of a one-device scene, or the scene's stack.
     pub fn start(assets: &SceneAssets, device: usize) -> Result<Self> {
         let (entry, direction) = assets.entry;
-        let settings = crate::world::navigation_settings(assets);
+        let settings = navigation_settings(assets);
         if assets.spec.stack.is_empty() {
             return Ok(Strand::Single(Navigation::new(
                 assets.devices[device].0.clone(),

@@ -1,0 +1,99 @@
+//! The scene's `[fidelity]`: accuracy against cost (step rate, element lengths, contact
+//! tolerance, refinement, detector size, contrast cells), and its checks.
+
+use serde::{Deserialize, Serialize};
+
+use super::field::{range, yes};
+use crate::error::Result;
+
+/// Accuracy against cost.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FidelitySpec {
+    /// Physics steps per second (100–2000).
+    #[serde(default = "default_step_rate")]
+    pub step_rate_hz: f64,
+    /// Element length near the tip (mm).
+    #[serde(default = "default_tip_element_mm")]
+    pub tip_element_mm: f64,
+    /// Element length along the shaft (mm).
+    #[serde(default = "default_shaft_element_mm")]
+    pub shaft_element_mm: f64,
+    /// Gauss–Seidel relative force tolerance.
+    #[serde(default = "default_contact_tolerance")]
+    pub contact_tolerance: f64,
+    /// Refine elements where the device bends or touches.
+    #[serde(default = "yes")]
+    pub refine: bool,
+    /// Detector size (pixels, square).
+    #[serde(default = "default_frame_px")]
+    pub frame_px: u32,
+    /// Contrast cell length (mm).
+    #[serde(default = "default_cell_mm")]
+    pub contrast_cell_mm: f64,
+    /// Contrast advances every this many physics steps.
+    #[serde(default = "default_contrast_every")]
+    pub contrast_every_steps: u32,
+}
+
+fn default_step_rate() -> f64 {
+    500.0
+}
+fn default_tip_element_mm() -> f64 {
+    1.5
+}
+fn default_shaft_element_mm() -> f64 {
+    5.0
+}
+fn default_contact_tolerance() -> f64 {
+    1e-3
+}
+fn default_frame_px() -> u32 {
+    512
+}
+fn default_cell_mm() -> f64 {
+    0.5
+}
+fn default_contrast_every() -> u32 {
+    10
+}
+
+impl Default for FidelitySpec {
+    fn default() -> Self {
+        Self {
+            step_rate_hz: default_step_rate(),
+            tip_element_mm: default_tip_element_mm(),
+            shaft_element_mm: default_shaft_element_mm(),
+            contact_tolerance: default_contact_tolerance(),
+            refine: true,
+            frame_px: default_frame_px(),
+            contrast_cell_mm: default_cell_mm(),
+            contrast_every_steps: default_contrast_every(),
+        }
+    }
+}
+
+impl FidelitySpec {
+    /// Checks every knob's range.
+    pub(super) fn validate(&self) -> Result<()> {
+        let q = self;
+        range("fidelity.step_rate_hz", q.step_rate_hz, 100.0, 2000.0)?;
+        range("fidelity.tip_element_mm", q.tip_element_mm, 0.25, 10.0)?;
+        range(
+            "fidelity.shaft_element_mm",
+            q.shaft_element_mm,
+            q.tip_element_mm,
+            50.0,
+        )?;
+        range("fidelity.contact_tolerance", q.contact_tolerance, 1e-8, 0.5)?;
+        range("fidelity.frame_px", q.frame_px as f64, 64.0, 2048.0)?;
+        range("fidelity.contrast_cell_mm", q.contrast_cell_mm, 0.1, 5.0)?;
+        range(
+            "fidelity.contrast_every_steps",
+            q.contrast_every_steps as f64,
+            1.0,
+            100.0,
+        )?;
+        Ok(())
+    }
+}

@@ -1,0 +1,44 @@
+//! The scene's `[limits]`: what the trainee's hand meets (the force it pushes with, the
+//! length left unsupported outside the sheath, the length that stays outside), and its
+//! checks.
+
+use serde::{Deserialize, Serialize};
+
+use super::field::range;
+use crate::error::Result;
+
+/// The physical limits of a push. The force limit of a device is the smaller of the
+/// operator's and the Euler buckling load of its proximal shaft over the unsupported length
+/// between the hand and the sheath's valve (clamped at both ends): about 1.9 N for a 0.014"
+/// micro-guidewire over 30 mm, so that wire buckles outside before the hand's 10 N.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LimitsSpec {
+    /// The most a hand pushes with (N).
+    pub push_force_n: f64,
+    /// Length of device unsupported between the hand and the sheath's valve (mm).
+    pub unsupported_mm: f64,
+    /// Length of device that stays outside the access: sheath, valve, hub and grip (mm).
+    pub outside_mm: f64,
+}
+
+impl Default for LimitsSpec {
+    fn default() -> Self {
+        Self {
+            push_force_n: 10.0,
+            unsupported_mm: 30.0,
+            outside_mm: 150.0,
+        }
+    }
+}
+
+impl LimitsSpec {
+    /// Checks the push force and the lengths.
+    pub(super) fn validate(&self) -> Result<()> {
+        let l = self;
+        range("limits.push_force_n", l.push_force_n, 0.1, 10_000.0)?;
+        range("limits.unsupported_mm", l.unsupported_mm, 5.0, 500.0)?;
+        range("limits.outside_mm", l.outside_mm, 0.0, 2000.0)?;
+        Ok(())
+    }
+}

@@ -1,0 +1,122 @@
+//! One instrument's hand: its device's look and push limits (the hand's strength, the Euler
+//! load outside the sheath, the device's length), what held its push back and what it feels;
+//! and an exchange waiting for its instrument to be withdrawn.
+
+use cathlab_xray::DeviceAppearance;
+use serde::{Deserialize, Serialize};
+
+use crate::assets::SceneAssets;
+use crate::strand::HandReaction;
+
+/// What holds a push back: the force the hand or the device can push with, or the device's
+/// length (its hub at the sheath).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PushLimit {
+    /// Nothing: the device advances as commanded.
+    #[default]
+    None,
+    /// The proximal force reached the limit: the hand cannot push harder, or the device
+    /// would buckle outside the sheath.
+    Force,
+    /// The device is in to its hub.
+    Length,
+}
+
+/// The push limits of one device in a scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeviceLimits {
+    /// The most the proximal end is pushed with (N).
+    pub force_n: f64,
+    /// Whether that is the device's buckling load (else the hand's strength).
+    pub buckling: bool,
+    /// The most that can be inserted (m): the device's length less what stays outside.
+    pub max_inserted_m: f64,
+}
+
+impl DeviceLimits {
+    /// The limits of `device` under `limits`: the force is the smaller of the hand's and the
+    /// Euler load of the proximal shaft over the unsupported length, clamped at both ends
+    /// (effective length half of it): P = π²·EI / (L/2)².
+    /// `along_route_m` is the route not simulated before the entry point (m), which the
+    /// device also fills.
+    pub fn of(
+        device: &cathlab_physics::Device,
+        limits: &crate::scene::LimitsSpec,
+        along_route_m: f64,
+    ) -> Self {
+        let ei = device
+            .sections
+            .first()
+            .map_or(0.0, |s| s.beam_properties().bending_stiffness_nm2);
+        let effective = 0.5 * limits.unsupported_mm * 1e-3;
+        let buckling = std::f64::consts::PI.powi(2) * ei / (effective * effective);
+        Self {
+            force_n: buckling.min(limits.push_force_n),
+            buckling: buckling < limits.push_force_n,
+            max_inserted_m: device.length_m() - limits.outside_mm * 1e-3 - along_route_m,
+        }
+    }
+}
+
+/// An exchange (or an unloading) waiting for its instrument to be withdrawn.
+#[derive(Debug, Clone)]
+pub(super) struct PendingExchange {
+    pub(super) index: usize,
+    /// The device that takes its place, its look and the name it goes by; `None`: the
+    /// instrument is taken out.
+    pub(super) replacement: Option<(cathlab_physics::Device, DeviceAppearance, String)>,
+}
+
+/// One instrument's hand: its device's look and limits, and what held its push back.
+#[derive(Debug, Clone)]
+pub(super) struct Hand {
+    pub(super) catalogue_id: String,
+    pub(super) look: DeviceAppearance,
+    pub(super) limits: DeviceLimits,
+    pub(super) push_limit: PushLimit,
+    /// Whether the next time a limit holds the push back is reported (re-armed after the push
+    /// has been free for `LIMIT_REARM_S`).
+    pub(super) limit_armed: bool,
+    pub(super) push_free_since_s: f64,
+    pub(super) reaction: HandReaction,
+}
+
+impl Hand {
+    pub(super) fn new(
+        catalogue_id: String,
+        device: &cathlab_physics::Device,
+        look: DeviceAppearance,
+        spec: &crate::scene::SceneSpec,
+    ) -> Self {
+        Self {
+            catalogue_id,
+            look,
+            limits: DeviceLimits::of(device, &spec.limits, spec.start.along_route_mm * 1e-3),
+            push_limit: PushLimit::None,
+            limit_armed: true,
+            push_free_since_s: 0.0,
+            reaction: HandReaction::default(),
+        }
+    }
+}
+
+/// The hands of the scene's start: the active device's, or one per stack instrument.
+pub(super) fn start_hands(assets: &SceneAssets, active: usize) -> Vec<Hand> {
+    if assets.spec.stack.is_empty() {
+        let (device, look) = &assets.devices[active];
+        return vec![Hand::new(String::new(), device, look.clone(), &assets.spec)];
+    }
+    assets
+        .spec
+        .stack
+        .iter()
+        .zip(&assets.devices)
+        .map(|(entry, (device, look))| {
+            Hand::new(entry.device.clone(), device, look.clone(), &assets.spec)
+        })
+        .collect()
+}
+
+/// How long a push must go unhindered before the next limit it meets is reported again (s).
+pub(super) const LIMIT_REARM_S: f64 = 0.5;

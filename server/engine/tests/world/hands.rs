@@ -1,0 +1,360 @@
+//! The hands: the target metric against the autopilot, push limits (the hand, the Euler
+//! load, the hub), a catheter pushed past the wire's tip, and an exchange drawn back through
+//! the catheter, replaced, or cancelled by a push.
+
+use cathlab_engine::*;
+
+use super::{assets, default_text, scenes};
+
+#[test]
+fn the_target_metric_agrees_with_an_autopilot_that_reaches_the_lcca() {
+    use cathlab_physics::autopilot::Autopilot;
+    let a = assets(&default_text());
+    let mut world = World::new(a.clone()).unwrap();
+    let plan =
+        cathlab_physics::scenarios::ArchToCowPlan::for_target(&a.anatomy.graph, "LCCA").unwrap();
+    // The autopilot of the scene's route, told the scene's reach.
+    let autopilot = || {
+        Autopilot::new(
+            &a.anatomy.graph,
+            a.route.clone(),
+            0.0,
+            cathlab_physics::autopilot::AutopilotSettings {
+                reach_m: a.spec.target.reach_mm * 1e-3,
+                ..plan.autopilot
+            },
+        )
+        .unwrap()
+    };
+    let mut pilot = autopilot();
+    let start_tip = world.snapshot().tip();
+    let start_remaining = world.metrics().target_remaining_m;
+    let pilot_reached = world
+        .follow_autopilot(&mut pilot, plan.max_steps, 1)
+        .unwrap();
+    let reached_step = pilot_reached.expect("the autopilot reaches the LCCA");
+    let at = world
+        .metrics()
+        .target_reached_at_s
+        .expect("the world saw the target reached");
+    let dt = a.spec.time_step_s();
+    // The world checks after each step, the autopilot before the next: the same step.
+    assert!(
+        (at / dt - reached_step as f64).abs() < 1.5,
+        "world {at} s = step {}, autopilot step {reached_step}",
+        at / dt
+    );
+    let events = world.take_events();
+    assert!(events.iter().any(|e| e.kind == EventKind::TargetReached));
+    // The distance to go, along the route: from the start to the goal, then about nothing.
+    let remaining = world.metrics().target_remaining_m;
+    // The tip starts `inserted_mm` beyond the entry, straight along the route's start.
+    let expected = a.goal_along_m - (a.spec.start.along_route_mm + a.spec.start.inserted_mm) * 1e-3;
+    println!(
+        "to go: {:.1} mm at the start (route {:.1} mm), {:.1} mm when reached",
+        start_remaining * 1e3,
+        expected * 1e3,
+        remaining * 1e3
+    );
+    assert!(
+        (start_remaining - expected).abs() < 0.002,
+        "{start_remaining} vs {expected}"
+    );
+    assert!(remaining < 0.003, "{remaining}");
+    let m = world.metrics();
+    println!(
+        "LCCA reached at {at:.2} s; tip path {:.0} mm, wall force max {:.3} N mean {:.4} N",
+        m.tip_path_length_m * 1e3,
+        m.max_wall_force_n,
+        m.mean_wall_force_n
+    );
+    // The path is at least the displacement, and the wire rubbed the wall on the way.
+    let displacement = (world.snapshot().tip() - start_tip).norm();
+    assert!(
+        m.tip_path_length_m >= displacement && displacement > 0.1,
+        "path {} m, displacement {displacement} m",
+        m.tip_path_length_m
+    );
+    assert!(m.max_wall_force_n > 0.0 && m.mean_wall_force_n > 0.0);
+
+    // Reset starts a new attempt: the target is to be reached again, and the reset counts.
+    let reset_at = world.metrics().procedure_time_s;
+    world.apply(1, &Command::Reset).unwrap();
+    let m = world.metrics();
+    assert_eq!(m.operator_resets, 1);
+    assert_eq!(m.target_reached_at_s, None);
+    assert_eq!(m.attempt_started_at_s, reset_at);
+    let mut again = autopilot();
+    world
+        .follow_autopilot(&mut again, plan.max_steps, 1)
+        .unwrap()
+        .expect("the second attempt reaches the LCCA");
+    let m = world.metrics();
+    let second = m.target_reached_at_s.expect("reached again") - m.attempt_started_at_s;
+    println!("second attempt: reached {second:.3} s after the reset (first {at:.3} s)");
+    // The device restarts where it started: the same run, the same time to the target.
+    assert!((second - at).abs() < 2.0 * dt, "{second} vs {at}");
+}
+
+#[test]
+fn push_force_limits_are_the_hand_or_the_euler_load_outside_the_sheath() {
+    use cathlab_engine::scene::LimitsSpec;
+    use cathlab_engine::world::DeviceLimits;
+    use cathlab_physics::presets;
+    let limits = LimitsSpec::default();
+    // Euler, clamped at both ends over 30 mm: P = 4π²·E·(πr⁴/4) / L², by hand.
+    let euler = |e_pa: f64, r_m: f64| {
+        let inertia = std::f64::consts::PI * r_m.powi(4) / 4.0;
+        4.0 * std::f64::consts::PI.powi(2) * e_pa * inertia / 0.03f64.powi(2)
+    };
+    let micro = DeviceLimits::of(&presets::micro_guidewire_014(), &limits, 0.0);
+    let expected = euler(55e9, 0.014 * 0.0254 / 2.0);
+    assert!(micro.buckling && (micro.force_n - expected).abs() < 1e-9 * expected);
+    assert!((1.5..2.5).contains(&micro.force_n), "{}", micro.force_n);
+    let wire = DeviceLimits::of(&presets::guidewire_035(), &limits, 0.0);
+    assert!(!wire.buckling && wire.force_n == 10.0, "{wire:?}");
+    assert!((wire.max_inserted_m - (presets::guidewire_035().length_m() - 0.15)).abs() < 1e-12);
+}
+
+#[test]
+fn a_push_stops_at_the_hub_and_says_so() {
+    // 1.1 m of the 1.5 m wire stays outside: it goes in 400 mm at most.
+    let text = default_text() + "\n[limits]\noutside_mm = 1100.0\npush_force_n = 100.0\n";
+    let mut world = World::new(assets(&text)).unwrap();
+    let max = world.assets().devices[0].0.length_m() - 1.1;
+    world.apply(1, &Command::PushVelocity(0.15)).unwrap();
+    let mut events = Vec::new();
+    for _ in 0..1500 {
+        world.step().unwrap();
+        events.extend(world.take_events());
+        assert!(world.navigation().unwrap().inserted_m() <= max + 1e-12);
+    }
+    let snapshot = world.snapshot();
+    println!(
+        "inserted {:.3} mm of at most {:.3} mm; events {:?}",
+        snapshot.inserted_m * 1e3,
+        max * 1e3,
+        events.iter().map(|e| &e.message).collect::<Vec<_>>()
+    );
+    assert!((snapshot.inserted_m - max).abs() < 1e-9);
+    assert_eq!(
+        snapshot.push_limit,
+        cathlab_engine::world::PushLimit::Length
+    );
+    let hub: Vec<_> = events
+        .iter()
+        .filter(|e| e.kind == EventKind::Limit && e.message.contains("in to its hub"))
+        .collect();
+    assert_eq!(hub.len(), 1, "reported once while held: {events:?}");
+    // Pulling back frees it; the next push to the hub is reported again.
+    world.apply(2, &Command::PushVelocity(-0.05)).unwrap();
+    for _ in 0..400 {
+        world.step().unwrap();
+    }
+    assert_eq!(
+        world.snapshot().push_limit,
+        cathlab_engine::world::PushLimit::None
+    );
+    world.apply(3, &Command::PushVelocity(0.15)).unwrap();
+    for _ in 0..400 {
+        world.step().unwrap();
+    }
+    let again = world
+        .take_events()
+        .into_iter()
+        .filter(|e| e.kind == EventKind::Limit)
+        .count();
+    assert_eq!(again, 1);
+}
+
+#[test]
+fn pushing_the_catheter_past_the_wire_tip_is_counted_and_reported() {
+    let text = std::fs::read_to_string(scenes().join("arch_to_cow_lcca_coaxial.toml")).unwrap();
+    let mut world = World::new(assets(&text)).unwrap();
+    let drive = |index, v| Command::Instrument {
+        index,
+        drive: Drive::PushVelocity(v),
+    };
+    // The wire leads (30 mm against the catheter's 10); the left hand pushes the catheter
+    // 40 mm at 40 mm/s while the wire is held.
+    world.apply(1, &drive(0, 0.04)).unwrap();
+    for _ in 0..500 {
+        world.step().unwrap();
+    }
+    let m = *world.metrics();
+    assert_eq!(m.instrument_count, 2);
+    assert_eq!(m.passed_inner_tip, 1, "{m:?}");
+    assert_eq!(m.leading_instrument, 0);
+    assert_eq!(m.lead_changes, 1);
+    let events = world.take_events();
+    assert!(
+        events
+            .iter()
+            .any(|e| e.message.contains("passed the tip of the")),
+        "{events:?}"
+    );
+    // Only the catheter moved: its tip travelled about 40 mm, the wire's little.
+    let [catheter, wire, ..] = m.instruments;
+    assert!((catheter.moving_time_s - 1.0).abs() < 0.01, "{catheter:?}");
+    assert_eq!(wire.moving_time_s, 0.0);
+    assert!(catheter.tip_path_length_m > 0.03, "{catheter:?}");
+    assert!(catheter.peak_axial_force_n > 0.0);
+    // The wire pushed out again takes the lead back; withdrawing the catheter behind it is no
+    // pass.
+    world.apply(2, &drive(0, -0.04)).unwrap();
+    world.apply(3, &drive(1, 0.04)).unwrap();
+    for _ in 0..500 {
+        world.step().unwrap();
+    }
+    let m = *world.metrics();
+    assert_eq!(m.passed_inner_tip, 1);
+    assert_eq!(m.leading_instrument, 1);
+    assert_eq!(m.lead_changes, 2);
+}
+
+#[test]
+fn an_exchange_withdraws_the_wire_through_the_catheter_then_replaces_it_and_a_push_cancels_it() {
+    let text = std::fs::read_to_string(scenes().join("arch_to_cow_lcca_coaxial.toml")).unwrap();
+    let mut world = World::new(assets(&text)).unwrap();
+    let catalogue = cathlab_engine::scene::catalogue().entries();
+    let j_tip = catalogue
+        .iter()
+        .position(|e| e.id == "guidewire-035-j-3mm")
+        .unwrap() as u32;
+    let guide = catalogue
+        .iter()
+        .position(|e| e.id == "guide-6f-071-90")
+        .unwrap() as u32;
+    // A guide catheter does not fit in a 5 F catheter: refused at once, nothing starts.
+    let refused = world
+        .apply(
+            1,
+            &Command::Exchange {
+                index: 1,
+                catalogue: guide,
+            },
+        )
+        .unwrap_err();
+    assert!(
+        refused.to_string().contains("fit") || refused.to_string().contains("lumen"),
+        "{refused}"
+    );
+    // A spare the scene does not have, and a catalogue entry that does not exist, are named.
+    let missing = world
+        .apply(1, &Command::ExchangeSpare { index: 1, spare: 5 })
+        .unwrap_err();
+    assert!(
+        missing.to_string().contains("spare 5 does not exist"),
+        "{missing}"
+    );
+    let missing = world
+        .apply(
+            1,
+            &Command::Exchange {
+                index: 1,
+                catalogue: 9999,
+            },
+        )
+        .unwrap_err();
+    assert!(
+        missing.to_string().contains("catalogue entry 9999"),
+        "{missing}"
+    );
+    // The wire is 20 mm out of the catheter: the exchange draws it back through it first.
+    world
+        .apply(
+            2,
+            &Command::Exchange {
+                index: 1,
+                catalogue: j_tip,
+            },
+        )
+        .unwrap();
+    let started = world.take_events();
+    assert!(
+        started.iter().any(|e| e.message.contains("withdrawing")),
+        "{started:?}"
+    );
+    // A push on the wire takes it back: the exchange is cancelled.
+    world.step().unwrap();
+    world
+        .apply(
+            3,
+            &Command::Instrument {
+                index: 1,
+                drive: Drive::PushVelocity(0.01),
+            },
+        )
+        .unwrap();
+    assert!(
+        world
+            .take_events()
+            .iter()
+            .any(|e| e.message.contains("cancelled")),
+        "a push cancels the exchange"
+    );
+    let before = world.snapshot().instruments[1].inserted_m;
+    for _ in 0..50 {
+        world.step().unwrap();
+    }
+    assert!(
+        world.snapshot().instruments[1].inserted_m > before,
+        "the wire advanced again"
+    );
+    // Again, left alone: withdrawn at the hand's top speed, then replaced at the hub.
+    world
+        .apply(
+            4,
+            &Command::Exchange {
+                index: 1,
+                catalogue: j_tip,
+            },
+        )
+        .unwrap();
+    let mut steps = 0;
+    while world.snapshot().instruments[1].catalogue_id != "guidewire-035-j-3mm" {
+        world.step().unwrap();
+        steps += 1;
+        assert!(steps < 20_000, "the exchange never finished");
+    }
+    let s = world.snapshot();
+    let catheter = &s.instruments[0];
+    let wire = &s.instruments[1];
+    println!(
+        "exchange: {steps} steps ({:.1} s); the new wire starts at {:.0} mm (catheter at {:.0} mm)",
+        steps as f64 * 0.002,
+        wire.inserted_m * 1e3,
+        catheter.inserted_m * 1e3
+    );
+    assert!(wire.name.contains("J-tip"), "{}", wire.name);
+    assert!(
+        wire.tip.is_none(),
+        "the new wire waits at the catheter's hub, outside the body"
+    );
+    assert!(
+        world
+            .take_events()
+            .iter()
+            .any(|e| e.message.contains("exchanged for guidewire-035-j-3mm")),
+        "the exchange is reported"
+    );
+    // Pushed in, the new wire comes out of the catheter.
+    world
+        .apply(
+            5,
+            &Command::Instrument {
+                index: 1,
+                drive: Drive::PushTarget(catheter.inserted_m + 0.01),
+            },
+        )
+        .unwrap();
+    for _ in 0..10_000 {
+        world.step().unwrap();
+    }
+    let wire = &world.snapshot().instruments[1];
+    assert!(
+        wire.tip.is_some() && wire.inserted_m > catheter.inserted_m,
+        "{:.3} m",
+        wire.inserted_m
+    );
+}
