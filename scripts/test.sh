@@ -14,6 +14,8 @@ echo "== cargo fmt --check"
 cargo fmt --all --check
 echo "== cargo clippy"
 cargo clippy --locked --workspace --all-targets -- -D warnings
+echo "== cargo doc (warnings are errors)"
+RUSTDOCFLAGS="-D warnings" cargo doc --locked --workspace --no-deps
 log=$(mktemp)
 trap 'rm -f "$log"' EXIT
 echo "== web client: install, generated code current, build, unit tests"
@@ -27,9 +29,9 @@ install_test_packages
     console.log(`test result: ${r.success ? "ok" : "FAILED"}. ${r.numPassedTests} passed; ${r.numFailedTests} failed (vitest)`);
     process.exit(r.success ? 0 : 1)'
 ) 2>&1 | tee -a "$log"
-echo "== cargo test (lib, bins, tests, benches in test mode; the browser tests among them)"
+echo "== cargo test (lib, bins, tests, benches in test mode; the browser tests among them), binaries side by side"
 export CATHLAB_REQUIRE_BROWSER=1
-cargo test --locked --workspace --all-targets 2>&1 | tee -a "$log"
+bash scripts/run-tests.sh 2>&1 | tee -a "$log"
 echo "== fuzz smoke: every file reader (an instrumented build, the regressions, ~3 min of fuzzing)"
 bash scripts/fuzz.sh smoke 2>&1 | tee -a "$log"
 awk '/^test result:/ { p += $4; f += $6 } END { printf "cathlab: %d passed, %d failed\n", p, f }' "$log"

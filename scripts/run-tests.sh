@@ -1,0 +1,102 @@
+#!/usr/bin/env bash
+# Runs every test of the workspace as `cargo test --workspace --all-targets` would (lib, bins,
+# tests, benches in test mode), with independent test binaries side by side: the machine's
+# cores sit idle while end-to-end tests wait on servers, browsers and timeouts, so running
+# binaries concurrently takes less wall time than one after another. Binaries that measure
+# time (missed steps, real-time pushes, the haptic loop, the soak and load smoke runs) run
+# afterwards, each alone. Prints each binary's output whole when it ends, then a table of
+# the ten slowest binaries, so a regression is seen the day it lands.
+#
+#   scripts/run-tests.sh            (TEST_JOBS binaries at once, default 3)
+#   TEST_ONLY='^physics/' scripts/run-tests.sh   only the binaries whose name matches (grep -E)
+#
+# Exit status 1 when any binary fails; the failing ones are named at the end.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+jobs="${TEST_JOBS:-3}"
+# Test binaries whose assertions are about time: run alone, after the others.
+alone=" tests/attack tests/haptic_bridge tests/haptic_latency tests/load_smoke tests/soak_smoke tests/web_client "
+
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+
+echo "-- building every test binary and the binaries the end-to-end suites run"
+# One build of every target with the test profile: the binaries then share the test
+# binaries' dependency features (a separate `cargo build -p` would resolve features anew and
+# compile part of the tree twice).
+cargo build --locked --profile test --workspace --all-targets \
+  --message-format=json-render-diagnostics >"$work/artifacts.json"
+# The suites in tests/ find the binaries just built (cathlab_tests::binary).
+export CATHLAB_TESTS_PREBUILT=1
+
+# One line per test executable: name (package folder/target)<TAB>package folder<TAB>executable.
+node -e '
+  const lines = require("fs").readFileSync(process.argv[1], "utf8").split("\n");
+  const seen = new Set();
+  for (const line of lines) {
+    if (!line.startsWith("{")) continue;
+    const m = JSON.parse(line);
+    if (m.reason !== "compiler-artifact" || !m.executable || !m.profile.test) continue;
+    if (m.target.kind.includes("example")) continue;
+    if (seen.has(m.executable)) continue;
+    seen.add(m.executable);
+    const kind = m.target.kind.includes("lib") ? "lib" : m.target.kind[0];
+    const dir = require("path").dirname(m.manifest_path);
+    const target = kind === "lib" || kind === "bin" ? `${m.target.name}(${kind})` : m.target.name;
+    const name = `${require("path").basename(dir)}/${target}`;
+    console.log([name, dir, m.executable].join("\t"));
+  }' "$work/artifacts.json" | grep -E -- "${TEST_ONLY:-.}" >"$work/list.tsv" || true
+echo "-- $(wc -l <"$work/list.tsv") test binaries, $jobs at a time, then those that measure time alone"
+
+key() { echo "${1//\//__}"; } # a file name for a binary's name
+
+run_one() { # name dir executable
+  local name="$1" dir="$2" exe="$3" start rc=0 k
+  k=$(key "$name")
+  start=$EPOCHREALTIME
+  (cd "$dir" && "$exe") >"$work/out.$k" 2>&1 || rc=$?
+  echo "$name $rc $(awk -v a="$start" -v b="$EPOCHREALTIME" 'BEGIN { print b - a }')" \
+    >"$work/done.$k.tmp"
+  mv "$work/done.$k.tmp" "$work/done.$k"
+}
+
+report() { # key
+  local k="$1" name rc secs
+  read -r name rc secs <"$work/done.$k"
+  echo "== $name: $(printf '%.1f' "$secs") s$([ "$rc" = 0 ] || echo ", FAILED (exit $rc)")"
+  cat "$work/out.$k"
+  echo "$secs $name" >>"$work/times"
+  [ "$rc" = 0 ] || echo "$name" >>"$work/failed"
+  rm -f "$work/done.$k" "$work/out.$k"
+}
+
+wait_for_slot() { # reports every finished binary; returns when fewer than $1 run
+  while :; do
+    for f in "$work"/done.*; do
+      case "$f" in *.tmp) continue ;; esac
+      [ -e "$f" ] && report "${f#"$work"/done.}"
+    done
+    [ "$(jobs -rp | wc -l)" -lt "$1" ] && break
+    sleep 0.2
+  done
+}
+
+while IFS=$'\t' read -r name dir exe; do
+  case "$alone" in *" $name "*) continue ;; esac
+  wait_for_slot "$jobs"
+  run_one "$name" "$dir" "$exe" &
+done <"$work/list.tsv"
+wait
+wait_for_slot 1
+while IFS=$'\t' read -r name dir exe; do
+  case "$alone" in *" $name "*) ;; *) continue ;; esac
+  run_one "$name" "$dir" "$exe"
+  report "$(key "$name")"
+done <"$work/list.tsv"
+
+echo "-- the ten slowest test binaries (wall seconds; the first group ran $jobs at a time)"
+sort -rn "$work/times" | head -10 | awk '{ printf "  %8.1f s  %s\n", $1, $2 }'
+if [ -s "$work/failed" ]; then
+  echo "-- FAILED: $(tr '\n' ' ' <"$work/failed")"
+  exit 1
+fi
