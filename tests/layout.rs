@@ -465,18 +465,17 @@ fn resolve(modules: &[Module], path: &[String], depth: usize) -> Option<PathBuf>
         if !inside.is_empty() {
             continue;
         }
-        if reexport.last() == Some(item) || reexport.last().is_some_and(|s| s == "*") {
-            if let Some(absolute) = absolute(&module.path, &reexport) {
-                let mut target = absolute;
-                if target.last().is_some_and(|s| s == "*") {
-                    target.pop();
-                    target.push(item.clone());
-                }
-                if target != path {
-                    if let Some(file) = resolve(modules, &target, depth + 1) {
-                        return Some(file);
-                    }
-                }
+        if (reexport.last() == Some(item) || reexport.last().is_some_and(|s| s == "*"))
+            && let Some(mut target) = absolute(&module.path, &reexport)
+        {
+            if target.last().is_some_and(|s| s == "*") {
+                target.pop();
+                target.push(item.clone());
+            }
+            if target != path
+                && let Some(file) = resolve(modules, &target, depth + 1)
+            {
+                return Some(file);
             }
         }
     }

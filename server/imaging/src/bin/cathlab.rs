@@ -55,7 +55,7 @@ enum Command {
         diffusion_iterations: usize,
     },
     /// Turns a vessel surface (.obj, .stl, .ply, .vtp) or a CTA volume (.mha, .mhd, .nii,
-    /// .nii.gz, .dcm or a DICOM folder) into a scene folder: <name>.toml, the surface,
+    /// .nii.gz, .dcm or a DICOM folder) into a scene folder: `<name>.toml`, the surface,
     /// graph.json, centerlines.vtp, preview.png (branch names), report.json (open ends,
     /// branches) and, for a volume, ct.mha. Serve it with `cathlab-server --scenes DIR`.
     Case {

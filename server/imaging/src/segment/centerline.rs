@@ -59,7 +59,7 @@ pub struct CrossSection {
     /// the lumen, so that the middle cannot be trusted.
     pub centre: Option<Point3<f64>>,
     /// Radius (m): of the circle with the section's area when every ray found the wall,
-    /// else the median wall distance of the rays that did. The polygon of [`RAYS`] wall
+    /// else the median wall distance of the rays that did. The polygon of `RAYS` wall
     /// points is scaled to the circle through them, so a round section gives its radius.
     pub radius: f64,
     /// The median over the rays of the wall's blur σ (m), from how far the image falls
@@ -68,7 +68,7 @@ pub struct CrossSection {
     pub edge_sigma: Option<f64>,
 }
 
-/// Casts [`RAYS`] rays from `p` in the plane normal to `tangent` and finds where the image
+/// Casts `RAYS` rays from `p` in the plane normal to `tangent` and finds where the image
 /// falls half-way from its value at `p` to `background_value` (linear between samples
 /// [`Intensity::ray_step`] apart), up to `max_length` (m). `None` if the centre is not
 /// brighter than the background or fewer than three quarters of the rays find the wall.
