@@ -29,7 +29,7 @@ install_test_packages
     console.log(`test result: ${r.success ? "ok" : "FAILED"}. ${r.numPassedTests} passed; ${r.numFailedTests} failed (vitest)`);
     process.exit(r.success ? 0 : 1)'
 ) 2>&1 | tee -a "$log"
-echo "== cargo test (lib, bins, tests, benches in test mode; the browser tests among them), binaries side by side"
+echo "== cargo test (lib, bins, tests, benches in test mode; the browser tests among them; scripts/run-tests.sh)"
 export CATHLAB_REQUIRE_BROWSER=1
 bash scripts/run-tests.sh 2>&1 | tee -a "$log"
 echo "== fuzz smoke: every file reader (an instrumented build, the regressions, ~3 min of fuzzing)"
