@@ -54,11 +54,27 @@ echo "-- $(wc -l <"$work/list.tsv") test binaries, $jobs at a time, then those t
 
 key() { echo "${1//\//__}"; } # a file name for a binary's name
 
+# Copies its input, each test's result line ("test x ... ok") prefixed with the seconds since
+# the binary started, so that a slow test is seen by name.
+stamp() { # start (EPOCHREALTIME)
+  local start=${1/./} line tenths
+  while IFS= read -r line; do
+    case "$line" in
+      "test "*" ... "*)
+        tenths=$(((${EPOCHREALTIME/./} - start) / 100000))
+        printf '[%5d.%d s] %s\n' $((tenths / 10)) $((tenths % 10)) "$line"
+        ;;
+      *) printf '%s\n' "$line" ;;
+    esac
+  done
+}
+
 run_one() { # name dir executable
   local name="$1" dir="$2" exe="$3" start rc=0 k
   k=$(key "$name")
   start=$EPOCHREALTIME
-  (cd "$dir" && "$exe") >"$work/out.$k" 2>&1 || rc=$?
+  # The binary's own status (pipefail is on), not stamp's.
+  (cd "$dir" && "$exe" 2>&1 | stamp "$start") >"$work/out.$k" 2>&1 || rc=$?
   echo "$name $rc $(awk -v a="$start" -v b="$EPOCHREALTIME" 'BEGIN { print b - a }')" \
     >"$work/done.$k.tmp"
   mv "$work/done.$k.tmp" "$work/done.$k"

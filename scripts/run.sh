@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The main job: builds the web client and cathlab-server, and runs the server on
 # 127.0.0.1:50051 with the scenes in scenes/ (default: arch_to_cow_lcca), an embedded SQLite
-# store in var/, and the web client at the printed URL (trainee view at /, instructor
+# store in var/, built anatomies kept in var/asset-cache (the neuro phantom's: ~30 s to build,
+# seconds to read back after a restart), and the web client at the printed URL (trainee view at /, instructor
 # dashboard at /dashboard.html). Extra arguments go to the server (see
 # `cathlab-server --help`), e.g. `scripts/run.sh --listen 0.0.0.0:50051`.
 # The instructor key comes from CATHLAB_INSTRUCTOR_KEY (default here: "instructor", which the
@@ -13,4 +14,4 @@ export CATHLAB_INSTRUCTOR_KEY="${CATHLAB_INSTRUCTOR_KEY:-instructor}"
 build_web_client
 cargo build --release --locked -p cathlab-app --bin cathlab-server
 exec target/release/cathlab-server --scenes scenes --database var/cathlab.sqlite \
-  --web-root client-web/dist "$@"
+  --asset-disk-cache var/asset-cache --web-root client-web/dist "$@"

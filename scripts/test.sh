@@ -10,6 +10,11 @@ source scripts/setup.sh
 export CATHLAB_REQUIRE_GPU="${CATHLAB_REQUIRE_GPU:-1}"
 # A build from scratch: incremental compilation would only add its bookkeeping.
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
+# The web client's packages, Chromium and PostgreSQL come over the network while the compiler
+# works (they take little CPU): started now, waited for before the web client's checks.
+prepare_log=$(mktemp)
+(build_web_client && install_test_packages) >"$prepare_log" 2>&1 &
+prepare=$!
 echo "== cargo fmt --check"
 cargo fmt --all --check
 echo "== cargo clippy"
@@ -19,8 +24,11 @@ RUSTDOCFLAGS="-D warnings" cargo doc --locked --workspace --no-deps
 log=$(mktemp)
 trap 'rm -f "$log"' EXIT
 echo "== web client: install, generated code current, build, unit tests"
-build_web_client
-install_test_packages
+prepare_status=0
+wait "$prepare" || prepare_status=$?
+cat "$prepare_log"
+rm -f "$prepare_log"
+[ "$prepare_status" = 0 ] || { echo "installing the web client or the test packages failed"; exit 1; }
 (
   cd client-web
   npm run --silent check-generated

@@ -38,6 +38,10 @@ fn the_web_client_works_in_a_real_browser() {
         .arg("--server")
         .arg(cathlab_tests::binary("cathlab-server"))
         .args(["--chromium", &chromium])
+        .env(
+            "CATHLAB_ASSET_DISK_CACHE",
+            cathlab_tests::asset_disk_cache(),
+        )
         .current_dir(&client)
         .output()
         .expect("running node (Node.js is needed for the web client)");

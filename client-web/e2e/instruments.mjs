@@ -2,7 +2,7 @@
 // exchange), the stroke scene's thrombectomy panel, and loading and unloading from access.
 import { join } from "node:path";
 import { KEY, artifacts, assert } from "./harness.mjs";
-import { nextFrame, outOfView } from "./page.mjs";
+import { connected, nextFrame, outOfView } from "./page.mjs";
 
 export async function twoHands(ctx) {
   const { browser, pageErrors, url } = ctx;
@@ -160,7 +160,7 @@ export async function strokeScene(ctx) {
   const message = () => page.textContent("#message");
   // The stroke scene (its anatomy takes a while to build on first use).
   await page.goto(`${url}/?label=e2e-stroke&scene=stroke_m1_thrombectomy`);
-  await page.waitForSelector('#connection[data-status="connected"]', { timeout: 120_000 });
+  await connected(page, 240_000);
   await page.waitForSelector("#thrombectomy:not([hidden])", { timeout: 15_000 });
   await page.waitForFunction(() => /^0 /.test(document.querySelector("#hud-etici")?.textContent ?? ""), null, {
     timeout: 15_000,
@@ -204,7 +204,7 @@ export async function accessScene(ctx) {
   page.on("pageerror", (e) => pageErrors.push(`access: ${e.message}`));
   const count = () => page.evaluate(() => document.querySelectorAll("#stack li").length);
   await page.goto(`${url}/?label=e2e-access&scene=stroke_m1_from_access`);
-  await page.waitForSelector('#connection[data-status="connected"]', { timeout: 120_000 });
+  await connected(page, 240_000);
   await page.waitForFunction(() => document.querySelectorAll("#stack li").length === 3, null, { timeout: 15_000 });
   // Every control of the page is in view at 1280×800, the loading buttons among them.
   const outside = await outOfView(page);

@@ -53,3 +53,17 @@ export async function nextFrame(page, selector = "#xray") {
 /** The page's secrets in its address (after the page has run). */
 export const secretsInAddress = (page) =>
   page.evaluate(() => ["account", "token", "key"].filter((k) => new URL(location.href).searchParams.has(k)));
+
+/**
+ * Waits until the page's session is connected; on a timeout the error says what the page
+ * said instead (its connection state and message), so a failure names its cause.
+ */
+export async function connected(page, timeout) {
+  try {
+    await page.waitForSelector('#connection[data-status="connected"]', { timeout });
+  } catch (e) {
+    const status = await page.getAttribute("#connection", "data-status").catch(() => "?");
+    const message = await page.textContent("#message").catch(() => "?");
+    throw new Error(`not connected after ${timeout / 1000} s: status ${status}, message "${message}"\n${e.message}`);
+  }
+}

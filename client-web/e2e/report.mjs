@@ -51,7 +51,7 @@ export async function twoSessionsAndTheReport(ctx) {
     await page.waitForTimeout(400);
     await page.keyboard.up("f");
     await page.click("#finish");
-    await page.waitForSelector("#report-link", { timeout: 10_000 });
+    await page.waitForSelector("#report-link", { timeout: 30_000 });
     return page.getAttribute("#report-link", "href");
   };
   await procedure(1500, true);

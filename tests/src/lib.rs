@@ -8,5 +8,5 @@ pub mod paths;
 pub mod server;
 
 pub use binaries::binary;
-pub use paths::{repo_root, temp_dir};
+pub use paths::{asset_disk_cache, repo_root, temp_dir};
 pub use server::*;

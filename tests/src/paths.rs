@@ -20,3 +20,14 @@ pub fn temp_dir(name: &str) -> PathBuf {
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
+
+/// The disk cache of built anatomies the suites' servers share: `<target>/tmp/asset-cache`,
+/// where the engine's own tests keep theirs, so the neuro phantom is built once per run.
+pub fn asset_disk_cache() -> PathBuf {
+    // <target>/<profile folder>/deps/<test>
+    let exe = std::env::current_exe().expect("the test executable's path");
+    exe.ancestors()
+        .nth(3)
+        .map(|target| target.join("tmp/asset-cache"))
+        .unwrap_or_else(|| std::env::temp_dir().join("cathlab-asset-cache"))
+}

@@ -42,6 +42,7 @@ impl ServerProcess {
             .args(extra)
             .env("CATHLAB_INSTRUCTOR_KEY", INSTRUCTOR_KEY)
             .env("RUST_LOG", "warn")
+            .env("CATHLAB_ASSET_DISK_CACHE", crate::asset_disk_cache())
             .envs(env.iter().copied())
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())

@@ -18,6 +18,7 @@ pub mod lumen;
 pub mod mesh;
 pub mod phantom;
 pub mod real;
+pub mod stored;
 pub mod surface;
 
 pub use error::{AnatomyError, Result};

@@ -87,32 +87,40 @@ pub enum Proximity {
     },
 }
 
-const BLOCK: usize = 8;
+/// Cells along each edge of a grid block.
+pub(crate) const BLOCK: usize = 8;
 
 /// Most cells the default cell size allows near the wall (each a few µs to build).
 const CELL_BUDGET: f64 = 400_000.0;
-const NO_BLOCK: u32 = u32::MAX;
+/// `block_of` entry of a block that holds no cells.
+pub(crate) const NO_BLOCK: u32 = u32::MAX;
 
-#[derive(Debug, Clone, Copy, Default)]
-struct CellEntry {
-    start: u32,
-    count: u32,
+/// One grid cell: its candidate triangles (a range of `CellGrid::candidates`) and how far
+/// the wall is at least.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct CellEntry {
+    pub(crate) start: u32,
+    pub(crate) count: u32,
     /// A lower bound on the distance to the wall from any point of the cell (m), negative
     /// inside.
-    far_bound: f32,
+    pub(crate) far_bound: f32,
 }
 
-#[derive(Debug, Default)]
-struct CellGrid {
-    origin: Point3<f64>,
-    inverse_cell: f64,
-    blocks: [usize; 3],
-    block_of: Vec<u32>,
-    cells: Vec<CellEntry>,
-    candidates: Vec<u32>,
+/// The narrow-band grid: blocks of `BLOCK`³ cells where the wall is near, each cell listing
+/// the triangles that can be closest to a point in it.
+#[derive(Debug, Default, PartialEq)]
+pub(crate) struct CellGrid {
+    pub(crate) origin: Point3<f64>,
+    /// Cells per metre.
+    pub(crate) inverse_cell: f64,
+    pub(crate) blocks: [usize; 3],
+    /// Per block of the box (x fastest), its slot in `cells` or `NO_BLOCK`.
+    pub(crate) block_of: Vec<u32>,
+    pub(crate) cells: Vec<CellEntry>,
+    pub(crate) candidates: Vec<u32>,
     /// Distance from its cell's centre to each candidate, less the cell's half diagonal: a
     /// lower bound on the distance to it from any point of the cell (m, ascending per cell).
-    candidate_bounds: Vec<f32>,
+    pub(crate) candidate_bounds: Vec<f32>,
 }
 
 impl CellGrid {
@@ -176,10 +184,18 @@ impl Lumen {
     /// As [`Lumen::new`] with the query grid built to `settings` (for example a narrower band
     /// for contact queries only, which builds much faster on finely meshed surfaces).
     pub fn with_grid_settings(
-        mut mesh: TriangleMesh,
+        mesh: TriangleMesh,
         source: &str,
         settings: GridSettings,
     ) -> Result<Self> {
+        let mut lumen = Self::prepared(mesh, source)?;
+        lumen.grid = lumen.build_grid(settings)?;
+        Ok(lumen)
+    }
+
+    /// `mesh` checked and its per-triangle tables built, with an empty grid (every query
+    /// through the BVH).
+    pub(crate) fn prepared(mut mesh: TriangleMesh, source: &str) -> Result<Self> {
         mesh.require_closed_manifold(source)?;
         let volume = mesh.enclosed_volume();
         if volume < 0.0 {
@@ -246,7 +262,7 @@ impl Lumen {
                 })
             })
             .collect();
-        let mut lumen = Self {
+        Ok(Self {
             mesh,
             normals,
             pseudo_normals,
@@ -256,9 +272,58 @@ impl Lumen {
             edge_normals,
             trimesh,
             grid: CellGrid::default(),
-        };
-        lumen.grid = lumen.build_grid(settings)?;
-        Ok(lumen)
+        })
+    }
+
+    /// The narrow-band grid (for the stored form).
+    pub(crate) fn grid(&self) -> &CellGrid {
+        &self.grid
+    }
+
+    /// Puts in a grid read back from the stored form, refusing one that does not fit this
+    /// surface (an index past its arrays): a query never reads out of bounds.
+    pub(crate) fn set_grid(&mut self, grid: CellGrid) -> std::result::Result<(), String> {
+        let per_block = BLOCK * BLOCK * BLOCK;
+        let finite = grid.inverse_cell.is_finite()
+            && grid.inverse_cell > 0.0
+            && grid.origin.iter().all(|c| c.is_finite());
+        if !finite {
+            return Err("grid origin or cell size not finite".into());
+        }
+        let total = grid
+            .blocks
+            .iter()
+            .try_fold(1usize, |a, &b| a.checked_mul(b));
+        if total != Some(grid.block_of.len()) || grid.block_of.len() > 1 << 26 {
+            return Err("grid block table does not match its dimensions".into());
+        }
+        if !grid.cells.len().is_multiple_of(per_block) {
+            return Err("grid cells are not whole blocks".into());
+        }
+        let slots = grid.cells.len() / per_block;
+        if grid
+            .block_of
+            .iter()
+            .any(|&b| b != NO_BLOCK && b as usize >= slots)
+        {
+            return Err("grid block table names a block past the cells".into());
+        }
+        if grid.candidate_bounds.len() != grid.candidates.len() {
+            return Err("grid candidate bounds do not match the candidates".into());
+        }
+        if grid
+            .cells
+            .iter()
+            .any(|c| c.start as usize + c.count as usize > grid.candidates.len())
+        {
+            return Err("grid cell lists run past the candidates".into());
+        }
+        let triangles = self.mesh.triangles.len();
+        if grid.candidates.iter().any(|&t| t as usize >= triangles) {
+            return Err("grid names a triangle past the surface".into());
+        }
+        self.grid = grid;
+        Ok(())
     }
 
     /// Rebuilds the narrow-band grid with other settings.

@@ -102,6 +102,11 @@ pub struct ConfigFile {
     /// Directories whose files scenes may name (default: the scenes directory and `data`
     /// beside it).
     pub data_roots: Option<Vec<PathBuf>>,
+    /// Where anatomies that take long to build (the neuro phantom's, ~30 s) are kept between
+    /// runs, keyed by a hash of the code that builds them and their parameters, so that a
+    /// restart reads them back in seconds (also `CATHLAB_ASSET_DISK_CACHE`; none by default:
+    /// each is about 0.5 GB).
+    pub asset_disk_cache: Option<PathBuf>,
     /// Wrong instructor keys or tokens one address may send a minute before it is refused.
     pub auth_failures_per_minute: Option<u32>,
     /// How long a control stream may go quiet before its setpoints are zeroed (ms).
@@ -210,6 +215,8 @@ pub struct ServerConfig {
     /// Directories whose files scenes may name; empty: the scenes directory and `data`
     /// beside it.
     pub data_roots: Vec<PathBuf>,
+    /// Where anatomies that take long to build are kept between runs (none: rebuilt each run).
+    pub asset_disk_cache: Option<PathBuf>,
     /// Wrong instructor keys or tokens one address may send a minute before it is refused.
     pub auth_failures_per_minute: u32,
     /// How long a control stream may go quiet before its setpoints are zeroed (ms).
@@ -310,6 +317,7 @@ impl Default for ServerConfig {
             inline_scenes: InlineScenes::Instructors,
             asset_cache_mib: 2048,
             data_roots: Vec::new(),
+            asset_disk_cache: None,
             auth_failures_per_minute: AUTH_FAILURES_PER_MINUTE,
             control_timeout_ms: CONTROL_TIMEOUT.as_millis() as u64,
             stream_buffer_mib: STREAM_BUFFER_BYTES >> 20,
@@ -435,6 +443,7 @@ impl ServerConfig {
             inline_scenes: file.inline_scenes.unwrap_or(d.inline_scenes),
             asset_cache_mib: file.asset_cache_mib.unwrap_or(d.asset_cache_mib),
             data_roots: file.data_roots.unwrap_or(d.data_roots),
+            asset_disk_cache: file.asset_disk_cache.or(d.asset_disk_cache),
             auth_failures_per_minute: file
                 .auth_failures_per_minute
                 .unwrap_or(d.auth_failures_per_minute),

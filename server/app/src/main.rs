@@ -119,6 +119,11 @@ struct Options {
     /// The built web client directory (default client-web/dist).
     #[arg(long, global = true)]
     web_root: Option<PathBuf>,
+    /// Keep anatomies that take long to build (the neuro phantom's) in this directory
+    /// between runs.
+    /// (also `CATHLAB_ASSET_DISK_CACHE`).
+    #[arg(long, global = true)]
+    asset_disk_cache: Option<PathBuf>,
     /// Renderer.
     #[arg(long, value_enum, global = true)]
     renderer: Option<RendererChoice>,
@@ -216,6 +221,13 @@ fn config(options: &Options) -> anyhow::Result<ServerConfig> {
     }
     if let Some(v) = &options.web_root {
         config.web_root = v.clone();
+    }
+    if let Some(v) = options
+        .asset_disk_cache
+        .clone()
+        .or_else(|| std::env::var_os("CATHLAB_ASSET_DISK_CACHE").map(PathBuf::from))
+    {
+        config.asset_disk_cache = Some(v);
     }
     if let Some(v) = options.renderer {
         config.renderer = v;

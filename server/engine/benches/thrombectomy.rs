@@ -54,7 +54,12 @@ fn main() {
     {
         spec.fidelity.contact_tolerance = t;
     }
-    let assets = AssetCache::default().load(&spec, &scenes).unwrap();
+    // The neuro phantom's anatomy as the tests keep it on disk (built once per checkout).
+    let disk = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("asset-cache");
+    let assets = AssetCache::default()
+        .with_disk_cache(&disk)
+        .load(&spec, &scenes)
+        .unwrap();
     let mut world = World::new(assets).unwrap();
     let mut script = StrokeScript::new(&world, "left_middle_cerebral", 1).unwrap();
     if !full {

@@ -32,6 +32,8 @@ pub struct EngineSettings {
     /// Directories whose files scenes may name; empty: the scenes directory and `data`
     /// beside it.
     pub data_roots: Vec<PathBuf>,
+    /// Where anatomies that take long to build are kept between runs (none: rebuilt).
+    pub asset_disk_cache: Option<PathBuf>,
 }
 
 /// Where a session's scene comes from.
@@ -117,9 +119,12 @@ impl Engine {
         } else {
             settings.data_roots.clone()
         };
-        let assets = AssetCache::with_budget(settings.asset_budget_bytes)
+        let mut assets = AssetCache::with_budget(settings.asset_budget_bytes)
             .with_max_scene_bytes(settings.asset_budget_bytes)
             .with_roots(&roots)?;
+        if let Some(dir) = &settings.asset_disk_cache {
+            assets = assets.with_disk_cache(dir);
+        }
         // A catalog scene naming a missing file, or one outside the data roots, stops the
         // server at start rather than a trainee at CreateSession.
         for (spec, file) in catalog.scenes() {

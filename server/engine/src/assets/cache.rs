@@ -11,6 +11,7 @@ use cathlab_anatomy::real::Anatomy;
 use cathlab_xray::Volume;
 use parking_lot::Mutex;
 
+use super::disk::DiskCache;
 use super::errors::scene_error;
 use super::scene_assets::SceneAssets;
 use crate::error::{EngineError, Result};
@@ -47,6 +48,8 @@ pub struct AssetCache {
     clock: AtomicU64,
     /// Directories scene files may name files in (canonical); empty: anywhere.
     roots: Vec<PathBuf>,
+    /// Where anatomies that take long to build are kept between runs (none: not kept).
+    pub(super) disk: Option<DiskCache>,
 }
 
 impl Default for AssetCache {
@@ -77,7 +80,16 @@ impl AssetCache {
             max_scene_bytes: usize::MAX,
             clock: AtomicU64::new(0),
             roots: Vec::new(),
+            disk: None,
         }
+    }
+
+    /// Keeps the anatomies that take long to build (the neuro phantom's surface and query
+    /// grid: tens of seconds) in `dir`, under a key made of the hash of the code that builds
+    /// them and their parameters, and reads them back in later loads and runs (seconds).
+    pub fn with_disk_cache(mut self, dir: &Path) -> Self {
+        self.disk = Some(DiskCache::new(dir));
+        self
     }
 
     /// Refuses a scene whose anatomy and CT, as built, take more than `bytes` (what was read,

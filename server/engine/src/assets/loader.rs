@@ -92,29 +92,11 @@ impl AssetCache {
                 }
             }
             AnatomySpec::NeuroPhantom { seed, tortuosity } => {
-                use cathlab_anatomy::phantom::{NeuroPhantomParams, neuro_phantom};
-                use cathlab_anatomy::surface::{SurfaceSettings, lumen_surface};
-                let graph = neuro_phantom(&NeuroPhantomParams {
-                    seed: *seed,
-                    tortuosity: *tortuosity,
-                    ..NeuroPhantomParams::default()
-                })?;
-                // Two cells per radius and a 1 mm query grid: about 1 M triangles and 30 s
-                // to load; the surface's defaults (3 per radius, a grid of a quarter of the
-                // median edge over the whole body) take 2 M triangles and 9 GB.
-                let mesh = lumen_surface(
-                    &graph,
-                    &SurfaceSettings {
-                        cells_per_radius: 2.0,
-                        ..SurfaceSettings::default()
-                    },
-                )?;
-                let lumen = Lumen::with_grid_settings(
-                    mesh,
-                    "neuro phantom",
-                    cathlab_imaging::case::contact_grid(),
-                )?;
-                Anatomy { graph, lumen }
+                let build = || neuro_phantom_anatomy(*seed, *tortuosity);
+                match &self.disk {
+                    Some(disk) => disk.anatomy(&key, build)?,
+                    None => build()?,
+                }
             }
             AnatomySpec::Surface {
                 unit,
@@ -443,6 +425,29 @@ impl AssetCache {
 const CIRCLE_TRIM_M: f64 = 20e-3;
 
 /// The arch-to-cow anatomy with its circle of Willis computed from the surface and named.
+/// The neuro phantom's anatomy. Two cells per radius and a 1 mm query grid: about 1 M
+/// triangles and 30 s to build (hence the disk cache); the surface's defaults (3 per radius, a
+/// grid of a quarter of the median edge over the whole body) take 2 M triangles and 9 GB.
+fn neuro_phantom_anatomy(seed: u64, tortuosity: f64) -> Result<Anatomy> {
+    use cathlab_anatomy::phantom::{NeuroPhantomParams, neuro_phantom};
+    use cathlab_anatomy::surface::{SurfaceSettings, lumen_surface};
+    let graph = neuro_phantom(&NeuroPhantomParams {
+        seed,
+        tortuosity,
+        ..NeuroPhantomParams::default()
+    })?;
+    let mesh = lumen_surface(
+        &graph,
+        &SurfaceSettings {
+            cells_per_radius: 2.0,
+            ..SurfaceSettings::default()
+        },
+    )?;
+    let lumen =
+        Lumen::with_grid_settings(mesh, "neuro phantom", cathlab_imaging::case::contact_grid())?;
+    Ok(Anatomy { graph, lumen })
+}
+
 fn arch_to_cow_with_circle(dir: &Path) -> Result<Anatomy> {
     use cathlab_anatomy::real::load_arch_to_cow_trimmed;
     use cathlab_imaging::circle_of_willis::{CircleInflows, CircleSettings, circle_of_willis};

@@ -3,10 +3,11 @@
 //! `Arc`s to these; nothing here is copied per session.
 //!
 //! `scene_assets` holds a loaded scene and the lumen as a wall; `cache` the asset cache and
-//! the files a scene may name; `loader` how a scene's assets are built; `errors` the errors a
+//! the files a scene may name; `disk` the anatomies kept on disk between runs; `loader` how a scene's assets are built; `errors` the errors a
 //! load gives.
 
 mod cache;
+mod disk;
 mod errors;
 mod loader;
 mod scene_assets;

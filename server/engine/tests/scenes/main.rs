@@ -24,7 +24,13 @@ fn scenes() -> PathBuf {
 /// at a time: the first builds the shared anatomy and CT, the others find them.
 fn load(spec: &SceneSpec) -> Result<Arc<SceneAssets>> {
     static CACHE: OnceLock<Mutex<AssetCache>> = OnceLock::new();
-    let cache = CACHE.get_or_init(Default::default).lock();
+    // The neuro phantom's anatomy is kept on disk for the other suites that load it.
+    let cache = CACHE
+        .get_or_init(|| {
+            let disk = Path::new(env!("CARGO_TARGET_TMPDIR")).join("asset-cache");
+            Mutex::new(AssetCache::default().with_disk_cache(&disk))
+        })
+        .lock();
     cache
         .unwrap_or_else(|e| e.into_inner())
         .load(spec, &scenes())
