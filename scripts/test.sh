@@ -8,6 +8,8 @@ cd "$(dirname "$0")/.."
 source scripts/setup.sh
 # CI has lavapipe (installed by setup.sh): the wgpu tests must run, not skip.
 export CATHLAB_REQUIRE_GPU="${CATHLAB_REQUIRE_GPU:-1}"
+# Each stage's heading says how long the run has taken so far.
+phase() { echo "== $* [at $((SECONDS / 60)) min $((SECONDS % 60)) s]"; }
 # A build from scratch: incremental compilation would only add its bookkeeping.
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 # The web client's packages, Chromium and PostgreSQL come over the network while the compiler
@@ -15,15 +17,15 @@ export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 prepare_log=$(mktemp)
 (build_web_client && install_test_packages) >"$prepare_log" 2>&1 &
 prepare=$!
-echo "== cargo fmt --check"
+phase "cargo fmt --check"
 cargo fmt --all --check
-echo "== cargo clippy"
+phase "cargo clippy"
 cargo clippy --locked --workspace --all-targets -- -D warnings
-echo "== cargo doc (warnings are errors)"
+phase "cargo doc (warnings are errors)"
 RUSTDOCFLAGS="-D warnings" cargo doc --locked --workspace --no-deps
 log=$(mktemp)
 trap 'rm -f "$log"' EXIT
-echo "== web client: install, generated code current, build, unit tests"
+phase "web client: install, generated code current, build, unit tests"
 prepare_status=0
 wait "$prepare" || prepare_status=$?
 cat "$prepare_log"
@@ -37,9 +39,10 @@ rm -f "$prepare_log"
     console.log(`test result: ${r.success ? "ok" : "FAILED"}. ${r.numPassedTests} passed; ${r.numFailedTests} failed (vitest)`);
     process.exit(r.success ? 0 : 1)'
 ) 2>&1 | tee -a "$log"
-echo "== cargo test (lib, bins, tests, benches in test mode; the browser tests among them; scripts/run-tests.sh)"
+phase "cargo test (lib, bins, tests, benches in test mode; the browser tests among them; scripts/run-tests.sh)"
 export CATHLAB_REQUIRE_BROWSER=1
 bash scripts/run-tests.sh 2>&1 | tee -a "$log"
-echo "== fuzz smoke: every file reader (an instrumented build, the regressions, ~3 min of fuzzing)"
+phase "fuzz smoke: every file reader (an instrumented build, the regressions, ~3 min of fuzzing)"
 bash scripts/fuzz.sh smoke 2>&1 | tee -a "$log"
 awk '/^test result:/ { p += $4; f += $6 } END { printf "cathlab: %d passed, %d failed\n", p, f }' "$log"
+phase "done"
