@@ -525,8 +525,8 @@ fn edges(modules: &[Module]) -> BTreeSet<(PathBuf, PathBuf)> {
     out
 }
 
-#[test]
-fn no_two_source_files_import_each_other() {
+/// Every package folder of the repository (the workspace's and the fuzz targets').
+fn packages() -> Vec<PathBuf> {
     let root = repo_root();
     let mut packages = Vec::new();
     for dir in ["server", "client-haptic", "tests", "fuzz"] {
@@ -540,6 +540,67 @@ fn no_two_source_files_import_each_other() {
             }
         }
     }
+    packages
+}
+
+/// The root files of the `[lib]` and `[[bin]]` targets a package's manifest builds without
+/// a test harness (`test = false`).
+fn untested_targets(package: &Path) -> Vec<PathBuf> {
+    let Ok(manifest) = std::fs::read_to_string(package.join("Cargo.toml")) else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    let (mut section, mut path, mut untested) = (String::new(), None::<String>, false);
+    for line in manifest.lines().map(str::trim).chain(["[end]"]) {
+        if line.starts_with('[') {
+            let default = (section == "[lib]").then_some("src/lib.rs");
+            if untested && let Some(p) = path.as_deref().or(default) {
+                out.push(package.join(p));
+            }
+            (section, path, untested) = (line.to_owned(), None, false);
+        } else if (section == "[lib]" || section == "[[bin]]")
+            && let Some((key, value)) = line.split_once('=')
+        {
+            match key.trim() {
+                "path" => path = Some(value.trim().trim_matches('"').to_owned()),
+                "test" => untested = value.trim() == "false",
+                _ => {}
+            }
+        }
+    }
+    out
+}
+
+/// A library or binary built without its test harness (to save a compile and a link of a
+/// target that holds no test) must hold no test, or the test would silently never run.
+#[test]
+fn targets_built_without_a_test_harness_hold_no_tests() {
+    let mut roots = 0;
+    let mut holding = Vec::new();
+    for package in packages() {
+        for root in untested_targets(&package) {
+            roots += 1;
+            for module in module_tree(&root) {
+                if module.text.contains("#[test]") || module.text.contains("#[cfg(test)]") {
+                    holding.push(relative(&module.file));
+                }
+            }
+        }
+    }
+    assert!(
+        roots >= 10,
+        "only {roots} targets without a harness found: the reader is broken"
+    );
+    assert!(
+        holding.is_empty(),
+        "tests in targets built with `test = false` (they would never run; remove the \
+         setting from the target's Cargo.toml): {holding:?}"
+    );
+}
+
+#[test]
+fn no_two_source_files_import_each_other() {
+    let packages = packages();
     let mut circles = BTreeMap::new();
     let mut files = 0;
     for package in &packages {

@@ -275,8 +275,12 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     let config = config(&cli.options)?;
     if let Some(dir) = &cli.options.check_scenes {
-        let checks = cathlab_engine::check::check_scenes(dir, &config.data_roots)
-            .with_context(|| format!("reading {}", dir.display()))?;
+        let checks = cathlab_engine::check::check_scenes(
+            dir,
+            &config.data_roots,
+            config.asset_disk_cache.as_deref(),
+        )
+        .with_context(|| format!("reading {}", dir.display()))?;
         for check in &checks {
             println!("{}", check.line());
         }

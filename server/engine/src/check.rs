@@ -38,11 +38,14 @@ pub fn default_roots(dir: &Path) -> Vec<PathBuf> {
         .collect()
 }
 
-fn check_one(file: &Path, roots: &[PathBuf]) -> Result<String> {
+fn check_one(file: &Path, roots: &[PathBuf], disk_cache: Option<&Path>) -> Result<String> {
     let started = Instant::now();
     let spec = SceneSpec::read(file)?;
     let base = file.parent().unwrap_or(Path::new("."));
-    let cache = AssetCache::default().with_roots(roots)?;
+    let mut cache = AssetCache::default().with_roots(roots)?;
+    if let Some(dir) = disk_cache {
+        cache = cache.with_disk_cache(dir);
+    }
     cache.check_files(&spec, base)?;
     let assets = cache.load(&spec, base)?;
     let mut world = World::new(assets.clone())?;
@@ -59,8 +62,13 @@ fn check_one(file: &Path, roots: &[PathBuf]) -> Result<String> {
 }
 
 /// Checks every `.toml` and `.json` scene in `dir` (sorted by name); `roots` confine the
-/// files they name (empty: [`default_roots`]).
-pub fn check_scenes(dir: &Path, roots: &[PathBuf]) -> Result<Vec<SceneCheck>> {
+/// files they name (empty: [`default_roots`]); anatomies that take long to build are kept in
+/// `disk_cache` when given (`AssetCache::with_disk_cache`).
+pub fn check_scenes(
+    dir: &Path,
+    roots: &[PathBuf],
+    disk_cache: Option<&Path>,
+) -> Result<Vec<SceneCheck>> {
     let files = scene_files(dir)?;
     let roots = if roots.is_empty() {
         default_roots(dir)
@@ -70,7 +78,7 @@ pub fn check_scenes(dir: &Path, roots: &[PathBuf]) -> Result<Vec<SceneCheck>> {
     Ok(files
         .into_iter()
         .map(|file| {
-            let outcome = check_one(&file, &roots).map_err(|e| e.to_string());
+            let outcome = check_one(&file, &roots, disk_cache).map_err(|e| e.to_string());
             SceneCheck { file, outcome }
         })
         .collect())

@@ -80,7 +80,7 @@ fn an_open_surface_becomes_a_served_scene_and_its_autopilot_reaches_the_named_ta
             "branch = \"neck_vessel\"",
         );
     std::fs::write(&scene_file, text).unwrap();
-    let checks = check_scenes(&out, &[]).unwrap();
+    let checks = check_scenes(&out, &[], None).unwrap();
     assert_eq!(checks.len(), 1);
     println!("{}", checks[0].line());
     assert!(checks[0].outcome.is_ok(), "{}", checks[0].line());
@@ -110,7 +110,7 @@ fn a_cta_volume_becomes_a_served_scene_with_its_ct() {
     .unwrap();
     assert_eq!(report.name, "aorta");
     assert!(out.join("aorta/ct.mha").is_file());
-    let checks = check_scenes(&out, &[]).unwrap();
+    let checks = check_scenes(&out, &[], None).unwrap();
     println!("{}", checks[0].line());
     assert!(checks[0].outcome.is_ok(), "{}", checks[0].line());
     let _ = std::fs::remove_dir_all(&out);
@@ -183,7 +183,7 @@ fn check_scenes_names_the_failing_scene_and_field() {
     )
     .unwrap();
     std::fs::write(dir.join("broken.toml"), "this is not toml = = =").unwrap();
-    let checks = check_scenes(&dir, &[data(""), dir.clone()]).unwrap();
+    let checks = check_scenes(&dir, &[data(""), dir.clone()], None).unwrap();
     let lines: Vec<String> = checks.iter().map(|c| c.line()).collect();
     println!("{lines:#?}");
     assert_eq!(checks.len(), 2);
