@@ -544,26 +544,35 @@ fn packages() -> Vec<PathBuf> {
 }
 
 /// The root files of the `[lib]` and `[[bin]]` targets a package's manifest builds without
-/// a test harness (`test = false`).
+/// a test harness (`test = false`, with `bench = false`: `--all-targets` builds a target's
+/// bench harness, the same test binary, unless that is off too).
 fn untested_targets(package: &Path) -> Vec<PathBuf> {
     let Ok(manifest) = std::fs::read_to_string(package.join("Cargo.toml")) else {
         return Vec::new();
     };
     let mut out = Vec::new();
-    let (mut section, mut path, mut untested) = (String::new(), None::<String>, false);
+    let (mut section, mut path, mut untested, mut unbenched) =
+        (String::new(), None::<String>, false, false);
     for line in manifest.lines().map(str::trim).chain(["[end]"]) {
         if line.starts_with('[') {
             let default = (section == "[lib]").then_some("src/lib.rs");
             if untested && let Some(p) = path.as_deref().or(default) {
+                assert!(
+                    unbenched,
+                    "{}: {section} {p} has `test = false` but not `bench = false`: its harness \
+                     is still built by --all-targets",
+                    package.display()
+                );
                 out.push(package.join(p));
             }
-            (section, path, untested) = (line.to_owned(), None, false);
+            (section, path, untested, unbenched) = (line.to_owned(), None, false, false);
         } else if (section == "[lib]" || section == "[[bin]]")
             && let Some((key, value)) = line.split_once('=')
         {
             match key.trim() {
                 "path" => path = Some(value.trim().trim_matches('"').to_owned()),
                 "test" => untested = value.trim() == "false",
+                "bench" => unbenched = value.trim() == "false",
                 _ => {}
             }
         }
