@@ -92,6 +92,8 @@ pub(crate) const BLOCK: usize = 8;
 
 /// Most cells the default cell size allows near the wall (each a few µs to build).
 const CELL_BUDGET: f64 = 400_000.0;
+/// Most blocks a grid's box may have (its block table is allocated whole).
+const MAX_BLOCKS: usize = 1 << 26;
 /// `block_of` entry of a block that holds no cells.
 pub(crate) const NO_BLOCK: u32 = u32::MAX;
 
@@ -294,7 +296,7 @@ impl Lumen {
             .blocks
             .iter()
             .try_fold(1usize, |a, &b| a.checked_mul(b));
-        if total != Some(grid.block_of.len()) || grid.block_of.len() > 1 << 26 {
+        if total != Some(grid.block_of.len()) || grid.block_of.len() > MAX_BLOCKS {
             return Err("grid block table does not match its dimensions".into());
         }
         if !grid.cells.len().is_multiple_of(per_block) {
@@ -375,7 +377,7 @@ impl Lumen {
             (extent.z / block_size).ceil() as usize,
         ];
         let total_blocks = blocks[0] * blocks[1] * blocks[2];
-        if total_blocks > 1 << 26 {
+        if total_blocks > MAX_BLOCKS {
             return Err(AnatomyError::InvalidParameter {
                 name: "cell_size",
                 value: cell,
