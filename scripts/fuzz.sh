@@ -4,7 +4,7 @@
 # stable (no cargo-fuzz, no nightly, no sanitizer). See fuzz/README.md.
 #
 #   scripts/fuzz.sh smoke              the regressions, then every target for
-#                                      FUZZ_SMOKE_SECONDS (14) each: ~3 minutes in all, for CI
+#                                      FUZZ_SMOKE_SECONDS (5) each: about a minute, for CI
 #   scripts/fuzz.sh release [SECONDS]  the regressions, then every target for SECONDS (default
 #                                      and least 120) each, going on past a crash so that every
 #                                      crash is kept: before a release
@@ -149,7 +149,7 @@ case "$mode" in
   smoke)
     build
     regress
-    seconds="${FUZZ_SMOKE_SECONDS:-14}"
+    seconds="${FUZZ_SMOKE_SECONDS:-5}"
     start=$SECONDS
     for t in $targets; do
       fuzz_one "$t" "$seconds"

@@ -73,21 +73,32 @@ run_one() { # name dir executable
   local name="$1" dir="$2" exe="$3" start rc=0 k
   k=$(key "$name")
   start=$EPOCHREALTIME
-  # The binary's own status (pipefail is on), not stamp's.
-  (cd "$dir" && "$exe" 2>&1 | stamp "$start") >"$work/out.$k" 2>&1 || rc=$?
+  # The binary's own status (pipefail is on), not stamp's; `times` gives the CPU seconds the
+  # binary and the processes it waited for (servers, browsers) used.
+  (
+    cd "$dir" || exit 1
+    status=0
+    "$exe" 2>&1 | stamp "$start" || status=$?
+    # (Not piped: a pipeline's `times` would run in a subshell that waited for nothing.)
+    times >"$work/cpu.$k"
+    awk 'NR == 2 { print cpu($1) + cpu($2) }
+      function cpu(t) { split(t, p, /[ms]/); return p[1] * 60 + p[2] }' "$work/cpu.$k" \
+      >"$work/cpu.$k.s" && mv "$work/cpu.$k.s" "$work/cpu.$k"
+    exit "$status"
+  ) >"$work/out.$k" 2>&1 || rc=$?
   echo "$name $rc $(awk -v a="$start" -v b="$EPOCHREALTIME" 'BEGIN { print b - a }')" \
-    >"$work/done.$k.tmp"
+    "$(cat "$work/cpu.$k" 2>/dev/null || echo 0)" >"$work/done.$k.tmp"
   mv "$work/done.$k.tmp" "$work/done.$k"
 }
 
 report() { # key
-  local k="$1" name rc secs
-  read -r name rc secs <"$work/done.$k"
-  echo "== $name: $(printf '%.1f' "$secs") s$([ "$rc" = 0 ] || echo ", FAILED (exit $rc)")"
+  local k="$1" name rc secs cpu
+  read -r name rc secs cpu <"$work/done.$k"
+  echo "== $name: $(printf '%.1f s, %.1f s CPU' "$secs" "$cpu")$([ "$rc" = 0 ] || echo ", FAILED (exit $rc)")"
   cat "$work/out.$k"
-  echo "$secs $name" >>"$work/times"
+  echo "$secs $cpu $name" >>"$work/times"
   [ "$rc" = 0 ] || echo "$name" >>"$work/failed"
-  rm -f "$work/done.$k" "$work/out.$k"
+  rm -f "$work/done.$k" "$work/out.$k" "$work/cpu.$k"
 }
 
 wait_for_slot() { # reports every finished binary; returns when fewer than $1 run
@@ -114,8 +125,9 @@ while IFS=$'\t' read -r name dir exe; do
   report "$(key "$name")"
 done <"$work/list.tsv"
 
-echo "-- the ten slowest test binaries (wall seconds; the first group ran $jobs at a time)"
-sort -rn "$work/times" | head -10 | awk '{ printf "  %8.1f s  %s\n", $1, $2 }'
+echo "-- the ten slowest test binaries (wall and CPU seconds; the first group ran $jobs at a time)"
+sort -rn "$work/times" | head -10 | awk '{ printf "  %8.1f s  %8.1f s CPU  %s\n", $1, $2, $3 }'
+awk '{ w += $1; c += $2 } END { printf "-- all %d binaries: %.0f s wall, %.0f s CPU\n", NR, w, c }' "$work/times"
 if [ -s "$work/failed" ]; then
   echo "-- FAILED: $(tr '\n' ' ' <"$work/failed")"
   exit 1

@@ -107,6 +107,9 @@ pub struct ConfigFile {
     /// restart reads them back in seconds (also `CATHLAB_ASSET_DISK_CACHE`; none by default:
     /// each is about 0.5 GB).
     pub asset_disk_cache: Option<PathBuf>,
+    /// Most space the disk cache's files take together (MiB); past it the least recently
+    /// used are removed.
+    pub asset_disk_cache_mib: Option<u64>,
     /// Wrong instructor keys or tokens one address may send a minute before it is refused.
     pub auth_failures_per_minute: Option<u32>,
     /// How long a control stream may go quiet before its setpoints are zeroed (ms).
@@ -217,6 +220,8 @@ pub struct ServerConfig {
     pub data_roots: Vec<PathBuf>,
     /// Where anatomies that take long to build are kept between runs (none: rebuilt each run).
     pub asset_disk_cache: Option<PathBuf>,
+    /// Most space the disk cache's files take together (MiB).
+    pub asset_disk_cache_mib: u64,
     /// Wrong instructor keys or tokens one address may send a minute before it is refused.
     pub auth_failures_per_minute: u32,
     /// How long a control stream may go quiet before its setpoints are zeroed (ms).
@@ -318,6 +323,7 @@ impl Default for ServerConfig {
             asset_cache_mib: 2048,
             data_roots: Vec::new(),
             asset_disk_cache: None,
+            asset_disk_cache_mib: 8192,
             auth_failures_per_minute: AUTH_FAILURES_PER_MINUTE,
             control_timeout_ms: CONTROL_TIMEOUT.as_millis() as u64,
             stream_buffer_mib: STREAM_BUFFER_BYTES >> 20,
@@ -444,6 +450,7 @@ impl ServerConfig {
             asset_cache_mib: file.asset_cache_mib.unwrap_or(d.asset_cache_mib),
             data_roots: file.data_roots.unwrap_or(d.data_roots),
             asset_disk_cache: file.asset_disk_cache.or(d.asset_disk_cache),
+            asset_disk_cache_mib: file.asset_disk_cache_mib.unwrap_or(d.asset_disk_cache_mib),
             auth_failures_per_minute: file
                 .auth_failures_per_minute
                 .unwrap_or(d.auth_failures_per_minute),

@@ -34,6 +34,8 @@ pub struct EngineSettings {
     pub data_roots: Vec<PathBuf>,
     /// Where anatomies that take long to build are kept between runs (none: rebuilt).
     pub asset_disk_cache: Option<PathBuf>,
+    /// Most bytes the disk cache's files take together.
+    pub asset_disk_cache_bytes: u64,
 }
 
 /// Where a session's scene comes from.
@@ -123,7 +125,9 @@ impl Engine {
             .with_max_scene_bytes(settings.asset_budget_bytes)
             .with_roots(&roots)?;
         if let Some(dir) = &settings.asset_disk_cache {
-            assets = assets.with_disk_cache(dir);
+            assets = assets
+                .with_disk_cache(dir)
+                .with_disk_cache_limit(settings.asset_disk_cache_bytes);
         }
         // A catalog scene naming a missing file, or one outside the data roots, stops the
         // server at start rather than a trainee at CreateSession.

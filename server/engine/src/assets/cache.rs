@@ -19,6 +19,8 @@ use crate::scene::{AnatomySpec, CtSpec, SceneSpec};
 
 /// Bytes the asset cache may hold by default (2 GiB).
 pub const DEFAULT_ASSET_BUDGET_BYTES: usize = 2 << 30;
+/// Default most bytes the disk cache of built anatomies keeps (8 GiB).
+pub const DEFAULT_DISK_CACHE_BYTES: u64 = 8 << 30;
 
 /// A cached asset: the value, what it costs, and when it was last used.
 pub(super) struct Cached<T> {
@@ -84,11 +86,23 @@ impl AssetCache {
         }
     }
 
-    /// Keeps the anatomies that take long to build (the neuro phantom's surface and query
-    /// grid: tens of seconds) in `dir`, under a key made of the hash of the code that builds
-    /// them and their parameters, and reads them back in later loads and runs (seconds).
+    /// Keeps built anatomies (the neuro phantom's surface and query grid: tens of seconds; an
+    /// imported surface with its circle of Willis, a CT's segmentation: seconds) in `dir`,
+    /// under a key made of the hash of the code that builds them, their parameters and the
+    /// SHA-256 of the files they are built from, and reads them back in later loads and runs.
+    /// The directory holds at most [`DEFAULT_DISK_CACHE_BYTES`]
+    /// ([`AssetCache::with_disk_cache_limit`] sets another).
     pub fn with_disk_cache(mut self, dir: &Path) -> Self {
-        self.disk = Some(DiskCache::new(dir));
+        self.disk = Some(DiskCache::new(dir, DEFAULT_DISK_CACHE_BYTES));
+        self
+    }
+
+    /// Most bytes the disk cache's files may take together (bytes); past it the least
+    /// recently used are removed when another is stored.
+    pub fn with_disk_cache_limit(mut self, max_bytes: u64) -> Self {
+        if let Some(disk) = &mut self.disk {
+            *disk = DiskCache::new(disk.dir(), max_bytes);
+        }
         self
     }
 

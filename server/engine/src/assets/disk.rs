@@ -1,12 +1,18 @@
-//! The disk cache of built assets: an anatomy that takes tens of seconds to build (the neuro
-//! phantom's surface and query grid) is written once to a directory and read back by later
-//! loads, in this process or another. Its key is the hash of the code that builds it (made
-//! by the build script from the source) and its parameters, so a cached file can never be
-//! stale; a file missing, damaged or stored for another key is rebuilt, never trusted.
+//! The disk cache of built assets: an anatomy that takes seconds to build (the neuro
+//! phantom's surface and query grid, a surface imported with its circle of Willis, a CT's
+//! segmentation) is written once to a directory and read back by later loads, in this process
+//! or another. Its key is the hash of the code that builds it (made by the build script from
+//! the source), its parameters and the SHA-256 of the files it is built from, so a cached
+//! file can never be stale; a file missing, damaged or stored for another key is rebuilt,
+//! never trusted. The directory is kept within a size, the least recently used files going
+//! first.
 
 use std::hash::{DefaultHasher, Hash, Hasher};
+use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Instant, SystemTime};
+
+use sha2::{Digest, Sha256};
 
 use cathlab_anatomy::real::Anatomy;
 
@@ -17,17 +23,31 @@ const CODE_HASH: &str = env!("CATHLAB_ASSET_CODE_HASH");
 /// Largest cached file read back (bytes): past it, the anatomy is rebuilt instead.
 const MAX_FILE_BYTES: u64 = 8 << 30;
 
+/// Most bytes of input files hashed for one key: past it, the anatomy is not cached.
+const MAX_HASHED_BYTES: u64 = 4 << 30;
+/// Most files of an anatomy folder hashed for one key (and folder depth).
+const MAX_HASHED_FILES: usize = 10_000;
+const MAX_HASHED_DEPTH: usize = 8;
+
 /// A directory of built anatomies.
 #[derive(Debug, Clone)]
 pub(super) struct DiskCache {
     dir: PathBuf,
+    /// Most bytes its files may take together; the least recently used go first.
+    max_bytes: u64,
 }
 
 impl DiskCache {
-    pub(super) fn new(dir: &Path) -> Self {
+    pub(super) fn new(dir: &Path, max_bytes: u64) -> Self {
         Self {
             dir: dir.to_owned(),
+            max_bytes,
         }
+    }
+
+    /// The directory.
+    pub(super) fn dir(&self) -> &Path {
+        &self.dir
     }
 
     /// The file for `key`: the code's hash, then the parameters' (the full key is inside).
@@ -54,6 +74,10 @@ impl DiskCache {
         let started = Instant::now();
         match self.read(&file, &full_key) {
             Ok(Some(anatomy)) => {
+                // Its time of use, for the eviction order.
+                if let Ok(f) = std::fs::OpenOptions::new().write(true).open(&file) {
+                    let _ = f.set_modified(SystemTime::now());
+                }
                 tracing::info!(
                     file = %file.display(),
                     seconds = started.elapsed().as_secs_f64(),
@@ -87,7 +111,10 @@ impl DiskCache {
                 "not a regular file of at most {MAX_FILE_BYTES} bytes"
             ));
         }
-        let bytes = std::fs::read(file).map_err(|e| e.to_string())?;
+        let mut bytes = Vec::with_capacity(meta.len() as usize);
+        std::fs::File::open(file)
+            .and_then(|f| f.take(MAX_FILE_BYTES).read_to_end(&mut bytes))
+            .map_err(|e| e.to_string())?;
         cathlab_anatomy::stored::decode(&bytes, full_key, &file.display().to_string())
             .map(Some)
             .map_err(|e| e.to_string())
@@ -102,16 +129,93 @@ impl DiskCache {
         std::fs::write(&partial, &bytes)?;
         std::fs::rename(&partial, file)?;
         let current = format!("anatomy-{}-", &CODE_HASH[..16]);
+        // This code's files, most recently used first.
+        let mut kept: Vec<(SystemTime, u64, PathBuf)> = Vec::new();
         for entry in std::fs::read_dir(&self.dir)?.flatten() {
             let name = entry.file_name().to_string_lossy().into_owned();
-            if name.starts_with("anatomy-") && name.ends_with(".bin") && !name.starts_with(&current)
-            {
+            if !name.starts_with("anatomy-") || !name.ends_with(".bin") {
+                continue;
+            }
+            if !name.starts_with(&current) {
                 let _ = std::fs::remove_file(entry.path());
+            } else if let Ok(meta) = entry.metadata() {
+                let used = meta.modified().unwrap_or(SystemTime::UNIX_EPOCH);
+                kept.push((used, meta.len(), entry.path()));
+            }
+        }
+        kept.sort_by_key(|k| std::cmp::Reverse(k.0));
+        let mut total = bytes.len() as u64;
+        for (_, len, path) in kept {
+            if path == file {
+                continue;
+            }
+            total += len;
+            if total > self.max_bytes {
+                tracing::info!(file = %path.display(), "least recently used anatomy removed from the disk cache");
+                let _ = std::fs::remove_file(&path);
             }
         }
         tracing::info!(file = %file.display(), bytes = bytes.len(), "anatomy stored in the disk cache");
         Ok(())
     }
+}
+
+/// The SHA-256 (hex) of the files an anatomy is built from: each path a file, or a folder
+/// whose files are hashed by their names relative to it, in order. `None` (the anatomy is then
+/// built, not cached) when one cannot be read or they are too many or too large to hash.
+pub(super) fn content_hash(paths: &[&Path]) -> Option<String> {
+    fn walk(
+        path: &Path,
+        name: &Path,
+        depth: usize,
+        hasher: &mut Sha256,
+        budget: &mut (u64, usize),
+    ) -> Option<()> {
+        let meta = std::fs::metadata(path).ok()?;
+        if meta.is_dir() {
+            if depth >= MAX_HASHED_DEPTH {
+                return None;
+            }
+            let mut entries: Vec<_> = std::fs::read_dir(path)
+                .ok()?
+                .map(|e| e.map(|e| e.file_name()))
+                .collect::<std::io::Result<_>>()
+                .ok()?;
+            entries.sort();
+            for entry in entries {
+                walk(
+                    &path.join(&entry),
+                    &name.join(&entry),
+                    depth + 1,
+                    hasher,
+                    budget,
+                )?;
+            }
+            return Some(());
+        }
+        // Only regular files are read (a FIFO or a device is never opened).
+        if !meta.is_file() {
+            return None;
+        }
+        budget.1 += 1;
+        budget.0 = budget.0.checked_sub(meta.len())?;
+        if budget.1 > MAX_HASHED_FILES {
+            return None;
+        }
+        hasher.update(name.to_string_lossy().as_bytes());
+        hasher.update([0]);
+        hasher.update(meta.len().to_le_bytes());
+        let mut file = std::fs::File::open(path).ok()?;
+        let copied = std::io::copy(&mut (&mut file).take(meta.len()), hasher).ok()?;
+        (copied == meta.len()).then_some(())
+    }
+    let mut hasher = Sha256::new();
+    let mut budget = (MAX_HASHED_BYTES, 0);
+    for path in paths {
+        hasher.update(b"\x01");
+        walk(path, Path::new(""), 0, &mut hasher, &mut budget)?;
+    }
+    Some(format!("{:x}", hasher.finalize()))
 }
 
 #[cfg(test)]
@@ -141,7 +245,7 @@ mod tests {
     fn built_once_then_read_back_and_a_damaged_file_is_rebuilt() {
         let dir = std::env::temp_dir().join(format!("cathlab-disk-cache-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        let cache = DiskCache::new(&dir);
+        let cache = DiskCache::new(&dir, u64::MAX);
         let mut builds = 0;
         let first = cache.anatomy("y", || build(&mut builds)).unwrap();
         let again = cache.anatomy("y", || build(&mut builds)).unwrap();
@@ -166,6 +270,66 @@ mod tests {
         std::fs::write(&stale, b"old").unwrap();
         cache.anatomy("y3", || build(&mut builds)).unwrap();
         assert!(!stale.exists());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn the_least_recently_used_files_go_past_the_limit() {
+        let dir = std::env::temp_dir().join(format!("cathlab-disk-lru-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut builds = 0;
+        let one = {
+            let cache = DiskCache::new(&dir, u64::MAX);
+            cache.anatomy("a", || build(&mut builds)).unwrap();
+            std::fs::metadata(cache.file("a")).unwrap().len()
+        };
+        // Room for two files: a third removes the least recently used.
+        let cache = DiskCache::new(&dir, 2 * one + one / 2);
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        cache.anatomy("b", || build(&mut builds)).unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        // "a" read again: now more recently used than "b".
+        cache.anatomy("a", || build(&mut builds)).unwrap();
+        assert_eq!(builds, 2);
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        cache.anatomy("c", || build(&mut builds)).unwrap();
+        assert!(cache.file("a").exists() && cache.file("c").exists());
+        assert!(
+            !cache.file("b").exists(),
+            "the least recently used file is removed"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn the_content_hash_follows_every_byte_and_name_of_the_inputs() {
+        let dir = std::env::temp_dir().join(format!("cathlab-disk-hash-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("folder/inner")).unwrap();
+        std::fs::write(dir.join("folder/a.obj"), b"v 0 0 0").unwrap();
+        std::fs::write(dir.join("folder/inner/b.json"), b"{}").unwrap();
+        std::fs::write(dir.join("single.stl"), b"solid").unwrap();
+        let folder = dir.join("folder");
+        let single = dir.join("single.stl");
+        let first = content_hash(&[&folder, &single]).unwrap();
+        assert_eq!(first.len(), 64);
+        assert_eq!(content_hash(&[&folder, &single]).unwrap(), first);
+        // One byte, a renamed file, the order of the inputs: each another key.
+        std::fs::write(dir.join("folder/inner/b.json"), b"{ }").unwrap();
+        let changed = content_hash(&[&folder, &single]).unwrap();
+        assert_ne!(changed, first);
+        std::fs::rename(
+            dir.join("folder/inner/b.json"),
+            dir.join("folder/inner/c.json"),
+        )
+        .unwrap();
+        assert_ne!(content_hash(&[&folder, &single]).unwrap(), changed);
+        assert_ne!(
+            content_hash(&[&single, &folder]).unwrap(),
+            content_hash(&[&folder, &single]).unwrap()
+        );
+        // A missing input: not cached.
+        assert_eq!(content_hash(&[&dir.join("missing.stl")]), None);
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -80,39 +80,36 @@ impl AssetCache {
             found.used = self.tick();
             return Ok((found.value.clone(), to_lps));
         }
-        let anatomy = match spec {
-            AnatomySpec::ArchToCow {
-                circle_of_willis, ..
-            } => {
-                let dir = file.as_deref().unwrap_or(Path::new(""));
-                if *circle_of_willis {
-                    arch_to_cow_with_circle(dir)?
-                } else {
-                    load_arch_to_cow(dir).map_err(|e| unreadable("anatomy.dir", dir, e))?
+        let build = || -> Result<Anatomy> {
+            Ok(match spec {
+                AnatomySpec::ArchToCow {
+                    circle_of_willis, ..
+                } => {
+                    let dir = file.as_deref().unwrap_or(Path::new(""));
+                    if *circle_of_willis {
+                        arch_to_cow_with_circle(dir)?
+                    } else {
+                        load_arch_to_cow(dir).map_err(|e| unreadable("anatomy.dir", dir, e))?
+                    }
                 }
-            }
-            AnatomySpec::NeuroPhantom { seed, tortuosity } => {
-                let build = || neuro_phantom_anatomy(*seed, *tortuosity);
-                match &self.disk {
-                    Some(disk) => disk.anatomy(&key, build)?,
-                    None => build()?,
+                AnatomySpec::NeuroPhantom { seed, tortuosity } => {
+                    neuro_phantom_anatomy(*seed, *tortuosity)?
                 }
-            }
-            AnatomySpec::Surface {
-                unit,
-                placement,
-                access,
-                names,
-                voxel_mm,
-                ..
-            } => {
-                use cathlab_imaging::case::{SurfaceCase, load_surface_case};
-                let path = file.unwrap_or_default();
-                let case = SurfaceCase {
+                AnatomySpec::Surface {
+                    unit,
+                    placement,
+                    access,
+                    names,
+                    voxel_mm,
+                    ..
+                } => {
+                    use cathlab_imaging::case::{SurfaceCase, load_surface_case};
+                    let path = file.clone().unwrap_or_default();
+                    let case = SurfaceCase {
                     surface: path.clone(),
                     unit: *unit,
                     placement: *placement,
-                    centerlines: surface_centerlines,
+                    centerlines: surface_centerlines.clone(),
                     access: *access,
                     names: names.clone(),
                     voxel_m: voxel_mm.map(|v| v * 1e-3),
@@ -120,43 +117,60 @@ impl AssetCache {
                         cathlab_imaging::surface_centerlines::SurfaceCenterlineSettings::default()
                             .max_voxels,
                 };
-                let loaded = load_surface_case(&case).map_err(|e| match e {
-                    cathlab_imaging::ImagingError::Case { field, reason } => scene_error(
-                        &format!("anatomy.{}", field.trim_start_matches("anatomy.")),
-                        reason,
-                    ),
-                    other => unreadable("anatomy.file", &path, other),
-                })?;
-                for end in &loaded.open_ends {
-                    tracing::info!(
-                        file = %path.display(),
-                        end = end.index,
-                        centre_mm = ?(end.centre.coords * 1e3).as_slice(),
-                        radius_mm = end.radius_m * 1e3,
-                        "open end capped"
-                    );
+                    let loaded = load_surface_case(&case).map_err(|e| match e {
+                        cathlab_imaging::ImagingError::Case { field, reason } => scene_error(
+                            &format!("anatomy.{}", field.trim_start_matches("anatomy.")),
+                            reason,
+                        ),
+                        other => unreadable("anatomy.file", &path, other),
+                    })?;
+                    for end in &loaded.open_ends {
+                        tracing::info!(
+                            file = %path.display(),
+                            end = end.index,
+                            centre_mm = ?(end.centre.coords * 1e3).as_slice(),
+                            radius_mm = end.radius_m * 1e3,
+                            "open end capped"
+                        );
+                    }
+                    loaded.anatomy
                 }
-                loaded.anatomy
-            }
-            AnatomySpec::CtSegmentation { seed_voxel, .. } => {
-                use cathlab_imaging::segment::{Seed, SegmentSettings, segment};
-                let path = file.unwrap_or_default();
-                let ct = cathlab_imaging::ScalarVolume::load(&path)
-                    .map_err(|e| unreadable("anatomy.volume", &path, e))?;
-                let result = segment(&ct, &Seed::Voxel(*seed_voxel), &SegmentSettings::default())
-                    .map_err(|e| scene_error("anatomy.seed_voxel", e))?;
-                // A segmented surface is finely meshed over a large box: the default grid
-                // (a quarter of the median edge) would take gigabytes; 1 mm cells suffice.
-                let lumen = Lumen::with_grid_settings(
-                    result.surface,
-                    &path.display().to_string(),
-                    cathlab_imaging::case::contact_grid(),
-                )?;
-                Anatomy {
-                    graph: result.graph,
-                    lumen,
+                AnatomySpec::CtSegmentation { seed_voxel, .. } => {
+                    use cathlab_imaging::segment::{Seed, SegmentSettings, segment};
+                    let path = file.clone().unwrap_or_default();
+                    let ct = cathlab_imaging::ScalarVolume::load(&path)
+                        .map_err(|e| unreadable("anatomy.volume", &path, e))?;
+                    let result =
+                        segment(&ct, &Seed::Voxel(*seed_voxel), &SegmentSettings::default())
+                            .map_err(|e| scene_error("anatomy.seed_voxel", e))?;
+                    // A segmented surface is finely meshed over a large box: the default grid
+                    // (a quarter of the median edge) would take gigabytes; 1 mm cells suffice.
+                    let lumen = Lumen::with_grid_settings(
+                        result.surface,
+                        &path.display().to_string(),
+                        cathlab_imaging::case::contact_grid(),
+                    )?;
+                    Anatomy {
+                        graph: result.graph,
+                        lumen,
+                    }
                 }
-            }
+            })
+        };
+        // On disk under the parameters and the content of the files it is built from.
+        let inputs: Vec<&Path> = file
+            .iter()
+            .chain(&surface_centerlines)
+            .map(|p| p.as_path())
+            .collect();
+        let disk_key = match &self.disk {
+            Some(_) if inputs.is_empty() => Some(key.clone()),
+            Some(_) => super::disk::content_hash(&inputs).map(|hash| format!("{key}:{hash}")),
+            None => None,
+        };
+        let anatomy = match (&self.disk, disk_key) {
+            (Some(disk), Some(disk_key)) => disk.anatomy(&disk_key, build)?,
+            _ => build()?,
         };
         let anatomy = Arc::new(anatomy);
         staged.anatomy = Some((key, anatomy.clone()));

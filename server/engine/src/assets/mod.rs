@@ -12,7 +12,7 @@ mod errors;
 mod loader;
 mod scene_assets;
 
-pub use cache::{AssetCache, DEFAULT_ASSET_BUDGET_BYTES};
+pub use cache::{AssetCache, DEFAULT_ASSET_BUDGET_BYTES, DEFAULT_DISK_CACHE_BYTES};
 pub use scene_assets::{ROUTE_SPACING_M, SceneAssets, SharedWall};
 // A preset's device and a catalogue entry's look are the scene's; re-exported here, where
 // they were first.

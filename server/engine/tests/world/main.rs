@@ -27,7 +27,12 @@ fn default_text() -> String {
 
 fn cache() -> &'static AssetCache {
     static CACHE: OnceLock<AssetCache> = OnceLock::new();
-    CACHE.get_or_init(AssetCache::default)
+    // Built anatomies (the stroke scenes' neuro phantom: ~45 s) are kept on disk for the
+    // other suites that load them.
+    CACHE.get_or_init(|| {
+        AssetCache::default()
+            .with_disk_cache(&Path::new(env!("CARGO_TARGET_TMPDIR")).join("asset-cache"))
+    })
 }
 
 fn assets(text: &str) -> Arc<SceneAssets> {
