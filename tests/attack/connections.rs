@@ -213,6 +213,9 @@ async fn h2_outcome(
 #[derive(Debug)]
 struct FloodEnd {
     outcome: Result<(u32, String), String>,
+    /// From the first stream's opening to this one's end: a stream the client library held
+    /// back until a slot freed is timed from the same start as the others, so the waves
+    /// are told apart by when they end, however the library queues them.
     after: Duration,
 }
 
@@ -226,6 +229,7 @@ async fn open_streams(
     body: &Bytes,
 ) -> Vec<FloodEnd> {
     let mut ends = Vec::new();
+    let opened = Instant::now();
     for _ in 0..streams {
         sender = tokio::time::timeout(Duration::from_secs(20), sender.ready())
             .await
@@ -239,7 +243,6 @@ async fn open_streams(
             .unwrap();
         let body = body.clone();
         ends.push(tokio::spawn(async move {
-            let sent = Instant::now();
             // Never finished: the stream stays open until the server ends it.
             let _ = send.send_data(body, false);
             let outcome =
@@ -249,7 +252,7 @@ async fn open_streams(
             drop(send);
             FloodEnd {
                 outcome,
-                after: sent.elapsed(),
+                after: opened.elapsed(),
             }
         }));
     }
