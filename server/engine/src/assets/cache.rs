@@ -101,7 +101,7 @@ impl AssetCache {
     /// recently used are removed when another is stored.
     pub fn with_disk_cache_limit(mut self, max_bytes: u64) -> Self {
         if let Some(disk) = &mut self.disk {
-            *disk = DiskCache::new(disk.dir(), max_bytes);
+            disk.max_bytes = max_bytes;
         }
         self
     }

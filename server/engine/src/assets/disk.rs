@@ -34,7 +34,7 @@ const MAX_HASHED_DEPTH: usize = 8;
 pub(super) struct DiskCache {
     dir: PathBuf,
     /// Most bytes its files may take together; the least recently used go first.
-    max_bytes: u64,
+    pub(super) max_bytes: u64,
 }
 
 impl DiskCache {
@@ -43,11 +43,6 @@ impl DiskCache {
             dir: dir.to_owned(),
             max_bytes,
         }
-    }
-
-    /// The directory.
-    pub(super) fn dir(&self) -> &Path {
-        &self.dir
     }
 
     /// The file for `key`: the code's hash, then the parameters' (the full key is inside).
@@ -161,7 +156,8 @@ impl DiskCache {
 }
 
 /// The SHA-256 (hex) of the files an anatomy is built from: each path a file, or a folder
-/// whose files are hashed by their names relative to it, in order. `None` (the anatomy is then
+/// whose files are hashed by their names relative to it, in order (none: the hash of nothing,
+/// for an anatomy built from its parameters alone). `None` (the anatomy is then
 /// built, not cached) when one cannot be read or they are too many or too large to hash.
 pub(super) fn content_hash(paths: &[&Path]) -> Option<String> {
     fn walk(
@@ -330,6 +326,13 @@ mod tests {
         );
         // A missing input: not cached.
         assert_eq!(content_hash(&[&dir.join("missing.stl")]), None);
+        // A FIFO in a folder is never opened (it would block): not cached.
+        let made = std::process::Command::new("mkfifo")
+            .arg(dir.join("folder/pipe"))
+            .status();
+        if made.is_ok_and(|s| s.success()) {
+            assert_eq!(content_hash(&[&folder]), None);
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -80,97 +80,21 @@ impl AssetCache {
             found.used = self.tick();
             return Ok((found.value.clone(), to_lps));
         }
-        let build = || -> Result<Anatomy> {
-            Ok(match spec {
-                AnatomySpec::ArchToCow {
-                    circle_of_willis, ..
-                } => {
-                    let dir = file.as_deref().unwrap_or(Path::new(""));
-                    if *circle_of_willis {
-                        arch_to_cow_with_circle(dir)?
-                    } else {
-                        load_arch_to_cow(dir).map_err(|e| unreadable("anatomy.dir", dir, e))?
-                    }
+        let build = || build_anatomy(spec, file.as_deref(), surface_centerlines.as_deref());
+        let anatomy = match &self.disk {
+            // On disk under the parameters and the content of the files it is built from.
+            Some(disk) => {
+                let inputs: Vec<&Path> = file
+                    .iter()
+                    .chain(&surface_centerlines)
+                    .map(|p| p.as_path())
+                    .collect();
+                match super::disk::content_hash(&inputs) {
+                    Some(hash) => disk.anatomy(&format!("{key}:{hash}"), build)?,
+                    None => build()?,
                 }
-                AnatomySpec::NeuroPhantom { seed, tortuosity } => {
-                    neuro_phantom_anatomy(*seed, *tortuosity)?
-                }
-                AnatomySpec::Surface {
-                    unit,
-                    placement,
-                    access,
-                    names,
-                    voxel_mm,
-                    ..
-                } => {
-                    use cathlab_imaging::case::{SurfaceCase, load_surface_case};
-                    let path = file.clone().unwrap_or_default();
-                    let case = SurfaceCase {
-                    surface: path.clone(),
-                    unit: *unit,
-                    placement: *placement,
-                    centerlines: surface_centerlines.clone(),
-                    access: *access,
-                    names: names.clone(),
-                    voxel_m: voxel_mm.map(|v| v * 1e-3),
-                    max_voxels:
-                        cathlab_imaging::surface_centerlines::SurfaceCenterlineSettings::default()
-                            .max_voxels,
-                };
-                    let loaded = load_surface_case(&case).map_err(|e| match e {
-                        cathlab_imaging::ImagingError::Case { field, reason } => scene_error(
-                            &format!("anatomy.{}", field.trim_start_matches("anatomy.")),
-                            reason,
-                        ),
-                        other => unreadable("anatomy.file", &path, other),
-                    })?;
-                    for end in &loaded.open_ends {
-                        tracing::info!(
-                            file = %path.display(),
-                            end = end.index,
-                            centre_mm = ?(end.centre.coords * 1e3).as_slice(),
-                            radius_mm = end.radius_m * 1e3,
-                            "open end capped"
-                        );
-                    }
-                    loaded.anatomy
-                }
-                AnatomySpec::CtSegmentation { seed_voxel, .. } => {
-                    use cathlab_imaging::segment::{Seed, SegmentSettings, segment};
-                    let path = file.clone().unwrap_or_default();
-                    let ct = cathlab_imaging::ScalarVolume::load(&path)
-                        .map_err(|e| unreadable("anatomy.volume", &path, e))?;
-                    let result =
-                        segment(&ct, &Seed::Voxel(*seed_voxel), &SegmentSettings::default())
-                            .map_err(|e| scene_error("anatomy.seed_voxel", e))?;
-                    // A segmented surface is finely meshed over a large box: the default grid
-                    // (a quarter of the median edge) would take gigabytes; 1 mm cells suffice.
-                    let lumen = Lumen::with_grid_settings(
-                        result.surface,
-                        &path.display().to_string(),
-                        cathlab_imaging::case::contact_grid(),
-                    )?;
-                    Anatomy {
-                        graph: result.graph,
-                        lumen,
-                    }
-                }
-            })
-        };
-        // On disk under the parameters and the content of the files it is built from.
-        let inputs: Vec<&Path> = file
-            .iter()
-            .chain(&surface_centerlines)
-            .map(|p| p.as_path())
-            .collect();
-        let disk_key = match &self.disk {
-            Some(_) if inputs.is_empty() => Some(key.clone()),
-            Some(_) => super::disk::content_hash(&inputs).map(|hash| format!("{key}:{hash}")),
-            None => None,
-        };
-        let anatomy = match (&self.disk, disk_key) {
-            (Some(disk), Some(disk_key)) => disk.anatomy(&disk_key, build)?,
-            _ => build()?,
+            }
+            None => build()?,
         };
         let anatomy = Arc::new(anatomy);
         staged.anatomy = Some((key, anatomy.clone()));
@@ -437,6 +361,89 @@ impl AssetCache {
 /// How far the given curves of the arch-to-cow anatomy are cut back for the computed circle
 /// of Willis to continue them (m): below the carotids' communicating segments.
 const CIRCLE_TRIM_M: f64 = 20e-3;
+
+/// Builds the anatomy `spec` names from its resolved `file` (folder, surface or CT) and
+/// surface `centerlines`.
+fn build_anatomy(
+    spec: &AnatomySpec,
+    file: Option<&Path>,
+    centerlines: Option<&Path>,
+) -> Result<Anatomy> {
+    Ok(match spec {
+        AnatomySpec::ArchToCow {
+            circle_of_willis, ..
+        } => {
+            let dir = file.unwrap_or(Path::new(""));
+            if *circle_of_willis {
+                arch_to_cow_with_circle(dir)?
+            } else {
+                load_arch_to_cow(dir).map_err(|e| unreadable("anatomy.dir", dir, e))?
+            }
+        }
+        AnatomySpec::NeuroPhantom { seed, tortuosity } => {
+            neuro_phantom_anatomy(*seed, *tortuosity)?
+        }
+        AnatomySpec::Surface {
+            unit,
+            placement,
+            access,
+            names,
+            voxel_mm,
+            ..
+        } => {
+            use cathlab_imaging::case::{SurfaceCase, load_surface_case};
+            let path = file.map(Path::to_path_buf).unwrap_or_default();
+            let case = SurfaceCase {
+                surface: path.clone(),
+                unit: *unit,
+                placement: *placement,
+                centerlines: centerlines.map(Path::to_path_buf),
+                access: *access,
+                names: names.clone(),
+                voxel_m: voxel_mm.map(|v| v * 1e-3),
+                max_voxels:
+                    cathlab_imaging::surface_centerlines::SurfaceCenterlineSettings::default()
+                        .max_voxels,
+            };
+            let loaded = load_surface_case(&case).map_err(|e| match e {
+                cathlab_imaging::ImagingError::Case { field, reason } => scene_error(
+                    &format!("anatomy.{}", field.trim_start_matches("anatomy.")),
+                    reason,
+                ),
+                other => unreadable("anatomy.file", &path, other),
+            })?;
+            for end in &loaded.open_ends {
+                tracing::info!(
+                    file = %path.display(),
+                    end = end.index,
+                    centre_mm = ?(end.centre.coords * 1e3).as_slice(),
+                    radius_mm = end.radius_m * 1e3,
+                    "open end capped"
+                );
+            }
+            loaded.anatomy
+        }
+        AnatomySpec::CtSegmentation { seed_voxel, .. } => {
+            use cathlab_imaging::segment::{Seed, SegmentSettings, segment};
+            let path = file.map(Path::to_path_buf).unwrap_or_default();
+            let ct = cathlab_imaging::ScalarVolume::load(&path)
+                .map_err(|e| unreadable("anatomy.volume", &path, e))?;
+            let result = segment(&ct, &Seed::Voxel(*seed_voxel), &SegmentSettings::default())
+                .map_err(|e| scene_error("anatomy.seed_voxel", e))?;
+            // A segmented surface is finely meshed over a large box: the default grid
+            // (a quarter of the median edge) would take gigabytes; 1 mm cells suffice.
+            let lumen = Lumen::with_grid_settings(
+                result.surface,
+                &path.display().to_string(),
+                cathlab_imaging::case::contact_grid(),
+            )?;
+            Anatomy {
+                graph: result.graph,
+                lumen,
+            }
+        }
+    })
+}
 
 /// The arch-to-cow anatomy with its circle of Willis computed from the surface and named.
 /// The neuro phantom's anatomy. Two cells per radius and a 1 mm query grid: about 1 M
