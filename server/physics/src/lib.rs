@@ -4,7 +4,8 @@
 //! are updated every step from the previous solution; each step is one block-tridiagonal
 //! linear solve done in O(N) by substructure analysis, which also yields the flexibility
 //! blocks that contact response needs. Contacts with the vessel wall (Signorini with Coulomb
-//! friction) are solved by Gauss–Seidel through those blocks, and a navigation simulates only
+//! friction) are solved by semismooth Newton on the Delassus matrix those blocks give (or
+//! Gauss–Seidel through them), and a navigation simulates only
 //! the inserted length under push, pull and twist. Plain synchronous, deterministic library:
 //! SI units, f64.
 
@@ -29,7 +30,7 @@ pub use beam::{
     BeamModel, ContactStep, ElementSpec, SolverSettings, StepMode, StepReport, ViscousDrag,
 };
 pub use catalogue::{Catalogue, CatalogueEntry, DeviceKind, Marker, StentSpec};
-pub use contact::{Contact, ContactResponse, ContactSettings};
+pub use contact::{Contact, ContactMethod, ContactResponse, ContactSettings};
 pub use device::{Device, RestArc, RestShape, Section, presets};
 pub use error::{DivergenceCheck, PhysicsError, Result};
 pub use navigation::{

@@ -4,7 +4,8 @@
 //! the coupled (several-chain) solver against its explicit Delassus matrix.
 
 use cathlab_physics::contact::{
-    Contact, ContactSettings, POLISH_EVERY, dense_reference, gauss_seidel, solve_local,
+    Contact, ContactMethod, ContactSettings, POLISH_EVERY, delassus_problem, dense_reference,
+    gauss_seidel, newton_solve, solve_local,
 };
 use cathlab_physics::coupled::{ChainPoint, CoupledContact, coupled_gauss_seidel};
 use cathlab_physics::{
@@ -122,6 +123,71 @@ proptest! {
             for (a, b) in fast.local.iter().zip(&exact) {
                 prop_assert!((a.x - b).abs() <= 1e-6 * scale, "{} vs exact {b}", a.x);
             }
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(60))]
+
+    /// The Delassus matrix assembled from the flexibility blocks equals `H K⁻¹ Hᵀ` from a dense
+    /// inverse, and the semismooth Newton solve on it reaches the explicit-Delassus
+    /// Gauss–Seidel's solution (to 1e-6 of the largest force) wherever that converged, on the
+    /// same random problems as above.
+    #[test]
+    fn newton_equals_the_explicit_delassus_solve(
+        elements in 4usize..30,
+        raw in proptest::collection::vec((0.0f64..1.0, 0.0f64..1.0, -1.0f64..1.0, -0.5e-4f64..1e-4, 0.0f64..0.5), 1..16),
+        side in 0.0f64..std::f64::consts::TAU,
+        with_friction in proptest::bool::ANY,
+        push in proptest::array::uniform3(-1.0f64..1.0),
+    ) {
+        let mut model = wire(elements);
+        let k = model.tangent_stiffness().clone();
+        let flexibility = Substructure::new(&k).unwrap().flexibility();
+        let mut load = vec![Vector6::zeros(); elements];
+        load[elements - 1] = Vector6::new(push[0] * 0.05, push[1] * 0.002, push[2] * 0.002, 0.0, 0.0, 0.0);
+        let free = Substructure::new(&k).unwrap().solve(&load);
+        let contacts: Vec<Contact> = raw
+            .iter()
+            .map(|&(e, t, spread, gap, mu)| {
+                let angle = side + spread * std::f64::consts::FRAC_PI_3;
+                Contact {
+                    element: ((e * elements as f64) as usize).min(elements - 1),
+                    t,
+                    normal: Vector3::new(0.0, angle.cos(), angle.sin()),
+                    gap,
+                    friction: if with_friction { mu } else { 0.0 },
+                }
+            })
+            .collect();
+        let (w, delta_free) = delassus(&k.to_dense(), &free, &contacts);
+        let problem = delassus_problem(&flexibility, &free, &contacts).unwrap();
+        let w_scale = w.amax();
+        prop_assert!((&problem.w - &w).amax() <= 1e-9 * w_scale, "W differs by {}", (&problem.w - &w).amax());
+        for (i, c) in contacts.iter().enumerate() {
+            let q = delta_free[3 * i] + c.gap;
+            prop_assert!((problem.q[3 * i] - q).abs() <= 1e-12 + 1e-9 * q.abs());
+        }
+        let settings = ContactSettings { method: ContactMethod::Newton, newton_iterations: 50, max_iterations: SWEEP_BUDGET, ..tight() };
+        let dense = dense_reference(&k.to_dense(), &free, &contacts, &settings).unwrap();
+        prop_assume!(dense.converged);
+        let newton = newton_solve(&flexibility, &free, &contacts, &ContactSettings { tolerance: 1e-10, ..settings }, None).unwrap();
+        // Newton converges on its own, or (an ill-conditioned case: two contacts a hundredth
+        // of an element apart) hands over to Gauss–Seidel, which then must converge too.
+        prop_assert!(newton.converged, "{} iterations", newton.iterations);
+        // Where contacts are redundant (three on one element carry nine force components
+        // against six degrees of freedom), W is singular and the forces are not unique: the
+        // contact points' displacements are. Compare those, and the forces where W is regular.
+        let lambda = |l: &[Vector3<f64>]| nalgebra::DVector::from_iterator(3 * l.len(), l.iter().flat_map(|v| v.iter().copied()));
+        let (a, b) = (lambda(&newton.local), lambda(&dense.local));
+        let reach = delta_free.amax().max(contacts.iter().map(|c| c.gap.abs()).fold(0.0, f64::max));
+        let moved = (&w * (&a - &b)).amax();
+        prop_assert!(moved <= 1e-6 * reach, "contact displacements differ by {moved} m (scale {reach} m)");
+        let regular = w.clone().symmetric_eigenvalues().min() > 1e-9 * w_scale;
+        if regular {
+            let scale = b.amax().max(1e-12);
+            prop_assert!((&a - &b).amax() <= 1e-6 * scale, "forces differ by {} (scale {scale})", (&a - &b).amax());
         }
     }
 }

@@ -1,19 +1,20 @@
-//! The beam step with contacts: free solve, detection, Gauss–Seidel through the flexibility
-//! blocks, correction solve, with repeated detection rounds; and the halves of a step whose
-//! contacts couple several chains (nested coaxial instruments).
+//! The beam step with contacts: free solve, detection, the contact solve (Newton or
+//! Gauss–Seidel) through the flexibility blocks, correction solve, with repeated detection
+//! rounds; and the halves of a step whose contacts couple several chains (nested coaxial
+//! instruments).
 
 use nalgebra::{UnitQuaternion, Vector3, Vector6};
 
 use super::model::BeamModel;
 use super::report::{ContactStep, StepReport};
 use super::settings::StepMode;
-use crate::contact::{Contact, ContactResponse, ContactSettings, gauss_seidel, point_displacement};
+use crate::contact::{Contact, ContactResponse, ContactSettings, point_displacement, solve};
 use crate::error::{PhysicsError, Result};
 
 impl BeamModel {
     /// One paper-mode step with contact: the free increment is solved, `detect` turns the
     /// configuration and the free increment into contacts (positions, rotations, free increment
-    /// per unknown node), Gauss–Seidel finds the contact forces through the flexibility blocks,
+    /// per unknown node), the contact solve finds the contact forces through the flexibility blocks,
     /// and one more O(N) solve adds their effect. The contact forces are totals, not increments:
     /// the next step's residual no longer contains them, and its contact solve finds them again
     /// (warm-started from what `warm_start` returns for the detected contacts: local forces per
@@ -79,7 +80,7 @@ impl BeamModel {
                     ..Default::default()
                 }
             } else {
-                gauss_seidel(
+                solve(
                     &self.flexibility,
                     &free,
                     &contacts,

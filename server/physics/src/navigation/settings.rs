@@ -92,6 +92,7 @@ impl Default for NavigationSettings {
                 penetration_tolerance_m: 0.01e-3,
                 acceleration_depth: 5,
                 polish: true,
+                ..ContactSettings::default()
             },
             refinement: Some(Refinement::default()),
         }
@@ -110,7 +111,8 @@ pub struct Effort {
     pub max_substep_depth: usize,
     /// Detection-and-solve rounds per step (at most the contact settings').
     pub max_detection_rounds: usize,
-    /// Gauss–Seidel sweeps (at most the contact settings').
+    /// Contact iterations: Gauss–Seidel sweeps, and Newton iterations with the sweeps that
+    /// finish an unconverged Newton solve (at most the contact settings').
     pub max_sweeps: usize,
     /// Whether the active-set polish may finish an unconverged contact solve (O(A³)).
     pub polish: bool,
@@ -141,11 +143,12 @@ impl Effort {
         Ok(())
     }
 
-    /// `base` with its sweeps, detection rounds (at least one) and polish capped by this
+    /// `base` with its sweeps and Newton iterations, detection rounds (at least one) and polish capped by this
     /// effort.
     pub fn contact(&self, base: &ContactSettings) -> ContactSettings {
         ContactSettings {
             max_iterations: base.max_iterations.min(self.max_sweeps),
+            newton_iterations: base.newton_iterations.min(self.max_sweeps),
             detection_rounds: base.detection_rounds.min(self.max_detection_rounds).max(1),
             polish: base.polish && self.polish,
             ..*base

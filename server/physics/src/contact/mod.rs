@@ -1,4 +1,5 @@
-//! Contact response: Signorini non-penetration with Coulomb friction, solved by Gauss–Seidel
+//! Contact response: Signorini non-penetration with Coulomb friction, solved by semismooth
+//! Newton on the Delassus matrix ([`newton`], the default) or by Gauss–Seidel
 //! over contacts ordered along the device (the paper's Algorithm 3), with the compliance of
 //! every contact taken from the substructure's flexibility blocks and the coupling between
 //! contacts propagated along the chain (Algorithm 4), so one sweep costs O(M + N) for M
@@ -26,6 +27,11 @@ use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector6};
 
 use crate::error::{PhysicsError, Result};
 use crate::substructure::Flexibility;
+
+pub mod delassus;
+pub mod newton;
+
+pub use delassus::DelassusProblem;
 
 /// One contact between the device and the vessel wall.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -77,9 +83,26 @@ pub fn point_displacement(increments: &[Vector6<f64>], element: usize, t: f64) -
     node(element) * (1.0 - t) + node(element + 1) * t
 }
 
-/// Gauss–Seidel stopping rule.
+/// Which algorithm solves a step's contact problem.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ContactMethod {
+    /// Semismooth Newton on the Delassus matrix ([`newton`]): a few iterations, each
+    /// O(N + M²) to set up and O(A³) to factor (A the pushing contacts); Gauss–Seidel
+    /// finishes a problem it does not converge on within [`ContactSettings::newton_iterations`].
+    #[default]
+    Newton,
+    /// Projected Gauss–Seidel through the flexibility blocks, O(M + N) a sweep (the paper's
+    /// Algorithm 3): the reference.
+    GaussSeidel,
+}
+
+/// Contact solve: the method and its stopping rule.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ContactSettings {
+    /// The algorithm.
+    pub method: ContactMethod,
+    /// Newton iterations before Gauss–Seidel takes over ([`ContactMethod::Newton`]).
+    pub newton_iterations: usize,
     /// Stop when no contact force changed by more than `tolerance` × the largest force (or
     /// by more than `absolute_tolerance_n`, whichever is larger) over a sweep.
     pub tolerance: f64,
@@ -121,6 +144,8 @@ impl ContactSettings {
 impl Default for ContactSettings {
     fn default() -> Self {
         Self {
+            method: ContactMethod::Newton,
+            newton_iterations: NEWTON_ITERATIONS,
             tolerance: 1e-6,
             absolute_tolerance_n: 1e-9,
             max_iterations: 200,
@@ -704,6 +729,99 @@ pub(crate) fn relax(
         return updated;
     }
     project_on_cone(&(own + (updated - own) * omega), mu)
+}
+
+/// Newton iterations a contact solve may take by default before Gauss–Seidel takes over.
+pub const NEWTON_ITERATIONS: usize = 25;
+
+/// Solves the contact problem with the method `settings` names (see [`ContactMethod`]).
+pub fn solve(
+    flexibility: &Flexibility,
+    free: &[Vector6<f64>],
+    contacts: &[Contact],
+    settings: &ContactSettings,
+    warm_start: Option<&[Vector3<f64>]>,
+) -> Result<ContactResponse> {
+    match settings.method {
+        ContactMethod::GaussSeidel => {
+            gauss_seidel(flexibility, free, contacts, settings, warm_start)
+        }
+        ContactMethod::Newton => newton_solve(flexibility, free, contacts, settings, warm_start),
+    }
+}
+
+/// The contact problem of a single chain in Delassus form (for [`newton`] and for recording
+/// problems).
+pub fn delassus_problem(
+    flexibility: &Flexibility,
+    free: &[Vector6<f64>],
+    contacts: &[Contact],
+) -> Result<DelassusProblem> {
+    Ok(delassus::assemble(
+        flexibility,
+        &prepare(flexibility, free, contacts)?,
+    ))
+}
+
+/// The Newton tolerance of contact settings.
+pub fn newton_tolerance(settings: &ContactSettings) -> newton::NewtonTolerance {
+    newton::NewtonTolerance {
+        relative: settings.tolerance,
+        absolute_n: settings.absolute_tolerance_n,
+        violation_m: settings.violation_tolerance_m,
+        max_iterations: settings.newton_iterations,
+    }
+}
+
+/// Solves the contact problem by semismooth Newton on its Delassus matrix ([`newton`]),
+/// handing an unconverged problem to [`gauss_seidel`] from where Newton stopped.
+pub fn newton_solve(
+    flexibility: &Flexibility,
+    free: &[Vector6<f64>],
+    contacts: &[Contact],
+    settings: &ContactSettings,
+    warm_start: Option<&[Vector3<f64>]>,
+) -> Result<ContactResponse> {
+    let prepared = prepare(flexibility, free, contacts)?;
+    let problem = delassus::assemble(flexibility, &prepared);
+    let outcome = newton::solve(
+        &problem,
+        warm_start,
+        &newton_tolerance(settings),
+        &mut |_| {},
+    );
+    let finite = outcome
+        .local
+        .iter()
+        .all(|l| l.iter().all(|v| v.is_finite()));
+    if !outcome.converged || !finite {
+        let start = finite.then_some(outcome.local.as_slice()).or(warm_start);
+        // The sweeps left of the budget (an overload governor's cap counts both).
+        let rest = ContactSettings {
+            max_iterations: settings
+                .max_iterations
+                .saturating_sub(outcome.iterations)
+                .max(1),
+            ..*settings
+        };
+        let mut response = gauss_seidel(flexibility, free, contacts, &rest, start)?;
+        response.iterations += outcome.iterations;
+        return Ok(response);
+    }
+    let mut loads = vec![Vector6::zeros(); flexibility.diagonal.len()];
+    accumulate_loads(&prepared, &outcome.local, &mut loads);
+    Ok(ContactResponse {
+        forces: prepared
+            .iter()
+            .zip(&outcome.local)
+            .map(|(p, l)| p.frame * l)
+            .collect(),
+        local: outcome.local,
+        nodal_loads: loads,
+        iterations: outcome.iterations,
+        converged: true,
+        polished: false,
+    })
 }
 
 /// Sweeps between active-set solves of the normal forces when Gauss–Seidel is slow to
