@@ -15,6 +15,7 @@ pub mod report;
 pub mod scene;
 pub mod session;
 pub mod strand;
+pub mod stress;
 pub mod telemetry;
 pub mod thrombectomy;
 pub mod world;

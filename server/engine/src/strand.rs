@@ -42,6 +42,7 @@ fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
         ..NavigationSettings::default()
     };
     settings.contact.tolerance = q.contact_tolerance;
+    settings.contact.method = q.contact_solver.into();
     settings
 }
 
@@ -200,6 +201,16 @@ impl Strand {
         match self {
             Strand::Single(n) => n.model(),
             Strand::Stack(s) => s.model(),
+        }
+    }
+
+    /// How far the deepest point of any instrument's surface lies past the wall (m, 0 when
+    /// none does): every detection sample of every instrument, each with its own outer
+    /// radius.
+    pub fn max_penetration_m(&self) -> f64 {
+        match self {
+            Strand::Single(n) => n.max_penetration_m(),
+            Strand::Stack(s) => s.max_penetration_m(),
         }
     }
 

@@ -19,9 +19,13 @@ pub struct FidelitySpec {
     /// Element length along the shaft (mm).
     #[serde(default = "default_shaft_element_mm")]
     pub shaft_element_mm: f64,
-    /// Gauss–Seidel relative force tolerance.
+    /// Contact solve's relative force tolerance.
     #[serde(default = "default_contact_tolerance")]
     pub contact_tolerance: f64,
+    /// Contact solver: `newton` (semismooth Newton on the Delassus matrix) or
+    /// `gauss_seidel` (the paper's projected Gauss–Seidel, the reference).
+    #[serde(default)]
+    pub contact_solver: ContactSolver,
     /// Refine elements where the device bends or touches.
     #[serde(default = "yes")]
     pub refine: bool,
@@ -34,6 +38,26 @@ pub struct FidelitySpec {
     /// Contrast advances every this many physics steps.
     #[serde(default = "default_contrast_every")]
     pub contrast_every_steps: u32,
+}
+
+/// The scene's contact solver (see [`cathlab_physics::ContactMethod`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ContactSolver {
+    /// Semismooth Newton on the Delassus matrix.
+    #[default]
+    Newton,
+    /// Projected Gauss–Seidel with Anderson acceleration and the active-set polish.
+    GaussSeidel,
+}
+
+impl From<ContactSolver> for cathlab_physics::ContactMethod {
+    fn from(solver: ContactSolver) -> Self {
+        match solver {
+            ContactSolver::Newton => Self::Newton,
+            ContactSolver::GaussSeidel => Self::GaussSeidel,
+        }
+    }
 }
 
 fn default_step_rate() -> f64 {
@@ -65,6 +89,7 @@ impl Default for FidelitySpec {
             tip_element_mm: default_tip_element_mm(),
             shaft_element_mm: default_shaft_element_mm(),
             contact_tolerance: default_contact_tolerance(),
+            contact_solver: ContactSolver::default(),
             refine: true,
             frame_px: default_frame_px(),
             contrast_cell_mm: default_cell_mm(),

@@ -34,7 +34,7 @@ pub use carm::CArmSpec;
 pub use catalog::{SceneCatalog, scene_files};
 pub use ct::CtSpec;
 pub use devices::{DeviceSpec, appearance_of_entry, catalogue, device_of};
-pub use fidelity::FidelitySpec;
+pub use fidelity::{ContactSolver, FidelitySpec};
 pub use flow::{ClotSpec, CollateralSpec, FlowSpec};
 pub use fluoroscopy::FluoroscopySpec;
 pub use guidance::GuidanceSpec;

@@ -23,15 +23,20 @@
 //! A contact lies on element `e` at parameter t: it acts on model nodes e and e+1 with weights
 //! (1 − t) and t. Model node 0 is the driven base (fixed); unknown node i is model node i + 1.
 
-use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector6};
+use std::cell::RefCell;
+
+use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 
 use crate::error::{PhysicsError, Result};
 use crate::substructure::Flexibility;
 
 pub mod delassus;
+pub mod gauss_seidel;
 pub mod newton;
 
 pub use delassus::DelassusProblem;
+pub(crate) use gauss_seidel::{Anderson, active_set_normals, relax};
+pub use gauss_seidel::{POLISH_EVERY, dense_reference, gauss_seidel, gauss_seidel_observed};
 
 /// One contact between the device and the vessel wall.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -465,151 +470,6 @@ pub(crate) fn tip_ward_pass(
     }
 }
 
-/// Displacements of every unknown node under nodal `loads`, u = K⁻¹ F, by the propagation
-/// u_i = B_i + D_i A_i of the module documentation: O(N).
-fn node_displacements(flexibility: &Flexibility, loads: &[Vector6<f64>]) -> Vec<Vector6<f64>> {
-    let d = &flexibility.diagonal;
-    let h = &flexibility.coupling;
-    let n = d.len();
-    let mut u = vec![Vector6::zeros(); n];
-    tip_ward_pass(flexibility, loads, &mut u);
-    let mut base_ward = Vector6::zeros();
-    for i in 0..n {
-        if i > 0 {
-            base_ward = h[i - 1].transpose() * (base_ward + loads[i - 1]);
-        }
-        u[i] += d[i] * base_ward;
-    }
-    u
-}
-
-/// Normal displacement of contact `p` (its frame's first axis) under node displacements `u`.
-fn normal_displacement(p: &Prepared, u: &[Vector6<f64>]) -> f64 {
-    let mut delta = translation(&u[p.second]) * p.t;
-    if let Some(i) = p.first {
-        delta += translation(&u[i]) * (1.0 - p.t);
-    }
-    p.frame.column(0).dot(&delta)
-}
-
-/// Active-set solve of the normal forces with the tangential forces held, for the
-/// single-chain solver (W from K⁻¹ by propagation, one O(N) solve per active contact); see
-/// [`active_set_normals`].
-fn polish_normals(
-    flexibility: &Flexibility,
-    prepared: &[Prepared],
-    local: &mut [Vector3<f64>],
-) -> bool {
-    let m = prepared.len();
-    let n = flexibility.diagonal.len();
-    // Gaps with zero normal forces: free motion plus the held tangential forces.
-    let mut tangential_loads = vec![Vector6::zeros(); n];
-    let tangential: Vec<Vector3<f64>> = local.iter().map(|l| Vector3::new(0.0, l.y, l.z)).collect();
-    accumulate_loads(prepared, &tangential, &mut tangential_loads);
-    let u_t = node_displacements(flexibility, &tangential_loads);
-    let c: Vec<f64> = prepared
-        .iter()
-        .map(|p| p.gap + p.free.x + normal_displacement(p, &u_t))
-        .collect();
-    let column = |j: usize| -> Vec<f64> {
-        let mut unit = vec![Vector3::zeros(); m];
-        unit[j] = Vector3::x();
-        let mut loads = vec![Vector6::zeros(); n];
-        accumulate_loads(prepared, &unit, &mut loads);
-        let u = node_displacements(flexibility, &loads);
-        prepared
-            .iter()
-            .map(|p| normal_displacement(p, &u))
-            .collect()
-    };
-    active_set_normals(&c, column, local, |k| prepared[k].friction)
-}
-
-/// Active-set solve of the normal forces `local[k].x` with the tangential forces held: `c[k]`
-/// is contact k's gap with zero normal forces and `column(j)` the normal displacement of every
-/// contact under a unit normal force at j (W's column j). The set starts from the contacts
-/// pushing or penetrating; each pass solves W_AA λ_A = −c_A exactly, drops the most negative
-/// force or adds the most penetrated inactive contact, until neither exists; the tangential
-/// forces are then projected on the cones of the new normals. Returns false (leaving `local`
-/// alone) if it does not settle in 2M passes.
-pub(crate) fn active_set_normals(
-    c: &[f64],
-    mut column: impl FnMut(usize) -> Vec<f64>,
-    local: &mut [Vector3<f64>],
-    friction: impl Fn(usize) -> f64,
-) -> bool {
-    let m = c.len();
-    let mut columns: Vec<Option<Vec<f64>>> = vec![None; m];
-    let tolerance = 1e-9;
-    let scale = c.iter().fold(1e-12f64, |a, b| a.max(b.abs()));
-    let mut active: Vec<bool> = (0..m).map(|k| local[k].x > 0.0 || c[k] < 0.0).collect();
-    for _ in 0..2 * m.max(1) {
-        let set: Vec<usize> = (0..m).filter(|&k| active[k]).collect();
-        let cols: Vec<Vec<f64>> = set
-            .iter()
-            .map(|&j| columns[j].get_or_insert_with(|| column(j)).clone())
-            .collect();
-        let lambda = if set.is_empty() {
-            DVector::zeros(0)
-        } else {
-            let w = DMatrix::from_fn(set.len(), set.len(), |a, b| cols[b][set[a]]);
-            let rhs = DVector::from_iterator(set.len(), set.iter().map(|&k| -c[k]));
-            match w.clone().cholesky() {
-                Some(ch) => ch.solve(&rhs),
-                None => match w.lu().solve(&rhs) {
-                    Some(x) => x,
-                    None => return false,
-                },
-            }
-        };
-        if let Some((a, _)) = lambda
-            .iter()
-            .enumerate()
-            .filter(|(_, l)| **l < 0.0)
-            .min_by(|x, y| x.1.total_cmp(y.1))
-        {
-            active[set[a]] = false;
-            continue;
-        }
-        // Gaps of the inactive contacts under the active forces.
-        let worst = (0..m)
-            .filter(|&k| !active[k])
-            .map(|k| {
-                let g = c[k]
-                    + cols
-                        .iter()
-                        .zip(lambda.iter())
-                        .map(|(col, l)| col[k] * l)
-                        .sum::<f64>();
-                (k, g)
-            })
-            .filter(|(_, g)| *g < -tolerance * scale)
-            .min_by(|x, y| x.1.total_cmp(&y.1));
-        if let Some((k, _)) = worst {
-            active[k] = true;
-            continue;
-        }
-        for l in local.iter_mut() {
-            l.x = 0.0;
-        }
-        for (&k, l) in set.iter().zip(lambda.iter()) {
-            local[k].x = *l;
-        }
-        for (k, l) in local.iter_mut().enumerate() {
-            *l = project_on_cone(l, friction(k));
-        }
-        return true;
-    }
-    false
-}
-
-/// Replaces `loads` by the nodal loads of contact forces `local` (after the forces jumped:
-/// an acceleration or active-set step).
-fn reload(prepared: &[Prepared], local: &[Vector3<f64>], loads: &mut [Vector6<f64>]) {
-    loads.iter_mut().for_each(|l| l.fill(0.0));
-    accumulate_loads(prepared, local, loads);
-}
-
 /// Adds the nodal loads of contact forces `local` into `loads`.
 fn accumulate_loads(prepared: &[Prepared], local: &[Vector3<f64>], loads: &mut [Vector6<f64>]) {
     for (p, l) in prepared.iter().zip(local) {
@@ -639,100 +499,63 @@ pub(crate) fn project_on_cone(l: &Vector3<f64>, mu: f64) -> Vector3<f64> {
     }
 }
 
-/// Anderson acceleration (type II) of a fixed-point iteration x ← G(x): mixes the last few
-/// iterates to minimise the linearized residual G(x) − x.
-pub(crate) struct Anderson {
-    depth: usize,
-    /// Past G(x) values and residuals G(x) − x, flattened.
-    values: std::collections::VecDeque<DVector<f64>>,
-    residuals: std::collections::VecDeque<DVector<f64>>,
-    size: usize,
-}
-
-impl Anderson {
-    pub(crate) fn new(depth: usize, size: usize) -> Self {
-        Self {
-            depth,
-            values: Default::default(),
-            residuals: Default::default(),
-            size,
-        }
-    }
-
-    pub(crate) fn active(&self) -> bool {
-        self.depth > 0 && self.size > 0
-    }
-
-    /// Records the sweep `before → after` and replaces `after` by the mixed iterate; false when
-    /// there is not yet enough history (or it was reset).
-    pub(crate) fn mix(&mut self, before: &[Vector3<f64>], after: &mut [Vector3<f64>]) -> bool {
-        let flat = |v: &[Vector3<f64>]| {
-            DVector::from_iterator(self.size, v.iter().flat_map(|l| l.iter().copied()))
-        };
-        let g = flat(after);
-        let f = &g - flat(before);
-        if let Some(last) = self.residuals.back()
-            && f.norm() > 2.0 * last.norm()
-        {
-            // The iteration is not contracting in this region: restart the history.
-            self.values.clear();
-            self.residuals.clear();
-        }
-        self.values.push_back(g.clone());
-        self.residuals.push_back(f.clone());
-        if self.values.len() > self.depth + 1 {
-            self.values.pop_front();
-            self.residuals.pop_front();
-        }
-        let m = self.values.len() - 1;
-        if m == 0 {
-            return false;
-        }
-        let delta_f = DMatrix::from_fn(self.size, m, |r, c| {
-            self.residuals[c + 1][r] - self.residuals[c][r]
-        });
-        let delta_g = DMatrix::from_fn(self.size, m, |r, c| {
-            self.values[c + 1][r] - self.values[c][r]
-        });
-        let mut normal = delta_f.transpose() * &delta_f;
-        let scale = normal.diagonal().amax().max(f64::MIN_POSITIVE);
-        for i in 0..m {
-            normal[(i, i)] += 1e-12 * scale;
-        }
-        let Some(gamma) = normal
-            .cholesky()
-            .map(|c| c.solve(&(delta_f.transpose() * &f)))
-        else {
-            return false;
-        };
-        let mixed = &g - delta_g * gamma;
-        if !mixed.iter().all(|v| v.is_finite()) {
-            return false;
-        }
-        // Mix the normal forces only: the tangential ones follow the friction law of the
-        // Gauss–Seidel sweep (mixing them can cycle between sliding directions).
-        for (k, l) in after.iter_mut().enumerate() {
-            l.x = mixed[3 * k];
-        }
-        true
-    }
-}
-
-/// Over-relaxes a local update and projects it onto the friction cone.
-pub(crate) fn relax(
-    own: &Vector3<f64>,
-    updated: Vector3<f64>,
-    omega: f64,
-    mu: f64,
-) -> Vector3<f64> {
-    if omega == 1.0 {
-        return updated;
-    }
-    project_on_cone(&(own + (updated - own) * omega), mu)
-}
-
 /// Newton iterations a contact solve may take by default before Gauss–Seidel takes over.
 pub const NEWTON_ITERATIONS: usize = 25;
+
+/// A single chain's contact problem as a step posed it, to solve again by every method (the
+/// contact solvers' convergence chart).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordedProblem {
+    /// The chain's flexibility blocks.
+    pub flexibility: Flexibility,
+    /// Free increment per unknown node.
+    pub free: Vec<Vector6<f64>>,
+    /// The contacts.
+    pub contacts: Vec<Contact>,
+    /// The settings the step solved it with.
+    pub settings: ContactSettings,
+    /// The warm start the step gave it.
+    pub warm_start: Option<Vec<Vector3<f64>>>,
+}
+
+/// Which problems [`record`] keeps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RecordingPlan {
+    /// Only problems with at least this many contacts.
+    pub min_contacts: usize,
+    /// Every `every`-th of those (1: all).
+    pub every: usize,
+    /// At most this many.
+    pub limit: usize,
+}
+
+struct Recording {
+    plan: RecordingPlan,
+    seen: usize,
+    kept: Vec<RecordedProblem>,
+}
+
+thread_local! {
+    static RECORDING: RefCell<Option<Recording>> = const { RefCell::new(None) };
+}
+
+/// Runs `body` and returns, beside its result, the problems [`solve`] was given on this
+/// thread meanwhile that `plan` keeps.
+pub fn record<R>(plan: RecordingPlan, body: impl FnOnce() -> R) -> (R, Vec<RecordedProblem>) {
+    let recording = Recording {
+        plan,
+        seen: 0,
+        kept: Vec::new(),
+    };
+    let outer = RECORDING.with(|r| r.replace(Some(recording)));
+    let result = body();
+    let recorded = RECORDING.with(|r| r.replace(outer));
+    (result, recorded.map(|r| r.kept).unwrap_or_default())
+}
+
+/// The most contacts [`ContactMethod::Newton`] solves by Newton; larger problems go to
+/// Gauss–Seidel.
+pub const NEWTON_MAX_CONTACTS: usize = 48;
 
 /// Solves the contact problem with the method `settings` names (see [`ContactMethod`]).
 pub fn solve(
@@ -742,8 +565,31 @@ pub fn solve(
     settings: &ContactSettings,
     warm_start: Option<&[Vector3<f64>]>,
 ) -> Result<ContactResponse> {
+    RECORDING.with(|r| {
+        if let Some(recording) = r.borrow_mut().as_mut()
+            && contacts.len() >= recording.plan.min_contacts
+            && recording.kept.len() < recording.plan.limit
+        {
+            recording.seen += 1;
+            if !(recording.seen - 1).is_multiple_of(recording.plan.every.max(1)) {
+                return;
+            }
+            recording.kept.push(RecordedProblem {
+                flexibility: flexibility.clone(),
+                free: free.to_vec(),
+                contacts: contacts.to_vec(),
+                settings: *settings,
+                warm_start: warm_start.map(<[_]>::to_vec),
+            });
+        }
+    });
     match settings.method {
         ContactMethod::GaussSeidel => {
+            gauss_seidel(flexibility, free, contacts, settings, warm_start)
+        }
+        // Past a few dozen contacts (a long device looped against the wall) a Newton
+        // iteration's dense factorization costs more than Gauss–Seidel's sweeps.
+        ContactMethod::Newton if contacts.len() > NEWTON_MAX_CONTACTS => {
             gauss_seidel(flexibility, free, contacts, settings, warm_start)
         }
         ContactMethod::Newton => newton_solve(flexibility, free, contacts, settings, warm_start),
@@ -782,14 +628,29 @@ pub fn newton_solve(
     settings: &ContactSettings,
     warm_start: Option<&[Vector3<f64>]>,
 ) -> Result<ContactResponse> {
+    newton_solve_observed(
+        flexibility,
+        free,
+        contacts,
+        settings,
+        warm_start,
+        &mut |_| {},
+    )
+}
+
+/// [`newton_solve`], with `observer` shown the forces after every Newton iteration (and
+/// every sweep of a Gauss–Seidel finish).
+pub fn newton_solve_observed(
+    flexibility: &Flexibility,
+    free: &[Vector6<f64>],
+    contacts: &[Contact],
+    settings: &ContactSettings,
+    warm_start: Option<&[Vector3<f64>]>,
+    observer: &mut dyn FnMut(&[Vector3<f64>]),
+) -> Result<ContactResponse> {
     let prepared = prepare(flexibility, free, contacts)?;
     let problem = delassus::assemble(flexibility, &prepared);
-    let outcome = newton::solve(
-        &problem,
-        warm_start,
-        &newton_tolerance(settings),
-        &mut |_| {},
-    );
+    let outcome = newton::solve(&problem, warm_start, &newton_tolerance(settings), observer);
     let finite = outcome
         .local
         .iter()
@@ -804,7 +665,8 @@ pub fn newton_solve(
                 .max(1),
             ..*settings
         };
-        let mut response = gauss_seidel(flexibility, free, contacts, &rest, start)?;
+        let mut response =
+            gauss_seidel_observed(flexibility, free, contacts, &rest, start, observer)?;
         response.iterations += outcome.iterations;
         return Ok(response);
     }
@@ -822,263 +684,4 @@ pub fn newton_solve(
         converged: true,
         polished: false,
     })
-}
-
-/// Sweeps between active-set solves of the normal forces when Gauss–Seidel is slow to
-/// converge (with [`ContactSettings::polish`]).
-pub const POLISH_EVERY: usize = 25;
-
-/// Solves the contact problem by Gauss–Seidel over the contacts in order along the device,
-/// with O(M + N) work per sweep. `free` is the free increment of every unknown node (from the
-/// step's linear solve); `warm_start` (local forces per contact) speeds up repeated solves.
-pub fn gauss_seidel(
-    flexibility: &Flexibility,
-    free: &[Vector6<f64>],
-    contacts: &[Contact],
-    settings: &ContactSettings,
-    warm_start: Option<&[Vector3<f64>]>,
-) -> Result<ContactResponse> {
-    let prepared = prepare(flexibility, free, contacts)?;
-    let n = flexibility.diagonal.len();
-    let mut order: Vec<usize> = (0..contacts.len()).collect();
-    order.sort_by(|&a, &b| {
-        (contacts[a].element, contacts[a].t)
-            .partial_cmp(&(contacts[b].element, contacts[b].t))
-            .unwrap_or(std::cmp::Ordering::Equal)
-    });
-    let mut local: Vec<Vector3<f64>> = match warm_start {
-        Some(w) if w.len() == contacts.len() => w.to_vec(),
-        _ => vec![Vector3::zeros(); contacts.len()],
-    };
-    // Nodal loads of the current forces.
-    let mut loads = vec![Vector6::<f64>::zeros(); n];
-    accumulate_loads(&prepared, &local, &mut loads);
-    let mut anderson = Anderson::new(settings.acceleration_depth, 3 * contacts.len());
-    let d = &flexibility.diagonal;
-    let h = &flexibility.coupling;
-    let mut tip_ward = vec![Vector6::<f64>::zeros(); n];
-    let mut response = ContactResponse::default();
-    // Phase 1: the full Coulomb law. Gauss–Seidel on frictional contact can cycle instead of
-    // converging; then phase 2 freezes the tangential forces (clipped to the cones) and solves
-    // the normal forces alone, a convex problem, so non-penetration holds whatever friction did.
-    let with_friction = prepared.iter().any(|p| p.friction > 0.0);
-    let budget = settings.max_iterations.max(1);
-    let mut frozen = false;
-    let mut sweep = 0;
-    while sweep < if with_friction { 2 * budget } else { budget } {
-        if sweep == budget {
-            frozen = true;
-            anderson = Anderson::new(settings.acceleration_depth, 3 * contacts.len());
-        }
-        let before = anderson.active().then(|| local.clone());
-        tip_ward_pass(flexibility, &loads, &mut tip_ward);
-        // A_i: base-ward accumulation, advanced lazily up to `cursor`.
-        let mut cursor = 0usize;
-        let mut base_ward = Vector6::<f64>::zeros();
-        let mut largest_change: f64 = 0.0;
-        let mut largest_force: f64 = 0.0;
-        let mut largest_violation: f64 = 0.0;
-        for &k in &order {
-            let p = &prepared[k];
-            let window = p.first.unwrap_or(p.second);
-            while cursor < window {
-                base_ward = h[cursor].transpose() * (base_ward + loads[cursor]);
-                cursor += 1;
-            }
-            // Displacements of the element's nodes under the current contact loads (their
-            // translations only: the top three rows of D).
-            let (u_first, a_second) = match p.first {
-                Some(i) => (
-                    translation(&tip_ward[i]) + d[i].fixed_rows::<3>(0) * base_ward,
-                    h[i].transpose() * (base_ward + loads[i]),
-                ),
-                None => (Vector3::zeros(), base_ward),
-            };
-            let u_second =
-                translation(&tip_ward[p.second]) + d[p.second].fixed_rows::<3>(0) * a_second;
-            let point = u_first * (1.0 - p.t) + u_second * p.t;
-            let own = local[k];
-            largest_violation =
-                largest_violation.max(-(p.gap + p.free.x + p.frame.column(0).dot(&point)));
-            let b = p.free + p.frame.transpose() * point - p.compliance * own;
-            let updated = if frozen {
-                normal_with_fixed_tangent(&p.compliance, &b, p.gap, &own, p.friction)
-            } else {
-                relax(
-                    &own,
-                    local_law(
-                        &p.compliance,
-                        p.compliance_inverse.as_ref(),
-                        &b,
-                        p.gap,
-                        p.friction,
-                    ),
-                    settings.relaxation,
-                    p.friction,
-                )
-            };
-            let change = updated - own;
-            if change != Vector3::zeros() {
-                // Contact loads are forces: only the first three columns of D act on them.
-                let df = p.frame * change;
-                let df_second = df * p.t;
-                loads[p.second] += force6(&df_second);
-                let db_second = d[p.second].fixed_columns::<3>(0) * df_second;
-                tip_ward[p.second] += db_second;
-                if let Some(i) = p.first {
-                    let df_first = df * (1.0 - p.t);
-                    loads[i] += force6(&df_first);
-                    tip_ward[i] += d[i].fixed_columns::<3>(0) * df_first + h[i] * db_second;
-                }
-            }
-            local[k] = updated;
-            largest_change = largest_change.max(change.norm());
-            largest_force = largest_force.max(updated.norm());
-        }
-        sweep += 1;
-        response.iterations = sweep;
-        if settings.sweep_converged(largest_change, largest_force, largest_violation) {
-            // Converged; with frozen friction only the normal forces are exact.
-            response.converged = !frozen;
-            break;
-        }
-        if sweep == budget && !with_friction {
-            break;
-        }
-        if settings.polish && !frozen && (sweep % POLISH_EVERY == 0 || sweep == budget) {
-            // Slow: contacts a fraction of a millimetre apart on a stiff wire are nearly
-            // redundant, and Gauss–Seidel passes the load between them for hundreds of
-            // sweeps. The active-set solve sets the normal forces exactly for the current
-            // friction; the sweeps go on from there for the friction. After the last sweep
-            // of the budget it is the answer (friction held), instead of a frozen phase.
-            if polish_normals(flexibility, &prepared, &mut local) {
-                reload(&prepared, &local, &mut loads);
-                anderson = Anderson::new(settings.acceleration_depth, 3 * contacts.len());
-                if sweep == budget {
-                    response.polished = true;
-                    break;
-                }
-                continue;
-            }
-        }
-        if let Some(before) = before
-            && anderson.mix(&before, &mut local)
-        {
-            for (p, l) in prepared.iter().zip(local.iter_mut()) {
-                *l = project_on_cone(l, p.friction);
-            }
-            reload(&prepared, &local, &mut loads);
-        }
-    }
-    if !response.converged && !response.polished && settings.polish {
-        // Gauss–Seidel ran out of sweeps: solve the normal forces of the active set directly.
-        if polish_normals(flexibility, &prepared, &mut local) {
-            reload(&prepared, &local, &mut loads);
-            response.polished = true;
-        }
-    }
-    if local.iter().any(|l| !l.iter().all(|v| v.is_finite())) {
-        // The step number is the caller's to fill in (`BeamModel::step_with_contacts` does).
-        return Err(PhysicsError::Diverged {
-            check: crate::error::DivergenceCheck::NonFinite("contact force"),
-            node: 0,
-            step: 0,
-        });
-    }
-    response.forces = prepared
-        .iter()
-        .zip(&local)
-        .map(|(p, l)| p.frame * l)
-        .collect();
-    response.local = local;
-    response.nodal_loads = loads;
-    Ok(response)
-}
-
-/// The brute-force reference: the explicit Delassus matrix `W = H K⁻¹ Hᵀ` from a dense
-/// inverse of the stiffness `k_dense` (6N × 6N, unknown nodes), then projected Gauss–Seidel
-/// with the same local law, in the same contact order. O(M²) per sweep, O(N³) to set up: for
-/// tests only.
-pub fn dense_reference(
-    k_dense: &DMatrix<f64>,
-    free: &[Vector6<f64>],
-    contacts: &[Contact],
-    settings: &ContactSettings,
-) -> Result<ContactResponse> {
-    let n = free.len();
-    let k_inv = k_dense
-        .clone()
-        .try_inverse()
-        .ok_or(PhysicsError::SingularBlock { node: 0 })?;
-    let m = contacts.len();
-    // H: 3M × 6N, rows in each contact's frame.
-    let mut hm = DMatrix::<f64>::zeros(3 * m, 6 * n);
-    for (k, c) in contacts.iter().enumerate() {
-        let frame_t = c.frame().transpose();
-        for (node, weight) in [
-            (c.element.checked_sub(1), 1.0 - c.t),
-            (Some(c.element), c.t),
-        ] {
-            if let Some(node) = node {
-                for r in 0..3 {
-                    for col in 0..3 {
-                        hm[(3 * k + r, 6 * node + col)] += weight * frame_t[(r, col)];
-                    }
-                }
-            }
-        }
-    }
-    let w = &hm * &k_inv * hm.transpose();
-    let u_free = DVector::from_iterator(6 * n, free.iter().flat_map(|v| v.iter().copied()));
-    let delta_free = &hm * u_free;
-    let mut order: Vec<usize> = (0..m).collect();
-    order.sort_by(|&a, &b| {
-        (contacts[a].element, contacts[a].t)
-            .partial_cmp(&(contacts[b].element, contacts[b].t))
-            .unwrap_or(std::cmp::Ordering::Equal)
-    });
-    let mut lambda = DVector::<f64>::zeros(3 * m);
-    let mut response = ContactResponse::default();
-    for sweep in 0..settings.max_iterations.max(1) {
-        let mut largest_change: f64 = 0.0;
-        let mut largest_force: f64 = 0.0;
-        for &k in &order {
-            let wkk = w.fixed_view::<3, 3>(3 * k, 3 * k).into_owned();
-            let own = Vector3::new(lambda[3 * k], lambda[3 * k + 1], lambda[3 * k + 2]);
-            let row = w.rows(3 * k, 3);
-            let total = row * &lambda;
-            let b = Vector3::new(
-                delta_free[3 * k] + total[0],
-                delta_free[3 * k + 1] + total[1],
-                delta_free[3 * k + 2] + total[2],
-            ) - wkk * own;
-            let c = &contacts[k];
-            let updated = relax(
-                &own,
-                solve_local(&wkk, &b, c.gap, c.friction),
-                settings.relaxation,
-                c.friction,
-            );
-            largest_change = largest_change.max((updated - own).norm());
-            largest_force = largest_force.max(updated.norm());
-            lambda[3 * k] = updated.x;
-            lambda[3 * k + 1] = updated.y;
-            lambda[3 * k + 2] = updated.z;
-        }
-        response.iterations = sweep + 1;
-        if largest_change <= (settings.tolerance * largest_force).max(settings.absolute_tolerance_n)
-        {
-            response.converged = true;
-            break;
-        }
-    }
-    response.local = (0..m)
-        .map(|k| Vector3::new(lambda[3 * k], lambda[3 * k + 1], lambda[3 * k + 2]))
-        .collect();
-    response.forces = contacts
-        .iter()
-        .zip(&response.local)
-        .map(|(c, l)| c.frame() * l)
-        .collect();
-    Ok(response)
 }

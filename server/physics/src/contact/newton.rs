@@ -41,6 +41,9 @@ pub struct NewtonTolerance {
     pub max_iterations: usize,
 }
 
+/// The most Gauss–Seidel sweeps one escape from a kink takes.
+const MAX_ESCAPE_SWEEPS: usize = 8;
+
 /// The least Levenberg–Marquardt damping (dimensionless: J's rows are scaled to about one).
 const REGULARIZATION: f64 = 1e-12;
 
@@ -250,7 +253,7 @@ fn newton(
                 for _ in 0..escape {
                     sweep(problem, &rho, &mut next);
                 }
-                escape *= 2;
+                escape = (escape * 2).min(MAX_ESCAPE_SWEEPS);
                 let next_u = &problem.w * &next + &problem.q;
                 let (next_phi, next_states) = evaluate(problem, &rho, &next, &next_u);
                 let next_merit = scaled_merit(&next_phi, &rho);

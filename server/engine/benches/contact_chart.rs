@@ -1,0 +1,234 @@
+//! Chart command: `cargo bench -p cathlab-engine --bench contact_chart` records the contact
+//! problems the bundled scenes pose under the random operator (every `every`-th step with at
+//! least four contacts, warm starts as the steps had them), solves each again by projected
+//! Gauss–Seidel, Gauss–Seidel with Anderson acceleration and the active-set polish (the
+//! scenes' setting before Newton), and semismooth Newton, and writes
+//! `docs/figures/contact_residual_vs_time.svg` (and a CSV): the median over problems of the
+//! Alart–Curnier residual, relative to the largest force, against solve time. It prints each
+//! method's iterations (p50, p95, max) and how many problems Newton solved in at most five.
+//! Without `--bench` (as in `cargo test`) it records a few problems of one scene and writes
+//! nothing.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use cathlab_engine::stress::{StressSettings, run};
+use cathlab_engine::*;
+use cathlab_physics::contact::{
+    ContactMethod, ContactSettings, RecordedProblem, RecordingPlan, delassus_problem,
+    gauss_seidel_observed, newton, newton_solve_observed, record,
+};
+use nalgebra::Vector3;
+use plotters::prelude::*;
+
+#[path = "../../physics/benches/common/mod.rs"]
+#[allow(dead_code)]
+mod common;
+use common::{Series, log_chart};
+
+/// One method's run on one problem: the time per iteration (s) and the relative residual
+/// before the first and after every iteration.
+struct Trace {
+    seconds_per_iteration: f64,
+    residuals: Vec<f64>,
+}
+
+type Solver = fn(&RecordedProblem, &ContactSettings, &mut dyn FnMut(&[Vector3<f64>]));
+
+fn gauss_seidel(
+    p: &RecordedProblem,
+    s: &ContactSettings,
+    observe: &mut dyn FnMut(&[Vector3<f64>]),
+) {
+    gauss_seidel_observed(
+        &p.flexibility,
+        &p.free,
+        &p.contacts,
+        s,
+        p.warm_start.as_deref(),
+        observe,
+    )
+    .unwrap();
+}
+
+fn newton(p: &RecordedProblem, s: &ContactSettings, observe: &mut dyn FnMut(&[Vector3<f64>])) {
+    newton_solve_observed(
+        &p.flexibility,
+        &p.free,
+        &p.contacts,
+        s,
+        p.warm_start.as_deref(),
+        observe,
+    )
+    .unwrap();
+}
+
+fn trace(problem: &RecordedProblem, settings: &ContactSettings, solver: Solver) -> Trace {
+    let delassus =
+        delassus_problem(&problem.flexibility, &problem.free, &problem.contacts).unwrap();
+    let start: Vec<Vector3<f64>> = problem
+        .warm_start
+        .clone()
+        .unwrap_or_else(|| vec![Vector3::zeros(); problem.contacts.len()]);
+    let mut iterates = vec![start];
+    solver(problem, settings, &mut |l| iterates.push(l.to_vec()));
+    // Timed without the observer's copies: the median of five solves.
+    let mut times: Vec<f64> = (0..5)
+        .map(|_| {
+            let t = Instant::now();
+            solver(problem, settings, &mut |_| {});
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    let iterations = (iterates.len() - 1).max(1);
+    let residuals = iterates
+        .iter()
+        .map(|l| {
+            let force = l.iter().map(|v| v.norm()).fold(1e-12, f64::max);
+            newton::residual(&delassus, l) / force
+        })
+        .collect();
+    Trace {
+        seconds_per_iteration: times[2] / iterations as f64,
+        residuals,
+    }
+}
+
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+fn main() {
+    let full = std::env::args().any(|a| a == "--bench");
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let disk = Path::new(env!("CARGO_TARGET_TMPDIR")).join("asset-cache");
+    let cache = AssetCache::default().with_disk_cache(&disk);
+    let names: &[&str] = if full {
+        &[
+            "arch_to_cow_lcca",
+            "arch_to_cow_basilar",
+            "arch_to_cow_lcca_coaxial",
+            "segmented_aorta_suprarenal",
+            "neuro_phantom_m1",
+        ]
+    } else {
+        &["arch_to_cow_lcca"]
+    };
+    let plan = RecordingPlan {
+        min_contacts: 4,
+        every: if full { 97 } else { 5 },
+        limit: if full { 60 } else { 4 },
+    };
+    let mut problems = Vec::new();
+    for name in names {
+        let text = std::fs::read_to_string(scenes.join(format!("{name}.toml"))).unwrap();
+        let spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
+        let mut world = World::new(cache.load(&spec, &scenes).unwrap()).unwrap();
+        let seconds = if full { 30.0 } else { 2.0 };
+        let (_, recorded) = record(plan, || run(&mut world, &StressSettings::new(7, seconds)));
+        println!("{name}: {} problems recorded", recorded.len());
+        problems.extend(recorded);
+    }
+    let tight = |method, depth, polish| ContactSettings {
+        method,
+        tolerance: 1e-9,
+        absolute_tolerance_n: 0.0,
+        violation_tolerance_m: f64::INFINITY,
+        max_iterations: 300,
+        acceleration_depth: depth,
+        polish,
+        ..ContactSettings::default()
+    };
+    let methods: [(&str, ContactSettings, Solver, RGBColor); 3] = [
+        (
+            "Gauss–Seidel",
+            tight(ContactMethod::GaussSeidel, 0, false),
+            gauss_seidel,
+            RED,
+        ),
+        (
+            "Gauss–Seidel, Anderson + active-set polish",
+            tight(ContactMethod::GaussSeidel, 5, true),
+            gauss_seidel,
+            BLUE,
+        ),
+        (
+            "semismooth Newton",
+            tight(ContactMethod::Newton, 0, false),
+            newton,
+            GREEN,
+        ),
+    ];
+    let mut csv = String::from("method,problem,contacts,iteration,seconds,relative_residual\n");
+    let mut series: Vec<Series> = Vec::new();
+    for (label, settings, solver, color) in methods {
+        let traces: Vec<Trace> = problems
+            .iter()
+            .map(|p| trace(p, &settings, solver))
+            .collect();
+        let mut iterations: Vec<f64> = traces
+            .iter()
+            .map(|t| (t.residuals.len() - 1) as f64)
+            .collect();
+        iterations.sort_by(f64::total_cmp);
+        let mut per_solve: Vec<f64> = traces
+            .iter()
+            .map(|t| t.seconds_per_iteration * (t.residuals.len() - 1) as f64 * 1e6)
+            .collect();
+        per_solve.sort_by(f64::total_cmp);
+        let within = |n: f64| iterations.iter().filter(|&&i| i <= n).count();
+        println!(
+            "{label}: {} problems, iterations p50 {} p95 {} max {}, {} in at most 5; solve p50 {:.1} µs, p95 {:.1} µs",
+            traces.len(),
+            quantile(&iterations, 0.5),
+            quantile(&iterations, 0.95),
+            quantile(&iterations, 1.0),
+            within(5.0),
+            quantile(&per_solve, 0.5),
+            quantile(&per_solve, 0.95),
+        );
+        for (k, (t, p)) in traces.iter().zip(&problems).enumerate() {
+            for (i, r) in t.residuals.iter().enumerate() {
+                writeln!(
+                    csv,
+                    "{label},{k},{},{i},{:e},{r:e}",
+                    p.contacts.len(),
+                    t.seconds_per_iteration * i as f64
+                )
+                .unwrap();
+            }
+        }
+        // The median residual over problems on a common time grid (µs): each problem's last
+        // iterate finished by then.
+        let grid: Vec<f64> = (0..40).map(|i| 10f64.powf(0.0 + i as f64 * 0.1)).collect();
+        let curve: Vec<(f64, f64)> = grid
+            .iter()
+            .map(|&us| {
+                let mut at: Vec<f64> = traces
+                    .iter()
+                    .map(|t| {
+                        let done = ((us * 1e-6) / t.seconds_per_iteration).floor() as usize;
+                        t.residuals[done.min(t.residuals.len() - 1)].max(1e-16)
+                    })
+                    .collect();
+                at.sort_by(f64::total_cmp);
+                (us, quantile(&at, 0.5))
+            })
+            .collect();
+        series.push((label.to_owned(), curve, color));
+    }
+    if !full {
+        return;
+    }
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../docs/figures");
+    std::fs::write(dir.join("contact_residual_vs_time.csv"), csv).unwrap();
+    log_chart(
+        &dir.join("contact_residual_vs_time.svg"),
+        "Contact problems recorded in the bundled scenes (median)",
+        "solve time (µs)",
+        "residual / largest force",
+        &series,
+    );
+}

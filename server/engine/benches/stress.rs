@@ -1,0 +1,118 @@
+//! Random-operator stress test (`cargo bench -p cathlab-engine --bench stress`): every bundled
+//! scene driven by the seeded random operator of [`cathlab_engine::stress`] at full fidelity
+//! (no governor), `STRESS_SEEDS` seeds (default 3) of `STRESS_SECONDS` simulated seconds each
+//! (default 1,200: an hour per scene), then one run with the governor's level switched at
+//! random; prints a table (divergences, errors, step p50/p99/max, steps over 2 ms, deepest
+//! penetration, largest hand force) and fails on any divergence, error or panic.
+//! `STRESS_SCENES` (comma-separated names) picks scenes; `STRESS_SOLVER=gauss_seidel` runs
+//! the scenes with the Gauss–Seidel contact solve instead of their own. Without `--bench` (as in
+//! `cargo test`) it runs the smoke: every scene, one seed, 4 simulated seconds, and one
+//! switched-level run of the default scene.
+
+use std::path::Path;
+
+use cathlab_engine::stress::{Levels, StressReport, StressSettings, run};
+use cathlab_engine::*;
+
+fn env_number(name: &str, default: f64) -> f64 {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
+    let mut steps: Vec<f64> = reports.iter().flat_map(|r| r.step_s.clone()).collect();
+    steps.sort_by(f64::total_cmp);
+    let all = StressReport {
+        step_s: steps,
+        ..Default::default()
+    };
+    let simulated: f64 = reports.iter().map(|r| r.simulated_s).sum();
+    let divergences: u32 = reports.iter().map(|r| r.divergences).sum();
+    let errors: u32 = reports.iter().map(|r| r.errors).sum();
+    let panics = reports.iter().filter(|r| r.panicked).count();
+    let penetration = reports
+        .iter()
+        .map(|r| r.worst_penetration_m)
+        .fold(0.0, f64::max);
+    let force = reports
+        .iter()
+        .map(|r| r.worst_hand_force_n)
+        .fold(0.0, f64::max);
+    println!(
+        "| {scene} | {label} | {simulated:.0} | {divergences} | {errors} | {panics} | {:.3} | {:.3} | {:.2} | {:.2} | {:.3} | {force:.1} |",
+        all.quantile_s(0.5) * 1e3,
+        all.quantile_s(0.99) * 1e3,
+        all.quantile_s(1.0) * 1e3,
+        100.0 * all.over_budget() as f64 / all.step_s.len().max(1) as f64,
+        penetration * 1e3,
+    );
+    for (i, r) in reports.iter().enumerate() {
+        if let Some(failure) = &r.first_failure {
+            println!("    run {i}: {failure}");
+        }
+    }
+    divergences == 0 && errors == 0 && panics == 0
+}
+
+fn main() {
+    let full = std::env::args().any(|a| a == "--bench");
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let disk = Path::new(env!("CARGO_TARGET_TMPDIR")).join("asset-cache");
+    let cache = AssetCache::default().with_disk_cache(&disk);
+    let seeds = if full {
+        env_number("STRESS_SEEDS", 3.0) as u64
+    } else {
+        1
+    };
+    let seconds = if full {
+        env_number("STRESS_SECONDS", 1200.0)
+    } else {
+        4.0
+    };
+    let only: Option<Vec<String>> = std::env::var("STRESS_SCENES")
+        .ok()
+        .map(|s| s.split(',').map(str::to_owned).collect());
+    let mut names: Vec<String> = std::fs::read_dir(&scenes)
+        .unwrap()
+        .filter_map(|e| {
+            let path = e.ok()?.path();
+            (path.extension()? == "toml").then(|| path.file_stem()?.to_str().map(str::to_owned))?
+        })
+        .filter(|n| only.as_ref().is_none_or(|o| o.contains(n)))
+        .collect();
+    names.sort();
+    println!(
+        "| scene | fidelity | simulated s | divergences | errors | panics | p50 ms | p99 ms | max ms | % over 2 ms | deepest mm | hand N |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let mut sound = true;
+    for name in &names {
+        let text = std::fs::read_to_string(scenes.join(format!("{name}.toml"))).unwrap();
+        let mut spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
+        if std::env::var("STRESS_SOLVER").as_deref() == Ok("gauss_seidel") {
+            spec.fidelity.contact_solver = scene::ContactSolver::GaussSeidel;
+        }
+        let assets = cache.load(&spec, &scenes).unwrap();
+        let reports: Vec<StressReport> = (0..seeds)
+            .map(|seed| {
+                let mut world = World::new(assets.clone()).unwrap();
+                run(&mut world, &StressSettings::new(seed + 1, seconds))
+            })
+            .collect();
+        sound &= row(name, "full", &reports);
+        if full || name == "arch_to_cow_lcca" {
+            let mut world = World::new(assets.clone()).unwrap();
+            let settings = StressSettings {
+                levels: Levels::Switched,
+                ..StressSettings::new(1000 + seeds, seconds.min(600.0))
+            };
+            sound &= row(name, "switched", &[run(&mut world, &settings)]);
+        }
+    }
+    assert!(
+        sound,
+        "the random operator made a scene diverge, fail or panic"
+    );
+}

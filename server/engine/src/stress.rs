@@ -1,0 +1,233 @@
+//! The random operator: a seeded hand that drives a scene's instruments as a careless trainee
+//! would (any instrument, pushes and pulls up to the device limits, fast pulls, twists, long
+//! pushes into a blocked tip, hands let go), with the governor's fidelity fixed or switched
+//! mid-run; and what the physics did under it: divergences, errors, panics, step times, the
+//! deepest penetration of any instrument's surface and the largest hand force.
+
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::time::Instant;
+
+use crate::world::{Command, Drive, MAX_FIDELITY_LEVEL, World};
+
+/// A step's time budget at 500 Hz (s).
+pub const STEP_BUDGET_S: f64 = 2e-3;
+
+/// How the operator's fidelity is set.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Levels {
+    /// The scene's full fidelity throughout (no governor).
+    Full,
+    /// One governor level throughout.
+    Fixed(u8),
+    /// A random level every few simulated seconds.
+    Switched,
+}
+
+/// One run of the random operator.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StressSettings {
+    /// Seed of the operator's choices.
+    pub seed: u64,
+    /// Simulated time (s).
+    pub simulated_s: f64,
+    /// The governor's fidelity.
+    pub levels: Levels,
+    /// Fastest push or pull the hand makes (m/s).
+    pub max_push_m_s: f64,
+    /// Fastest twist (rad/s).
+    pub max_twist_rad_s: f64,
+}
+
+impl StressSettings {
+    /// A run of `simulated_s` seconds with seed `seed` at full fidelity, pushing up to
+    /// 150 mm/s and twisting up to two turns a second.
+    pub fn new(seed: u64, simulated_s: f64) -> Self {
+        Self {
+            seed,
+            simulated_s,
+            levels: Levels::Full,
+            max_push_m_s: 0.15,
+            max_twist_rad_s: 4.0 * std::f64::consts::PI,
+        }
+    }
+}
+
+/// What a run found.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct StressReport {
+    /// Steps taken.
+    pub steps: u64,
+    /// Simulated time (s).
+    pub simulated_s: f64,
+    /// Steps the world reported diverged (and put the device back at its start).
+    pub divergences: u32,
+    /// Steps that returned an error, with the first error's message.
+    pub errors: u32,
+    /// The first divergence or error message, if any.
+    pub first_failure: Option<String>,
+    /// Whether a step panicked (the run stops there).
+    pub panicked: bool,
+    /// Step wall times (s), sorted.
+    pub step_s: Vec<f64>,
+    /// The deepest penetration of any instrument's surface after any step (m).
+    pub worst_penetration_m: f64,
+    /// The largest axial force any hand felt (N).
+    pub worst_hand_force_n: f64,
+}
+
+impl StressReport {
+    /// Step time at quantile `q` ∈ [0, 1] (s).
+    pub fn quantile_s(&self, q: f64) -> f64 {
+        if self.step_s.is_empty() {
+            return 0.0;
+        }
+        self.step_s[((self.step_s.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
+    }
+
+    /// Steps over [`STEP_BUDGET_S`].
+    pub fn over_budget(&self) -> usize {
+        self.step_s.iter().filter(|&&t| t > STEP_BUDGET_S).count()
+    }
+
+    /// Whether nothing diverged, failed or panicked.
+    pub fn sound(&self) -> bool {
+        self.divergences == 0 && self.errors == 0 && !self.panicked
+    }
+}
+
+/// SplitMix64: a small deterministic generator for the operator's choices.
+struct Dice(u64);
+
+impl Dice {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    fn unit(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Uniform in [a, b).
+    fn range(&mut self, a: f64, b: f64) -> f64 {
+        a + (b - a) * self.unit()
+    }
+}
+
+/// One of the operator's moves: which hand, what it does, for how long (s).
+fn choose(dice: &mut Dice, settings: &StressSettings, hands: usize) -> (u32, Drive, f64) {
+    let hand = (dice.next() % hands.max(1) as u64) as u32;
+    let v = settings.max_push_m_s;
+    let w = settings.max_twist_rad_s;
+    let roll = dice.unit();
+    let (push, twist, duration) = if roll < 0.3 {
+        // A push at any speed.
+        (dice.range(0.0, v), 0.0, dice.range(0.1, 1.5))
+    } else if roll < 0.45 {
+        // A pull at any speed.
+        (-dice.range(0.0, v), 0.0, dice.range(0.1, 1.0))
+    } else if roll < 0.55 {
+        // A fast pull.
+        (-v, 0.0, dice.range(0.1, 0.4))
+    } else if roll < 0.75 {
+        // A twist, with a slow push or pull.
+        (
+            dice.range(-0.2, 0.2) * v,
+            dice.range(-w, w),
+            dice.range(0.2, 1.5),
+        )
+    } else if roll < 0.9 {
+        // A long push, into whatever blocks the tip.
+        (dice.range(0.2, 0.5) * v, 0.0, dice.range(2.0, 4.0))
+    } else {
+        // Hands off.
+        (0.0, 0.0, dice.range(0.1, 1.0))
+    };
+    (
+        hand,
+        Drive::Setpoints {
+            push_m_s: push,
+            twist_rad_s: twist,
+        },
+        duration,
+    )
+}
+
+/// Drives `world` with the random operator of `settings` and reports what happened.
+pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
+    let mut dice = Dice(settings.seed);
+    let mut report = StressReport::default();
+    let dt = world.assets().spec.time_step_s();
+    let steps = (settings.simulated_s / dt).ceil() as u64;
+    let mut seq = world.last_seq();
+    let mut apply = |world: &mut World, command: Command, report: &mut StressReport| {
+        seq += 1;
+        if let Err(e) = world.apply(seq, &command) {
+            report.errors += 1;
+            report
+                .first_failure
+                .get_or_insert(format!("{command:?}: {e}"));
+        }
+    };
+    match settings.levels {
+        Levels::Full => {}
+        Levels::Fixed(level) => apply(world, Command::Fidelity(level), &mut report),
+        Levels::Switched => {}
+    }
+    let divergences_before = world.metrics().divergence_resets;
+    let mut move_until = 0.0;
+    let mut level_until = 0.0;
+    report.step_s.reserve(steps as usize);
+    for step in 0..steps {
+        let now = step as f64 * dt;
+        if settings.levels == Levels::Switched && now >= level_until {
+            let level = (dice.next() % (MAX_FIDELITY_LEVEL as u64 + 1)) as u8;
+            apply(world, Command::Fidelity(level), &mut report);
+            level_until = now + dice.range(1.0, 4.0);
+        }
+        if now >= move_until {
+            let hands = world.strand().len();
+            let (index, drive, duration) = choose(&mut dice, settings, hands);
+            apply(world, Command::Instrument { index, drive }, &mut report);
+            move_until = now + duration;
+        }
+        let start = Instant::now();
+        let outcome = catch_unwind(AssertUnwindSafe(|| world.step()));
+        report.step_s.push(start.elapsed().as_secs_f64());
+        report.steps += 1;
+        match outcome {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => {
+                report.errors += 1;
+                report.first_failure.get_or_insert(e.to_string());
+            }
+            Err(_) => {
+                report.panicked = true;
+                break;
+            }
+        }
+        for event in world.take_events() {
+            if event.kind == crate::metrics::EventKind::Divergence {
+                report
+                    .first_failure
+                    .get_or_insert(format!("{:.3} s: {}", now, event.message));
+            }
+        }
+        report.worst_penetration_m = report
+            .worst_penetration_m
+            .max(world.strand().max_penetration_m());
+    }
+    report.divergences = world.metrics().divergence_resets - divergences_before;
+    report.simulated_s = report.steps as f64 * dt;
+    let metrics = world.metrics();
+    report.worst_hand_force_n = metrics.instruments[..metrics.instrument_count as usize]
+        .iter()
+        .map(|m| m.peak_axial_force_n.abs())
+        .fold(0.0, f64::max);
+    report.step_s.sort_by(f64::total_cmp);
+    report
+}
