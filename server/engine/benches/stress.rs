@@ -4,8 +4,8 @@
 //! (default 1,200: an hour per scene), then one run with the governor's level switched at
 //! random; prints a table (divergences, errors, step p50/p99/max, steps over 2 ms, deepest
 //! penetration, largest hand force) and fails on any divergence, error or panic.
-//! `STRESS_SCENES` (comma-separated names) picks scenes; `STRESS_SOLVER=gauss_seidel` runs
-//! the scenes with the Gauss–Seidel contact solve instead of their own. Without `--bench` (as in
+//! `STRESS_SCENES` (comma-separated names) picks scenes; `STRESS_SOLVER=newton` or
+//! `gauss_seidel` runs them with that contact solve instead of their own. Without `--bench` (as in
 //! `cargo test`) it runs the smoke: every scene, one seed, 4 simulated seconds, and one
 //! switched-level run of the default scene.
 
@@ -91,8 +91,10 @@ fn main() {
     for name in &names {
         let text = std::fs::read_to_string(scenes.join(format!("{name}.toml"))).unwrap();
         let mut spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
-        if std::env::var("STRESS_SOLVER").as_deref() == Ok("gauss_seidel") {
-            spec.fidelity.contact_solver = scene::ContactSolver::GaussSeidel;
+        match std::env::var("STRESS_SOLVER").as_deref() {
+            Ok("gauss_seidel") => spec.fidelity.contact_solver = scene::ContactSolver::GaussSeidel,
+            Ok("newton") => spec.fidelity.contact_solver = scene::ContactSolver::Newton,
+            _ => {}
         }
         let assets = cache.load(&spec, &scenes).unwrap();
         let reports: Vec<StressReport> = (0..seeds)
