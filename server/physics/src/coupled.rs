@@ -11,7 +11,7 @@
 //! given (along the path); a chain whose contacts come out of order along it restarts its
 //! base-ward accumulation (O(N)), so any order is exact and the coaxial order is O(M + N) per
 //! sweep. Projected Gauss–Seidel with the same local Coulomb law, Anderson acceleration and
-//! frozen-friction second phase as [`crate::contact::gauss_seidel`].
+//! frozen-friction second phase as [`crate::contact::gauss_seidel()`].
 
 use nalgebra::{Matrix3, Vector3, Vector6};
 

@@ -273,7 +273,7 @@ pub fn gauss_seidel(
     )
 }
 
-/// [`gauss_seidel`], with `observer` shown the forces (per contact, its frame) after every
+/// [`gauss_seidel()`], with `observer` shown the forces (per contact, its frame) after every
 /// sweep: for convergence charts.
 pub fn gauss_seidel_observed(
     flexibility: &Flexibility,

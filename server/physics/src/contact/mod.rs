@@ -621,7 +621,7 @@ pub fn newton_tolerance(settings: &ContactSettings) -> newton::NewtonTolerance {
 }
 
 /// Solves the contact problem by semismooth Newton on its Delassus matrix ([`newton`]),
-/// handing an unconverged problem to [`gauss_seidel`] from where Newton stopped.
+/// handing an unconverged problem to [`gauss_seidel()`] from where Newton stopped.
 pub fn newton_solve(
     flexibility: &Flexibility,
     free: &[Vector6<f64>],
