@@ -59,27 +59,7 @@ proptest! {
         with_friction in proptest::bool::ANY,
         push in proptest::array::uniform3(-1.0f64..1.0),
     ) {
-        let mut model = wire(elements);
-        let k = model.tangent_stiffness().clone();
-        let flexibility = Substructure::new(&k).unwrap().flexibility();
-        // Free increment: the response to a random tip load (so it is a real displacement).
-        let mut load = vec![Vector6::zeros(); elements];
-        load[elements - 1] = Vector6::new(push[0] * 0.05, push[1] * 0.002, push[2] * 0.002, 0.0, 0.0, 0.0);
-        let free = Substructure::new(&k).unwrap().solve(&load);
-        let contacts: Vec<Contact> = raw
-            .iter()
-            .map(|&(e, t, spread, gap, mu)| {
-                let angle = side + spread * std::f64::consts::FRAC_PI_3;
-                Contact {
-                    element: ((e * elements as f64) as usize).min(elements - 1),
-                    t,
-                    // The wire lies along x: radial normals are in the y–z plane.
-                    normal: Vector3::new(0.0, angle.cos(), angle.sin()),
-                    gap,
-                    friction: if with_friction { mu } else { 0.0 },
-                }
-            })
-            .collect();
+        let (k, flexibility, free, contacts) = random_problem(elements, &raw, side, with_friction, push);
         let settings = ContactSettings { max_iterations: SWEEP_BUDGET, ..tight() };
         let fast = gauss_seidel(&flexibility, &free, &contacts, &settings, None).unwrap();
         let dense = dense_reference(&k.to_dense(), &free, &contacts, &settings).unwrap();
@@ -142,25 +122,7 @@ proptest! {
         with_friction in proptest::bool::ANY,
         push in proptest::array::uniform3(-1.0f64..1.0),
     ) {
-        let mut model = wire(elements);
-        let k = model.tangent_stiffness().clone();
-        let flexibility = Substructure::new(&k).unwrap().flexibility();
-        let mut load = vec![Vector6::zeros(); elements];
-        load[elements - 1] = Vector6::new(push[0] * 0.05, push[1] * 0.002, push[2] * 0.002, 0.0, 0.0, 0.0);
-        let free = Substructure::new(&k).unwrap().solve(&load);
-        let contacts: Vec<Contact> = raw
-            .iter()
-            .map(|&(e, t, spread, gap, mu)| {
-                let angle = side + spread * std::f64::consts::FRAC_PI_3;
-                Contact {
-                    element: ((e * elements as f64) as usize).min(elements - 1),
-                    t,
-                    normal: Vector3::new(0.0, angle.cos(), angle.sin()),
-                    gap,
-                    friction: if with_friction { mu } else { 0.0 },
-                }
-            })
-            .collect();
+        let (k, flexibility, free, contacts) = random_problem(elements, &raw, side, with_friction, push);
         let (w, delta_free) = delassus(&k.to_dense(), &free, &contacts);
         let problem = delassus_problem(&flexibility, &free, &contacts).unwrap();
         let w_scale = w.amax();
@@ -190,6 +152,52 @@ proptest! {
             prop_assert!((&a - &b).amax() <= 1e-6 * scale, "forces differ by {} (scale {scale})", (&a - &b).amax());
         }
     }
+}
+
+/// The random problem of the property tests: a wire of `elements` elements, contacts from
+/// `raw` (position along the wire, parameter, normal spread, gap, friction), normals within
+/// ±60° of `side` across the wire (along x), and as free motion the response to a tip load
+/// `push` (so it is a real displacement).
+#[allow(clippy::type_complexity)]
+fn random_problem(
+    elements: usize,
+    raw: &[(f64, f64, f64, f64, f64)],
+    side: f64,
+    with_friction: bool,
+    push: [f64; 3],
+) -> (
+    cathlab_physics::BlockTridiagonal,
+    cathlab_physics::Flexibility,
+    Vec<Vector6<f64>>,
+    Vec<Contact>,
+) {
+    let mut model = wire(elements);
+    let k = model.tangent_stiffness().clone();
+    let flexibility = Substructure::new(&k).unwrap().flexibility();
+    let mut load = vec![Vector6::zeros(); elements];
+    load[elements - 1] = Vector6::new(
+        push[0] * 0.05,
+        push[1] * 0.002,
+        push[2] * 0.002,
+        0.0,
+        0.0,
+        0.0,
+    );
+    let free = Substructure::new(&k).unwrap().solve(&load);
+    let contacts = raw
+        .iter()
+        .map(|&(e, t, spread, gap, mu)| {
+            let angle = side + spread * std::f64::consts::FRAC_PI_3;
+            Contact {
+                element: ((e * elements as f64) as usize).min(elements - 1),
+                t,
+                normal: Vector3::new(0.0, angle.cos(), angle.sin()),
+                gap,
+                friction: if with_friction { mu } else { 0.0 },
+            }
+        })
+        .collect();
+    (k, flexibility, free, contacts)
 }
 
 /// The explicit Delassus operator `W = H K⁻¹ Hᵀ` (3M × 3M, rows in each contact's
