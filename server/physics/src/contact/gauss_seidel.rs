@@ -75,10 +75,14 @@ fn polish_normals(
 /// Active-set solve of the normal forces `local[k].x` with the tangential forces held: `c[k]`
 /// is contact k's gap with zero normal forces and `column(j)` the normal displacement of every
 /// contact under a unit normal force at j (W's column j). The set starts from the contacts
-/// pushing or penetrating; each pass solves W_AA λ_A = −c_A exactly, drops the most negative
-/// force or adds the most penetrated inactive contact, until neither exists; the tangential
-/// forces are then projected on the cones of the new normals. Returns false (leaving `local`
-/// alone) if it does not settle in 2M passes.
+/// pushing or penetrating; each pass solves W_AA λ_A = −c_A exactly, then changes the set,
+/// until no force is negative and no inactive contact penetrates; the tangential forces are
+/// then projected on the cones of the new normals. The first [`BULK_PASSES`] passes change
+/// every wrong contact at once (the primal–dual active-set method, a semismooth Newton on
+/// min(λ, gap) = 0: a few passes where one change a pass takes tens of factorizations);
+/// should that cycle, later passes drop the most negative force or add the most penetrated
+/// contact, one a pass. Returns false (leaving `local` alone) if it does not settle in
+/// [`BULK_PASSES`] + 2M passes.
 pub(crate) fn active_set_normals(
     c: &[f64],
     mut column: impl FnMut(usize) -> Vec<f64>,
@@ -90,7 +94,8 @@ pub(crate) fn active_set_normals(
     let tolerance = 1e-9;
     let scale = c.iter().fold(1e-12f64, |a, b| a.max(b.abs()));
     let mut active: Vec<bool> = (0..m).map(|k| local[k].x > 0.0 || c[k] < 0.0).collect();
-    for _ in 0..2 * m.max(1) {
+    for pass in 0..BULK_PASSES + 2 * m.max(1) {
+        let bulk = pass < BULK_PASSES;
         let set: Vec<usize> = (0..m).filter(|&k| active[k]).collect();
         let cols: Vec<Vec<f64>> = set
             .iter()
@@ -109,6 +114,31 @@ pub(crate) fn active_set_normals(
                 },
             }
         };
+        if bulk {
+            // Every negative force dropped and every penetrated contact added at once.
+            let mut changed = false;
+            for (a, l) in lambda.iter().enumerate() {
+                if *l < 0.0 {
+                    active[set[a]] = false;
+                    changed = true;
+                }
+            }
+            for k in (0..m).filter(|&k| !was_active(&set, k)) {
+                let g = c[k]
+                    + cols
+                        .iter()
+                        .zip(lambda.iter())
+                        .map(|(col, l)| col[k] * l)
+                        .sum::<f64>();
+                if g < -tolerance * scale {
+                    active[k] = true;
+                    changed = true;
+                }
+            }
+            if changed {
+                continue;
+            }
+        }
         if let Some((a, _)) = lambda
             .iter()
             .enumerate()
@@ -148,6 +178,14 @@ pub(crate) fn active_set_normals(
         return true;
     }
     false
+}
+
+/// Passes of [`active_set_normals`] that change every wrong contact at once.
+const BULK_PASSES: usize = 8;
+
+/// Whether contact `k` is in the sorted active `set`.
+fn was_active(set: &[usize], k: usize) -> bool {
+    set.binary_search(&k).is_ok()
 }
 
 /// Replaces `loads` by the nodal loads of contact forces `local` (after the forces jumped:
