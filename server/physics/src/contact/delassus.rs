@@ -11,7 +11,7 @@
 
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, SMatrix};
 
-use super::Prepared;
+use super::problem::Prepared;
 use crate::substructure::Flexibility;
 
 /// A contact problem in Delassus form: the contact points move by `u = W λ + q` (each contact's

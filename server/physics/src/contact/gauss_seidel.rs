@@ -5,7 +5,7 @@
 
 use nalgebra::{DMatrix, DVector, Vector3, Vector6};
 
-use super::{
+use super::problem::{
     Contact, ContactResponse, ContactSettings, Prepared, accumulate_loads, force6, local_law,
     normal_with_fixed_tangent, prepare, project_on_cone, solve_local, tip_ward_pass, translation,
 };

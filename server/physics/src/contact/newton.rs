@@ -388,7 +388,7 @@ fn direction(
 }
 
 /// One projected Gauss–Seidel sweep over the contacts on the dense W, with the local
-/// Coulomb law of [`super::local_law`].
+/// Coulomb law of [`super::problem::local_law`].
 fn sweep(problem: &DelassusProblem, rho: &[Option<f64>], lambda: &mut DVector<f64>) {
     let w = &problem.w;
     for (k, rho) in rho.iter().enumerate() {
@@ -400,7 +400,7 @@ fn sweep(problem: &DelassusProblem, rho: &[Option<f64>], lambda: &mut DVector<f6
         let own = lambda.fixed_rows::<3>(3 * k).into_owned();
         let b = (w.rows(3 * k, 3) * &*lambda) + problem.q.fixed_rows::<3>(3 * k) - wkk * own;
         let b = Vector3::new(b[0], b[1], b[2]);
-        let updated = super::local_law(
+        let updated = super::problem::local_law(
             &wkk,
             wkk.try_inverse().as_ref(),
             &b,
