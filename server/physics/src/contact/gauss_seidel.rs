@@ -114,6 +114,14 @@ pub(crate) fn active_set_normals(
                 },
             }
         };
+        // Contact k's gap under the set's forces.
+        let gap = |k: usize| -> f64 {
+            c[k] + cols
+                .iter()
+                .zip(lambda.iter())
+                .map(|(col, l)| col[k] * l)
+                .sum::<f64>()
+        };
         if bulk {
             // Every negative force dropped and every penetrated contact added at once.
             let mut changed = false;
@@ -124,13 +132,7 @@ pub(crate) fn active_set_normals(
                 }
             }
             for k in (0..m).filter(|&k| !was_active(&set, k)) {
-                let g = c[k]
-                    + cols
-                        .iter()
-                        .zip(lambda.iter())
-                        .map(|(col, l)| col[k] * l)
-                        .sum::<f64>();
-                if g < -tolerance * scale {
+                if gap(k) < -tolerance * scale {
                     active[k] = true;
                     changed = true;
                 }
@@ -151,15 +153,7 @@ pub(crate) fn active_set_normals(
         // Gaps of the inactive contacts under the active forces.
         let worst = (0..m)
             .filter(|&k| !active[k])
-            .map(|k| {
-                let g = c[k]
-                    + cols
-                        .iter()
-                        .zip(lambda.iter())
-                        .map(|(col, l)| col[k] * l)
-                        .sum::<f64>();
-                (k, g)
-            })
+            .map(|k| (k, gap(k)))
             .filter(|(_, g)| *g < -tolerance * scale)
             .min_by(|x, y| x.1.total_cmp(&y.1));
         if let Some((k, _)) = worst {
