@@ -35,6 +35,10 @@ pub struct Metrics {
     pub steps: u64,
     /// Physics resets after divergence.
     pub divergence_resets: u32,
+    /// Deepest any node of any instrument has passed the wall after a step that was kept
+    /// (m): each instrument's own outer radius past the lumen surface.
+    #[serde(default)]
+    pub deepest_penetration_m: f64,
     /// Sum of total wall force over contact steps (N), for the mean.
     pub wall_force_sum_n: f64,
     /// Steps with wall contact.

@@ -217,13 +217,12 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
                     .get_or_insert(format!("{:.3} s: {}", now, event.message));
             }
         }
-        report.worst_penetration_m = report
-            .worst_penetration_m
-            .max(world.strand().max_penetration_m());
     }
     report.divergences = world.metrics().divergence_resets - divergences_before;
     report.simulated_s = report.steps as f64 * dt;
     let metrics = world.metrics();
+    // The world measures every node of every instrument after each step it keeps.
+    report.worst_penetration_m = metrics.deepest_penetration_m;
     report.worst_hand_force_n = metrics.instruments[..metrics.instrument_count as usize]
         .iter()
         .map(|m| m.peak_axial_force_n.abs())

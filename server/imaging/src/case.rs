@@ -434,6 +434,12 @@ pub struct CaseReport {
     pub target: String,
     /// The route from the access to the target's start (mm).
     pub route_mm: f64,
+    /// The instruments written, outermost first (catalogue identifier or preset).
+    pub instruments: [String; 2],
+    /// The route's narrow lumen diameter the instruments were chosen for (mm).
+    pub narrow_lumen_mm: f64,
+    /// How far each instrument starts inserted (mm).
+    pub inserted_mm: [f64; 2],
 }
 
 const SURFACE_EXTENSIONS: [&str; 4] = ["obj", "stl", "ply", "vtp"];
@@ -585,6 +591,21 @@ pub fn write_case(input: &Path, options: &CaseOptions, out: &Path) -> Result<Cas
         file: png,
         source: std::io::Error::other(e),
     })?;
+    // Instruments that fit the route's narrow lumen, starting inside its first straight
+    // stretch.
+    let samples = graph.sample_path(&route, 1e-3);
+    let narrow_m = crate::instruments::narrow_radius_m(&samples);
+    let (pair, catheter_outer_mm) = crate::instruments::choose_pair(narrow_m)?;
+    let reach_m = crate::instruments::straight_reach_m(&samples, catheter_outer_mm * 0.5e-3);
+    // The shaped wire stands out of the catheter only as far as its bend clears the wall of
+    // the narrowest lumen along that straight stretch (or a straight wire where it cannot).
+    let start_lumen_m = samples
+        .iter()
+        .take((reach_m * 1e3) as usize + 1)
+        .map(|(_, r)| *r)
+        .fold(f64::INFINITY, f64::min);
+    let plan = crate::instruments::start_plan(&pair, reach_m, start_lumen_m);
+    let [catheter_in, wire_in] = plan.inserted_mm;
     // The scripted operator's distances fit the target branch: the wire 80 % of the way
     // in, the catheter tracked half-way between the target depth and the wire's tip.
     let reach = (0.25 * target_length).clamp(1.0, 20.0);
@@ -613,13 +634,18 @@ pub fn write_case(input: &Path, options: &CaseOptions, out: &Path) -> Result<Cas
          kind = \"surface\"\nfile = \"{surface_file}\"\nunit = \"{unit_name}\"\n\
          placement = {{ rotation_deg = [{r0:?}, {r1:?}, {r2:?}], translation_mm = [{t0:?}, \
          {t1:?}, {t2:?}] }}\ncenterlines = \"{name}/graph.json\"\n\n[anatomy.names]\n\n[ct]\n\
-         {ct_section}\n\n# Outermost first: a 5 F catheter in the left hand, a shaped 0.035\" \
-         wire in the right.\n[[stack]]\ndevice = \"catheter-5f-vertebral\"\ninserted_mm = \
-         10.0\n\n[[stack]]\ncustom = {{ preset = \"guidewire_035_shaped\", bend_deg = 90.0, \
-         bend_length_mm = 30.0 }}\ninserted_mm = 30.0\n\n[target]\nbranch = \"{target}\"\n\
+         {ct_section}\n\n# Outermost first: {label}.\n# The route's narrow lumen is \
+         {narrow_mm:.1} mm across; the first {reach_mm:.0} mm from the access are straight.\n\
+         [[stack]]\n{catheter}\ninserted_mm = {catheter_in:.1}\n\n[[stack]]\n{wire}\n\
+         inserted_mm = {wire_in:.1}\n\n[target]\nbranch = \"{target}\"\n\
          reach_mm = {reach:.1}\ninstrument = 0\n\n[autopilot]\nlookahead_mm = 20.0\n\
          wire_reach_mm = {wire_reach:.1}\ncatheter_lag_mm = 50.0\ncatheter_track_mm = \
          {track:.1}\n\n[fidelity]\nstep_rate_hz = 500\nframe_px = 512\n",
+        label = pair.label,
+        narrow_mm = 2e3 * narrow_m,
+        reach_mm = reach_m * 1e3,
+        catheter = pair.catheter,
+        wire = plan.wire,
         branches = graph.branches.len(),
         ends = ends.len(),
         r0 = placement.rotation_deg[0],
@@ -658,6 +684,9 @@ pub fn write_case(input: &Path, options: &CaseOptions, out: &Path) -> Result<Cas
         access_mm: mm(&access),
         target,
         route_mm: route.length * 1e3,
+        instruments: [pair.catheter_id.to_owned(), plan.wire_name.to_owned()],
+        narrow_lumen_mm: 2e3 * narrow_m,
+        inserted_mm: [catheter_in, wire_in],
     };
     write_file(
         &files.join("report.json"),

@@ -10,6 +10,7 @@ pub mod circle_of_willis;
 pub mod dicom;
 pub mod dicom_lengths;
 pub mod error;
+pub mod instruments;
 mod load;
 pub mod metaimage;
 pub mod nifti;

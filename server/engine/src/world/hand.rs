@@ -17,7 +17,7 @@ pub enum PushLimit {
     #[default]
     None,
     /// The proximal force reached the limit: the hand cannot push harder, or the device
-    /// would buckle outside the sheath.
+    /// would buckle outside the sheath; or, pulling, the hand cannot pull harder.
     Force,
     /// The device is in to its hub.
     Length,
@@ -30,6 +30,8 @@ pub struct DeviceLimits {
     pub force_n: f64,
     /// Whether that is the device's buckling load (else the hand's strength).
     pub buckling: bool,
+    /// The most the proximal end is pulled with (N): the hand's strength.
+    pub pull_force_n: f64,
     /// The most that can be inserted (m): the device's length less what stays outside.
     pub max_inserted_m: f64,
 }
@@ -54,6 +56,7 @@ impl DeviceLimits {
         Self {
             force_n: buckling.min(limits.push_force_n),
             buckling: buckling < limits.push_force_n,
+            pull_force_n: limits.push_force_n,
             max_inserted_m: device.length_m() - limits.outside_mm * 1e-3 - along_route_m,
         }
     }

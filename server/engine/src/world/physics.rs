@@ -1,7 +1,8 @@
 //! The physics stage of a step: each instrument's operator command held back where a limit
 //! stops its push (the hand's force, the device's buckling load or length, the governor's
 //! speed cap), the strand stepped, and a diverged step (an error, a non-finite tip, a tip
-//! through the wall) reset to the device's start, reported and counted.
+//! or any node of any instrument through the wall) reset to the device's start, reported and
+//! counted.
 
 use cathlab_physics::Insertion;
 use nalgebra::Point3;
@@ -52,7 +53,15 @@ impl World {
                 } else if escaped {
                     Some("the tip left the vessel".to_owned())
                 } else {
-                    None
+                    // Every node of every instrument, with its own outer radius.
+                    let depth = self.strand.max_penetration_m();
+                    if depth.is_nan() || depth > MAX_ESCAPE_M {
+                        Some(format!("a node passed the wall by {:.1} mm", depth * 1e3))
+                    } else {
+                        self.metrics.deepest_penetration_m =
+                            self.metrics.deepest_penetration_m.max(depth);
+                        None
+                    }
                 }
             }
             Err(e) => Some(e.to_string()),
@@ -70,9 +79,9 @@ impl World {
 
     /// The command this step runs instead of the operator's for instrument `index` when a
     /// limit holds its push back (None: the operator's). The force limit looks at the last
-    /// step's proximal reaction: a push that met it holds the instrument where it is (the hand
-    /// pushes no harder), so it advances only as fast as the force allows. Reports each new
-    /// hold once.
+    /// step's proximal reaction: a push (or a pull) that met it holds the instrument where it
+    /// is (the hand pushes or pulls no harder), so it moves only as fast as the force allows.
+    /// Reports each new hold once.
     fn limited_command(
         &mut self,
         index: usize,
@@ -88,7 +97,10 @@ impl World {
         let force = hand.reaction.axial_force_n;
         let limits = hand.limits;
         let cap = fidelity_effort(self.fidelity).1;
-        let (limit, insertion) = if advance <= 0.0 {
+        let pulled_too_hard = advance < 0.0 && -force >= limits.pull_force_n;
+        let (limit, insertion) = if pulled_too_hard {
+            (PushLimit::Force, Some(Insertion::Velocity(0.0)))
+        } else if advance <= 0.0 {
             (PushLimit::None, None)
         } else if inserted + advance > limits.max_inserted_m {
             (
@@ -125,6 +137,10 @@ impl World {
                 .device(index)
                 .map_or_else(String::new, |d| d.name.clone());
             let message = match limit {
+                PushLimit::Force if pulled_too_hard => format!(
+                    "pull held at {:.1} N: the hand's limit is {:.0} N",
+                    -force, limits.pull_force_n
+                ),
                 PushLimit::Force if limits.buckling => format!(
                     "push held at {force:.1} N: the {name} buckles outside the sheath at {:.1} N",
                     limits.force_n

@@ -36,6 +36,7 @@ pub(super) fn injection_tip(strand: &Strand) -> Vector3<f64> {
         .unwrap_or_else(|| strand.leading_tip())
 }
 
-/// A tip farther than this outside the lumen surface (m) counts as divergence: the device has
-/// gone through the wall, which the contact solver never allows on a sound step.
+/// A tip farther than this outside the lumen surface (m), or any instrument's node whose
+/// surface is this far past it, counts as divergence: the device has gone through the wall,
+/// which the contact solver never allows on a sound step.
 pub const MAX_ESCAPE_M: f64 = 3e-3;

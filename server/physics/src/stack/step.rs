@@ -178,10 +178,14 @@ impl<W: Wall> Stack<W> {
     }
 
     /// Collision points per element, with the radius and wall friction of the outermost
-    /// instrument present.
+    /// instrument present. The node where an outer instrument ends (a catheter's tip, with
+    /// the wire going on) is the next element's first point: it keeps the outer instrument's
+    /// radius, so that the catheter's rim is what meets the wall there.
     pub(super) fn sample_layout(&self) -> Vec<Sample> {
-        let mut samples = Vec::new();
+        let mut samples: Vec<Sample> = Vec::new();
         let elements = self.model.element_count();
+        // The last element's index and section, when it was sampled.
+        let mut previous: Option<(usize, f64, f64)> = None;
         for e in 0..elements {
             let (a, b) = (self.nodes[e].sigma, self.nodes[e + 1].sigma);
             let mid = 0.5 * (a + b);
@@ -191,6 +195,7 @@ impl<W: Wall> Stack<W> {
             let (section, _) = outer
                 .device
                 .section_at(outer.length_m - outer.inserted_m + mid);
+            let first = samples.len();
             push_element_samples(
                 &mut samples,
                 (e, elements),
@@ -198,6 +203,21 @@ impl<W: Wall> Stack<W> {
                 self.settings.sample_spacing_m,
                 section,
             );
+            if let Some((before, radius, friction)) = previous
+                && before + 1 == e
+                && let Some(start) = samples.get_mut(first)
+                && start.element == e
+                && start.t == 0.0
+                && radius > start.radius
+            {
+                start.radius = radius;
+                start.friction = friction;
+            }
+            previous = Some((
+                e,
+                section.cross_section.outer_radius_m,
+                section.friction_coefficient,
+            ));
         }
         samples
     }
