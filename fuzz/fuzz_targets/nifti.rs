@@ -1,12 +1,5 @@
-//! NIfTI-1 volumes, plain or gzip: `cathlab_imaging::read_nifti`, which reads from a
-//! path only, so the input is written to a scratch file `f.nii` first.
+//! libFuzzer target: NIfTI-1 volumes, plain or gzip. The body is `cathlab_fuzz::targets::nifti`
+//! (`src/targets.rs`), which the replay test under `cargo test` runs too.
 #![no_main]
 
-use cathlab_imaging::read_nifti;
-
-libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    cathlab_fuzz::start();
-    let paths = cathlab_fuzz::write_scratch(&[data], &["f.nii"]);
-    let result = read_nifti(&paths[0]);
-    cathlab_fuzz::report("nifti", &result);
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| cathlab_fuzz::targets::nifti(data));

@@ -1,10 +1,5 @@
-//! Wavefront OBJ surfaces: `cathlab_anatomy::io::obj::parse`, the bytes of a `.obj` file.
+//! libFuzzer target: Wavefront OBJ surfaces. The body is `cathlab_fuzz::targets::obj`
+//! (`src/targets.rs`), which the replay test under `cargo test` runs too.
 #![no_main]
 
-use cathlab_anatomy::io::{LengthUnit, obj};
-
-libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    cathlab_fuzz::start();
-    let result = obj::parse(data, LengthUnit::Mm, "fuzz.obj");
-    cathlab_fuzz::report("obj", &result);
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| cathlab_fuzz::targets::obj(data));

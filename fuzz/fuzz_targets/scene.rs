@@ -1,33 +1,5 @@
-//! Scene files, TOML and JSON: `cathlab_engine::SceneSpec::parse` (which validates), each
-//! input read as both formats; a scene that parses has its memory estimate taken and its
-//! stack and spares resolved against the device catalogue, as loading a scene does.
+//! libFuzzer target: scene files, TOML and JSON. The body is `cathlab_fuzz::scene_input::scene`
+//! (`src/scene_input.rs`), which the replay test under `cargo test` runs too.
 #![no_main]
 
-use cathlab_engine::{SceneFormat, SceneSpec};
-
-libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    cathlab_fuzz::start();
-    let Ok(text) = std::str::from_utf8(data) else {
-        return;
-    };
-    for format in [SceneFormat::Toml, SceneFormat::Json] {
-        let result = SceneSpec::parse(text, format);
-        cathlab_fuzz::report(
-            if format == SceneFormat::Toml {
-                "scene toml"
-            } else {
-                "scene json"
-            },
-            &result,
-        );
-        if let Ok(scene) = result {
-            let _ = scene.estimated_bytes();
-            for (i, entry) in scene.stack.iter().enumerate() {
-                let _ = entry.resolve(i);
-            }
-            for (i, spare) in scene.spares.iter().enumerate() {
-                let _ = spare.resolve(i);
-            }
-        }
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| cathlab_fuzz::scene_input::scene(data));

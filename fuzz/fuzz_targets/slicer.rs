@@ -1,10 +1,5 @@
-//! 3D Slicer markups (`.mrk.json`) curves: `cathlab_anatomy::io::slicer::parse`.
+//! libFuzzer target: 3D Slicer markup curves (JSON). The body is `cathlab_fuzz::targets::slicer`
+//! (`src/targets.rs`), which the replay test under `cargo test` runs too.
 #![no_main]
 
-use cathlab_anatomy::io::slicer;
-
-libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    cathlab_fuzz::start();
-    let result = slicer::parse(data, "fuzz", "fuzz.mrk.json");
-    cathlab_fuzz::report("slicer", &result);
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| cathlab_fuzz::targets::slicer(data));

@@ -1,10 +1,5 @@
-//! STL surfaces, binary and ASCII: `cathlab_anatomy::io::stl::parse`, the bytes of a `.stl` file.
+//! libFuzzer target: STL surfaces, binary and ASCII. The body is `cathlab_fuzz::targets::stl`
+//! (`src/targets.rs`), which the replay test under `cargo test` runs too.
 #![no_main]
 
-use cathlab_anatomy::io::{LengthUnit, stl};
-
-libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    cathlab_fuzz::start();
-    let result = stl::parse(data, LengthUnit::Mm, "fuzz.stl");
-    cathlab_fuzz::report("stl", &result);
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| cathlab_fuzz::targets::stl(data));

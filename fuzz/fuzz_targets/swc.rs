@@ -1,10 +1,5 @@
-//! SWC centerline trees: `cathlab_anatomy::io::swc::parse`, the bytes of a `.swc` file.
+//! libFuzzer target: SWC centerline trees. The body is `cathlab_fuzz::targets::swc`
+//! (`src/targets.rs`), which the replay test under `cargo test` runs too.
 #![no_main]
 
-use cathlab_anatomy::io::{LengthUnit, swc};
-
-libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    cathlab_fuzz::start();
-    let result = swc::parse(data, LengthUnit::Mm, "fuzz.swc");
-    cathlab_fuzz::report("swc", &result);
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| cathlab_fuzz::targets::swc(data));
