@@ -316,7 +316,7 @@ impl<W: Wall> Stack<W> {
             let mut outside: Vec<Sample> = Vec::new();
             // The deepest lumen contact per element half.
             let mut lumen: Vec<(usize, bool, f64, Detected)> = Vec::new();
-            let layout = chain.sample_layout();
+            let layout = chain.sample_layout(false);
             // A point just inside each outer tip the chain passes: between two samples of a
             // long inner element the outer's tip could bend off it.
             let mut tips: Vec<Sample> = Vec::new();

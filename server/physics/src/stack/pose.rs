@@ -97,13 +97,14 @@ impl<W: Wall> Stack<W> {
     }
 
     /// The largest penetration of the strand into the wall in the current configuration (m;
-    /// 0 when nothing penetrates), over the collision points.
+    /// 0 when nothing penetrates), over the collision points, each catheter's rim with its
+    /// own radius where the instrument inside it goes on.
     pub fn max_penetration_m(&self) -> f64 {
         if self.coupling == Coupling::Nested {
             return self.nested_max_penetration();
         }
         let positions = self.model.positions();
-        self.sample_layout()
+        self.sample_layout(true)
             .iter()
             .enumerate()
             .filter_map(|(i, s)| {

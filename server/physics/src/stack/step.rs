@@ -144,7 +144,7 @@ impl<W: Wall> Stack<W> {
     /// One solve: kinematic update, detection, beam solve with contacts.
     fn single_step(&mut self, targets: &[(f64, f64)]) -> Result<StackReport> {
         self.prepare(targets)?;
-        let samples = self.sample_layout();
+        let samples = self.sample_layout(false);
         let wall = &self.wall;
         let margin = self.settings.contact_margin_m;
         let sigma: Vec<f64> = self.nodes.iter().map(|n| n.sigma).collect();
@@ -179,9 +179,12 @@ impl<W: Wall> Stack<W> {
 
     /// Collision points per element, with the radius and wall friction of the outermost
     /// instrument present. The node where an outer instrument ends (a catheter's tip, with
-    /// the wire going on) is the next element's first point: it keeps the outer instrument's
-    /// radius, so that the catheter's rim is what meets the wall there.
-    pub(super) fn sample_layout(&self) -> Vec<Sample> {
+    /// the wire going on) is the next element's first point, with the inner instrument's
+    /// radius: `rims` gives it the outer one's, so that the catheter's rim is measured there.
+    /// The contacts use the layout without (with it the rim meets the wall, and the scripted
+    /// experts' runs change: the coaxial arch's strays 21 mm into the brachiocephalic, which
+    /// needs the autopilot retuned first); the penetration measured uses it.
+    pub(super) fn sample_layout(&self, rims: bool) -> Vec<Sample> {
         let mut samples: Vec<Sample> = Vec::new();
         let elements = self.model.element_count();
         // The last element's index and section, when it was sampled.
@@ -204,6 +207,7 @@ impl<W: Wall> Stack<W> {
                 section,
             );
             if let Some((before, radius, friction)) = previous
+                && rims
                 && before + 1 == e
                 && let Some(start) = samples.get_mut(first)
                 && start.element == e
