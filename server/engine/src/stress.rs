@@ -95,11 +95,14 @@ impl StressReport {
     }
 }
 
-/// SplitMix64: a small deterministic generator for the operator's choices.
-struct Dice(u64);
+/// SplitMix64: a small deterministic generator for the operator's choices (and the fuzz
+/// replay test's mutations).
+#[derive(Debug, Clone)]
+pub struct Dice(pub u64);
 
 impl Dice {
-    fn next(&mut self) -> u64 {
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
@@ -107,20 +110,25 @@ impl Dice {
         z ^ (z >> 31)
     }
 
+    /// Uniform in 0..n (0 when n is 0).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n.max(1) as u64) as usize
+    }
+
     /// Uniform in [0, 1).
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    pub fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
     }
 
     /// Uniform in [a, b).
-    fn range(&mut self, a: f64, b: f64) -> f64 {
+    pub fn range(&mut self, a: f64, b: f64) -> f64 {
         a + (b - a) * self.unit()
     }
 }
 
 /// One of the operator's moves: which hand, what it does, for how long (s).
 fn choose(dice: &mut Dice, settings: &StressSettings, hands: usize) -> (u32, Drive, f64) {
-    let hand = (dice.next() % hands.max(1) as u64) as u32;
+    let hand = (dice.next_u64() % hands.max(1) as u64) as u32;
     let v = settings.max_push_m_s;
     let w = settings.max_twist_rad_s;
     let roll = dice.unit();
@@ -185,7 +193,7 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
     for step in 0..steps {
         let now = step as f64 * dt;
         if settings.levels == Levels::Switched && now >= level_until {
-            let level = (dice.next() % (MAX_FIDELITY_LEVEL as u64 + 1)) as u8;
+            let level = (dice.next_u64() % (MAX_FIDELITY_LEVEL as u64 + 1)) as u8;
             apply(world, Command::Fidelity(level), &mut report);
             level_until = now + dice.range(1.0, 4.0);
         }

@@ -8,6 +8,8 @@
 //! fuzzing is `scripts/fuzz.sh` (`smoke`, `release`), run before a release.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
+
+use cathlab_engine::stress::Dice;
 use std::path::{Path, PathBuf};
 
 // The fuzz crate's support (without its allocator: the workspace forbids unsafe code), reader
@@ -52,23 +54,6 @@ fn files(dir: &Path) -> Vec<PathBuf> {
         .unwrap_or_default();
     files.sort();
     files
-}
-
-/// SplitMix64, for reproducible mutations.
-struct Dice(u64);
-
-impl Dice {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
 }
 
 /// Integers at the edges of what headers and counts hold.

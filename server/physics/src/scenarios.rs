@@ -444,8 +444,12 @@ pub struct CoaxialRun {
     pub micro_done_at_step: Option<usize>,
     /// Steps taken.
     pub steps: usize,
-    /// Worst penetration into the wall over all steps (m).
+    /// Worst penetration into the wall over all steps, of the collision points the contacts
+    /// resolve (m).
     pub worst_penetration_m: f64,
+    /// Worst penetration with each catheter's rim at its own radius (m): the rims are not yet
+    /// in the contacts.
+    pub worst_rim_penetration_m: f64,
     /// Wall-clock time of every step (s).
     pub step_times_s: Vec<f64>,
     /// Pull-backs of the autopilot.
@@ -540,7 +544,8 @@ pub fn coaxial_arch_to_cow_stack<'a>(
         run.step_stats
             .push((report.sweeps, report.active_contacts, report.elements));
         run.steps += 1;
-        run.worst_penetration_m = run.worst_penetration_m.max(stack.max_penetration_m());
+        run.worst_penetration_m = run.worst_penetration_m.max(stack.max_shaft_penetration_m());
+        run.worst_rim_penetration_m = run.worst_rim_penetration_m.max(stack.max_penetration_m());
         for reaction in stack.proximal_reactions() {
             run.max_hand_force_n = run.max_hand_force_n.max(reaction.axial_force_n.abs());
         }

@@ -100,11 +100,22 @@ impl<W: Wall> Stack<W> {
     /// 0 when nothing penetrates), over the collision points, each catheter's rim with its
     /// own radius where the instrument inside it goes on.
     pub fn max_penetration_m(&self) -> f64 {
+        self.penetration(true)
+    }
+
+    /// As [`Stack::max_penetration_m`] over the collision points the contacts resolve: a
+    /// catheter's rim with the radius of the instrument going on (the rims are not yet in the
+    /// contacts).
+    pub fn max_shaft_penetration_m(&self) -> f64 {
+        self.penetration(false)
+    }
+
+    fn penetration(&self, rims: bool) -> f64 {
         if self.coupling == Coupling::Nested {
             return self.nested_max_penetration();
         }
         let positions = self.model.positions();
-        self.sample_layout(true)
+        self.sample_layout(rims)
             .iter()
             .enumerate()
             .filter_map(|(i, s)| {

@@ -23,12 +23,13 @@ fn two_hands_reach(target: &str) {
     let plan = CoaxialPlan::for_target(&anatomy.graph, target).unwrap();
     let run = run_coaxial_arch_to_cow(anatomy, &plan).unwrap();
     println!(
-        "{target}: wire exchanged at step {:?}, reached at step {:?}, microcatheter 30 mm beyond the catheter at step {:?}, {} pull-backs, worst penetration {:.4} mm, inserted {:?} mm, tip in {}",
+        "{target}: wire exchanged at step {:?}, reached at step {:?}, microcatheter 30 mm beyond the catheter at step {:?}, {} pull-backs, worst penetration {:.4} mm ({:.4} mm with the catheters' rims), inserted {:?} mm, tip in {}",
         run.exchanged_at_step,
         run.reached_at_step,
         run.micro_done_at_step,
         run.retries,
         run.worst_penetration_m * 1e3,
+        run.worst_rim_penetration_m * 1e3,
         run.inserted_m
             .iter()
             .map(|l| (l * 1e4).round() / 10.0)
@@ -46,6 +47,13 @@ fn two_hands_reach(target: &str) {
     assert_eq!(run.tip_branch, target);
     assert!(run.inserted_m[1] - run.inserted_m[0] >= 0.03 - 1e-9);
     assert!(run.worst_penetration_m <= 0.05e-3);
+    // The catheters' rims are measured but not yet in the contacts (issue 44): 0.39–0.40 mm
+    // deep in these runs; held here so that it cannot grow unseen.
+    assert!(
+        run.worst_rim_penetration_m <= 0.5e-3,
+        "{}",
+        run.worst_rim_penetration_m
+    );
 }
 
 #[test]
