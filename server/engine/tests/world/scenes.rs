@@ -140,6 +140,14 @@ fn scene_errors_name_the_field_and_the_reason() {
             "fluoroscopy.pulse_rate",
             "not one of",
         ),
+        (
+            default_text().replace(
+                "step_rate_hz = 500",
+                "step_rate_hz = 500\ncontact_solver = \"magic\"",
+            ),
+            "fidelity.contact_solver",
+            "unknown variant",
+        ),
         ("not = [toml".to_owned(), "(document)", ""),
     ];
     // The imaging chain's knobs, each out of its range.
