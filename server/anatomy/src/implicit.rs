@@ -158,43 +158,58 @@ impl LumenField {
         (d, r)
     }
 
-    /// The field at `x`; `band` (m) widens the set of vessels whose radius counts as local.
-    pub fn sample(&self, x: &Point3<f64>, band: f64) -> FieldSample {
+    /// The segments listed in `x`'s cell (`None`: no wall near).
+    fn cell_list(&self, x: &Point3<f64>) -> Option<&[u32]> {
         let key = (
             (x.x * self.inverse_cell).floor() as i32,
             (x.y * self.inverse_cell).floor() as i32,
             (x.z * self.inverse_cell).floor() as i32,
         );
-        let Some(list) = self.cells.get(&key) else {
+        self.cells.get(&key).map(Vec::as_slice)
+    }
+
+    /// Per branch among `list`, the smallest segment value `eval` gives at `x` with what it
+    /// gave beside it (branches in a cell are few: past 16, the farthest is replaced, a hard
+    /// min); sorted nearest first, in `out`, of which the count is returned.
+    fn branch_minima<E: Copy>(
+        &self,
+        list: &[u32],
+        eval: impl Fn(&Segment) -> (f64, E),
+        out: &mut [(u32, f64, E); 16],
+    ) -> usize {
+        let mut used = 0;
+        for &s in list {
+            let seg = &self.segments[s as usize];
+            let (d, extra) = eval(seg);
+            if let Some(e) = out[..used].iter_mut().find(|e| e.0 == seg.branch) {
+                if d < e.1 {
+                    *e = (seg.branch, d, extra);
+                }
+            } else if used < out.len() {
+                out[used] = (seg.branch, d, extra);
+                used += 1;
+            } else if let Some(e) = out.iter_mut().max_by(|p, q| p.1.total_cmp(&q.1))
+                && d < e.1
+            {
+                *e = (seg.branch, d, extra);
+            }
+        }
+        out[..used].sort_by(|p, q| p.1.total_cmp(&q.1));
+        used
+    }
+
+    /// The field at `x`; `band` (m) widens the set of vessels whose radius counts as local.
+    pub fn sample(&self, x: &Point3<f64>, band: f64) -> FieldSample {
+        let Some(list) = self.cell_list(x) else {
             return FieldSample {
                 value: self.far_value,
                 local_radius: self.largest_radius,
                 largest_local_radius: self.largest_radius,
             };
         };
-        // Per-branch minimum (branches in a cell are few).
-        let mut per_branch: [(u32, f64, f64); 16] = [(u32::MAX, f64::INFINITY, 0.0); 16];
-        let mut used = 0;
-        for &s in list {
-            let seg = &self.segments[s as usize];
-            let (d, r) = Self::segment_value(seg, x);
-            if let Some(e) = per_branch[..used].iter_mut().find(|e| e.0 == seg.branch) {
-                if d < e.1 {
-                    e.1 = d;
-                    e.2 = r;
-                }
-            } else if used < per_branch.len() {
-                per_branch[used] = (seg.branch, d, r);
-                used += 1;
-            } else if let Some(e) = per_branch.iter_mut().max_by(|p, q| p.1.total_cmp(&q.1)) {
-                // More than 16 branches in one cell: replace the farthest (hard min).
-                if d < e.1 {
-                    *e = (seg.branch, d, r);
-                }
-            }
-        }
-        let branches = &mut per_branch[..used];
-        branches.sort_by(|p, q| p.1.total_cmp(&q.1));
+        let mut per_branch = [(u32::MAX, f64::INFINITY, 0.0); 16];
+        let used = self.branch_minima(list, |seg| Self::segment_value(seg, x), &mut per_branch);
+        let branches = &per_branch[..used];
         let (mut value, mut radius) = (branches[0].1, branches[0].2);
         for e in branches.iter().skip(1) {
             value = smooth_min(value, e.1, self.blend_fraction * radius.min(e.2));
@@ -272,70 +287,56 @@ impl LumenField {
     /// its two gradients by the polynomial's derivative. Beyond the cells with walls, the far
     /// value and a zero gradient.
     pub fn value_gradient(&self, x: &Point3<f64>) -> (f64, Vector3<f64>) {
-        let key = (
-            (x.x * self.inverse_cell).floor() as i32,
-            (x.y * self.inverse_cell).floor() as i32,
-            (x.z * self.inverse_cell).floor() as i32,
-        );
-        let Some(list) = self.cells.get(&key) else {
+        let Some(list) = self.cell_list(x) else {
             return (self.far_value, Vector3::zeros());
         };
-        // Per-branch minimum, as in `sample`.
-        type Entry = (u32, f64, f64, Vector3<f64>, Vector3<f64>);
-        let mut per_branch: [Entry; 16] = [(
+        // The same per-branch minimum as `sample`, each with its radius and the gradients.
+        let mut per_branch = [(
             u32::MAX,
             f64::INFINITY,
-            0.0,
-            Vector3::zeros(),
-            Vector3::zeros(),
+            (0.0, Vector3::zeros(), Vector3::zeros()),
         ); 16];
-        let mut used = 0;
-        for &s in list {
-            let seg = &self.segments[s as usize];
-            let (d, r, g, gr) = Self::segment_value_gradient(seg, x);
-            if let Some(e) = per_branch[..used].iter_mut().find(|e| e.0 == seg.branch) {
-                if d < e.1 {
-                    *e = (seg.branch, d, r, g, gr);
-                }
-            } else if used < per_branch.len() {
-                per_branch[used] = (seg.branch, d, r, g, gr);
-                used += 1;
-            } else if let Some(e) = per_branch.iter_mut().max_by(|p, q| p.1.total_cmp(&q.1))
-                && d < e.1
-            {
-                *e = (seg.branch, d, r, g, gr);
-            }
-        }
-        let branches = &mut per_branch[..used];
-        branches.sort_by(|p, q| p.1.total_cmp(&q.1));
-        let (mut value, mut radius) = (branches[0].1, branches[0].2);
-        let (mut gradient, mut grad_radius) = (branches[0].3, branches[0].4);
-        for e in branches.iter().skip(1) {
-            let (smaller, grad_smaller) = if radius <= e.2 {
+        let used = self.branch_minima(
+            list,
+            |seg| {
+                let (d, r, g, gr) = Self::segment_value_gradient(seg, x);
+                (d, (r, g, gr))
+            },
+            &mut per_branch,
+        );
+        let branches = &per_branch[..used];
+        let (mut value, (mut radius, mut gradient, mut grad_radius)) =
+            (branches[0].1, branches[0].2);
+        for &(_, e_value, (e_radius, e_gradient, e_grad_radius)) in branches.iter().skip(1) {
+            let (smaller, grad_smaller) = if radius <= e_radius {
                 (radius, grad_radius)
             } else {
-                (e.2, e.4)
+                (e_radius, e_grad_radius)
             };
             let k = self.blend_fraction * smaller;
             // smooth_min(a, b, k) = min(a, b) − k h²/4, h = max(k − |a − b|, 0)/k: its
             // derivative is 1 − h/2 on the smaller argument, h/2 on the larger, and
             // −h²/4 − h|a − b|/(2k) on k (the blend's width follows the tapering radius).
-            let delta = (value - e.1).abs();
+            let delta = (value - e_value).abs();
             let h = if k > 0.0 {
                 (k - delta).max(0.0) / k
             } else {
                 0.0
             };
-            let w_value = if value <= e.1 { 1.0 - 0.5 * h } else { 0.5 * h };
+            let w_value = if value <= e_value {
+                1.0 - 0.5 * h
+            } else {
+                0.5 * h
+            };
             let d_k = if h > 0.0 {
                 -0.25 * h * h - 0.5 * h * delta / k
             } else {
                 0.0
             };
             gradient = gradient * w_value
-                + e.3 * (1.0 - w_value)
+                + e_gradient * (1.0 - w_value)
                 + grad_smaller * (self.blend_fraction * d_k);
-            value = smooth_min(value, e.1, k);
+            value = smooth_min(value, e_value, k);
             (radius, grad_radius) = (smaller, grad_smaller);
         }
         if value >= self.far_value {

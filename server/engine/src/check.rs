@@ -8,7 +8,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::assets::AssetCache;
-use crate::error::{EngineError, Result};
+use crate::error::Result;
+use crate::scene::field::scene_error;
 use crate::scene::{SceneSpec, scene_files};
 use crate::world::World;
 
@@ -18,13 +19,6 @@ pub const CHECK_SECONDS: f64 = 0.5;
 /// How far any instrument's node may lie past the wall at the start (m): a device placed
 /// outside its vessel is a broken scene, not a contact to resolve.
 pub const START_PENETRATION_LIMIT_M: f64 = 0.1e-3;
-
-fn unsound(path: &str, reason: String) -> EngineError {
-    EngineError::Scene {
-        path: path.into(),
-        reason,
-    }
-}
 
 /// One scene file's outcome.
 #[derive(Debug, Clone, PartialEq)]
@@ -73,7 +67,7 @@ fn check_one(file: &Path, roots: &[PathBuf], disk_cache: Option<&Path>) -> Resul
     };
     let depth = world.strand().max_penetration_m();
     if depth > START_PENETRATION_LIMIT_M {
-        return Err(unsound(
+        return Err(scene_error(
             path,
             format!(
                 "the devices start {:.2} mm outside the lumen (their deepest node; at most \
@@ -89,7 +83,7 @@ fn check_one(file: &Path, roots: &[PathBuf], disk_cache: Option<&Path>) -> Resul
         if let Some(at) = world.metrics().target_reached_at_s
             && at <= assets.spec.time_step_s() + 1e-9
         {
-            return Err(unsound(
+            return Err(scene_error(
                 "target",
                 format!(
                     "reached at {at:.3} s, before anything moved: the devices start at the \
@@ -105,7 +99,7 @@ fn check_one(file: &Path, roots: &[PathBuf], disk_cache: Option<&Path>) -> Resul
                 .rev()
                 .find(|e| e.kind == crate::metrics::EventKind::Divergence)
                 .map_or_else(|| "the physics diverged".to_owned(), |e| e.message);
-            return Err(unsound(
+            return Err(scene_error(
                 path,
                 format!(
                     "step {} of {steps} with the hands still: {reason}",

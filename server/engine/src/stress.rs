@@ -128,7 +128,7 @@ impl Dice {
 
 /// One of the operator's moves: which hand, what it does, for how long (s).
 fn choose(dice: &mut Dice, settings: &StressSettings, hands: usize) -> (u32, Drive, f64) {
-    let hand = (dice.next_u64() % hands.max(1) as u64) as u32;
+    let hand = dice.below(hands) as u32;
     let v = settings.max_push_m_s;
     let w = settings.max_twist_rad_s;
     let roll = dice.unit();
@@ -193,7 +193,7 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
     for step in 0..steps {
         let now = step as f64 * dt;
         if settings.levels == Levels::Switched && now >= level_until {
-            let level = (dice.next_u64() % (MAX_FIDELITY_LEVEL as u64 + 1)) as u8;
+            let level = dice.below(usize::from(MAX_FIDELITY_LEVEL) + 1) as u8;
             apply(world, Command::Fidelity(level), &mut report);
             level_until = now + dice.range(1.0, 4.0);
         }

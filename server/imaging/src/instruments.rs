@@ -46,10 +46,15 @@ pub struct InstrumentPair {
     pub straight_wire: Option<&'static str>,
 }
 
+/// The first quoted name of a `[[stack]]` line (the catalogue identifier or preset name).
+fn quoted_name(line: &'static str) -> &'static str {
+    line.split('"').nth(1).unwrap_or(line)
+}
+
 impl InstrumentPair {
     /// The wire's catalogue identifier or preset name.
     pub fn wire_name(&self) -> &'static str {
-        self.wire.split('"').nth(1).unwrap_or(self.wire)
+        quoted_name(self.wire)
     }
 }
 
@@ -223,7 +228,7 @@ pub fn start_plan(pair: &InstrumentPair, reach_m: f64, start_lumen_m: f64) -> St
     match pair.straight_wire {
         Some(straight) if lead.is_finite() => StartPlan {
             wire: straight,
-            wire_name: straight.split('"').nth(1).unwrap_or(straight),
+            wire_name: quoted_name(straight),
             inserted_mm: start_inserted_mm(reach_m, f64::INFINITY),
         },
         _ => StartPlan {

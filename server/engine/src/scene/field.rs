@@ -4,7 +4,7 @@
 use crate::error::{EngineError, Result};
 
 /// A scene error at `path` (`fidelity.step_rate_hz`, `stack[1].device`) for `reason`.
-pub(super) fn scene_error(path: impl Into<String>, reason: impl Into<String>) -> EngineError {
+pub(crate) fn scene_error(path: impl Into<String>, reason: impl Into<String>) -> EngineError {
     EngineError::Scene {
         path: path.into(),
         reason: reason.into(),

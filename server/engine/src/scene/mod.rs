@@ -16,7 +16,7 @@ mod catalog;
 mod ct;
 mod devices;
 mod fidelity;
-mod field;
+pub(crate) mod field;
 mod flow;
 mod fluoroscopy;
 mod guidance;
