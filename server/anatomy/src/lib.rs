@@ -10,6 +10,7 @@ pub mod centerline;
 pub mod components;
 pub mod decimate;
 pub mod error;
+pub mod field_wall;
 pub mod glam_conv;
 pub mod graph;
 pub mod implicit;
@@ -20,6 +21,7 @@ pub mod phantom;
 pub mod real;
 pub mod stored;
 pub mod surface;
+pub mod tubes;
 
 pub use error::{AnatomyError, Result};
 pub use graph::{Branch, BranchSpec, GraphLocation, Side, VesselGraph, VesselKind, VesselPath};

@@ -1,10 +1,12 @@
 //! Lumen (vessel wall) queries for contact: signed distance, closest wall point and outward
-//! normal for points and capsules, over a closed triangle surface.
+//! normal, over a closed triangle surface or a vessel graph's implicit lumen.
 //!
-//! Two exact backends answer the same queries: parry's BVH over the triangles, and a
-//! narrow-band cell grid that lists, per cell, every triangle that can be closest to a point in
-//! that cell (falling back to the BVH away from the wall). The grid is the default: see the
-//! `lumen` benchmark for both.
+//! A surface's queries are exact, by either of two indexes: parry's BVH over the triangles,
+//! and a narrow-band cell grid that lists, per cell, every triangle that can be closest to a
+//! point in that cell (falling back to the BVH away from the wall). The grid is the default:
+//! see the `lumen` benchmark for both. A generated anatomy, whose graph is the lumen, is
+//! queried through its implicit field instead ([`crate::field_wall`]), with a light tube mesh
+//! to show.
 
 use nalgebra::{Point3, Vector3};
 use parry3d_f64::query::{PointQuery, PointQueryWithLocation};
@@ -12,7 +14,9 @@ use parry3d_f64::shape::{TriMesh, TriMeshFlags};
 use rayon::prelude::*;
 
 use crate::error::{AnatomyError, Result};
+use crate::field_wall::{FieldWall, FieldWallSettings};
 use crate::glam_conv::{to_glam, to_point};
+use crate::graph::VesselGraph;
 use crate::mesh::TriangleMesh;
 
 /// The answer to a wall query.
@@ -36,8 +40,23 @@ impl WallQuery {
     }
 }
 
-/// A closed lumen surface prepared for queries.
+/// A lumen prepared for queries: a closed surface, or a vessel graph's implicit lumen with a
+/// mesh to show.
 pub struct Lumen {
+    walls: Walls,
+}
+
+enum Walls {
+    Surface(Box<MeshWall>),
+    Field {
+        wall: Box<FieldWall>,
+        /// What is shown of it (not queried).
+        display: TriangleMesh,
+    },
+}
+
+/// A closed surface with its per-triangle tables and query indexes.
+struct MeshWall {
     mesh: TriangleMesh,
     /// Vertex normals for interpolation (known normals if the mesh carries them).
     normals: Vec<Vector3<f64>>,
@@ -149,31 +168,47 @@ impl CellGrid {
 
 impl std::fmt::Debug for Lumen {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mesh = self.mesh();
         f.debug_struct("Lumen")
-            .field("vertices", &self.mesh.vertices.len())
-            .field("triangles", &self.mesh.triangles.len())
+            .field("implicit", &matches!(self.walls, Walls::Field { .. }))
+            .field("vertices", &mesh.vertices.len())
+            .field("triangles", &mesh.triangles.len())
             .finish()
     }
 }
 
 impl Lumen {
-    /// Heap bytes held (an estimate from the lengths of its arrays; the BVH counted at two
-    /// nodes per triangle): what the server's asset cache charges for it.
+    /// Heap bytes held (an estimate from the lengths of its arrays; a surface's BVH counted at
+    /// two nodes per triangle): what the server's asset cache charges for it.
     pub fn memory_bytes(&self) -> usize {
-        use std::mem::size_of;
-        let triangles = self.mesh.triangles.len();
-        let vertices = self.mesh.vertices.len();
-        vertices * (size_of::<Point3<f64>>() + 3 * size_of::<Vector3<f64>>())
-            + triangles
-                * (size_of::<[u32; 3]>() * 2
-                    + size_of::<Vector3<f64>>()
-                    + size_of::<[Point3<f64>; 3]>()
-                    + size_of::<[Vector3<f64>; 3]>()
-                    + 2 * 64)
-            + self.grid.block_of.len() * size_of::<u32>()
-            + self.grid.cells.len() * size_of::<CellEntry>()
-            + self.grid.candidates.len() * size_of::<u32>()
-            + self.grid.candidate_bounds.len() * size_of::<f32>()
+        match &self.walls {
+            Walls::Surface(m) => m.memory_bytes(),
+            Walls::Field { wall, display } => {
+                wall.memory_bytes()
+                    + display.vertices.len() * 2 * std::mem::size_of::<Vector3<f64>>()
+                    + display.triangles.len() * std::mem::size_of::<[u32; 3]>()
+            }
+        }
+    }
+
+    /// The implicit lumen of `graph` (a generated anatomy, whose graph is the lumen) as the
+    /// wall, shown as tubes of `sides` vertices round.
+    pub fn implicit(
+        graph: &VesselGraph,
+        settings: &FieldWallSettings,
+        sides: usize,
+    ) -> Result<Self> {
+        Ok(Self {
+            walls: Walls::Field {
+                wall: Box::new(FieldWall::new(graph, settings)?),
+                display: crate::tubes::tube_mesh(graph, sides),
+            },
+        })
+    }
+
+    /// True when the wall is a graph's implicit lumen (its mesh only shown).
+    pub fn is_implicit(&self) -> bool {
+        matches!(self.walls, Walls::Field { .. })
     }
 
     /// Prepares `mesh`, which must be a closed, consistently oriented 2-manifold; a surface
@@ -190,14 +225,139 @@ impl Lumen {
         source: &str,
         settings: GridSettings,
     ) -> Result<Self> {
-        let mut lumen = Self::prepared(mesh, source)?;
-        lumen.grid = lumen.build_grid(settings)?;
-        Ok(lumen)
+        let mut wall = MeshWall::prepared(mesh, source)?;
+        wall.grid = wall.build_grid(settings)?;
+        Ok(Self::surface(wall))
+    }
+
+    fn surface(wall: MeshWall) -> Self {
+        Self {
+            walls: Walls::Surface(Box::new(wall)),
+        }
     }
 
     /// `mesh` checked and its per-triangle tables built, with an empty grid (every query
     /// through the BVH).
-    pub(crate) fn prepared(mut mesh: TriangleMesh, source: &str) -> Result<Self> {
+    pub(crate) fn prepared(mesh: TriangleMesh, source: &str) -> Result<Self> {
+        Ok(Self::surface(MeshWall::prepared(mesh, source)?))
+    }
+
+    /// The surface's narrow-band grid (for the stored form); `None` for an implicit wall.
+    pub(crate) fn grid(&self) -> Option<&CellGrid> {
+        match &self.walls {
+            Walls::Surface(m) => Some(&m.grid),
+            Walls::Field { .. } => None,
+        }
+    }
+
+    /// Puts in a grid read back from the stored form, refusing one that does not fit this
+    /// surface (an index past its arrays): a query never reads out of bounds.
+    pub(crate) fn set_grid(&mut self, grid: CellGrid) -> std::result::Result<(), String> {
+        match &mut self.walls {
+            Walls::Surface(m) => m.set_grid(grid),
+            Walls::Field { .. } => Err("an implicit wall has no grid".into()),
+        }
+    }
+
+    /// Rebuilds a surface's narrow-band grid with other settings (an implicit wall has none:
+    /// it is returned as it is).
+    pub fn with_grid(mut self, settings: GridSettings) -> Result<Self> {
+        if let Walls::Surface(m) = &mut self.walls {
+            m.grid = m.build_grid(settings)?;
+        }
+        Ok(self)
+    }
+
+    /// Number of candidate triangles the grid holds for `point`'s cell (`None`: the query
+    /// falls back to the BVH there, or the wall is implicit).
+    pub fn grid_candidates(&self, point: &Point3<f64>) -> Option<usize> {
+        match &self.walls {
+            Walls::Surface(m) => m.grid_candidates(point),
+            Walls::Field { .. } => None,
+        }
+    }
+
+    /// Memory held by a surface's narrow-band grid (bytes; 0 for an implicit wall).
+    pub fn grid_bytes(&self) -> usize {
+        match &self.walls {
+            Walls::Surface(m) => m.grid_bytes(),
+            Walls::Field { .. } => 0,
+        }
+    }
+
+    /// The query index in words: a surface's grid (cell size, cells, cells with candidates,
+    /// candidates), or an implicit wall's cells and segments.
+    pub fn grid_summary(&self) -> String {
+        match &self.walls {
+            Walls::Surface(m) => m.grid_summary(),
+            Walls::Field { wall, .. } => {
+                let (cells, listed, cell) = wall.field().index_summary();
+                format!(
+                    "implicit: cell {:.3} mm, {cells} cells, {listed} segments listed",
+                    cell * 1e3
+                )
+            }
+        }
+    }
+
+    /// The wall query for a point: exact on a surface (the grid's candidate triangles near
+    /// the wall, the BVH elsewhere), the implicit field's Newton step on an implicit wall.
+    #[inline]
+    pub fn query(&self, point: &Point3<f64>) -> WallQuery {
+        match &self.walls {
+            Walls::Surface(m) => m.query(point),
+            Walls::Field { wall, .. } => wall.query(point),
+        }
+    }
+
+    /// The wall query if the wall is within `max_distance` (m) of `point`, else which side
+    /// of the wall the point is on. Cheaper than [`Lumen::query`] far from the wall.
+    #[inline]
+    pub fn proximity(&self, point: &Point3<f64>, max_distance: f64) -> Proximity {
+        match &self.walls {
+            Walls::Surface(m) => m.proximity(point, max_distance),
+            Walls::Field { wall, .. } => wall.proximity(point, max_distance),
+        }
+    }
+
+    /// The surface (of an implicit wall, the mesh shown).
+    pub fn mesh(&self) -> &TriangleMesh {
+        match &self.walls {
+            Walls::Surface(m) => &m.mesh,
+            Walls::Field { display, .. } => display,
+        }
+    }
+
+    /// Wall query for a point through parry's BVH (an implicit wall: [`Lumen::query`]).
+    pub fn query_bvh(&self, point: &Point3<f64>) -> WallQuery {
+        match &self.walls {
+            Walls::Surface(m) => m.query_bvh(point),
+            Walls::Field { wall, .. } => wall.query(point),
+        }
+    }
+}
+
+impl MeshWall {
+    fn memory_bytes(&self) -> usize {
+        use std::mem::size_of;
+        let triangles = self.mesh.triangles.len();
+        let vertices = self.mesh.vertices.len();
+        vertices * (size_of::<Point3<f64>>() + 3 * size_of::<Vector3<f64>>())
+            + triangles
+                * (size_of::<[u32; 3]>() * 2
+                    + size_of::<Vector3<f64>>()
+                    + size_of::<[Point3<f64>; 3]>()
+                    + size_of::<[Vector3<f64>; 3]>()
+                    + 2 * 64)
+            + self.grid.block_of.len() * size_of::<u32>()
+            + self.grid.cells.len() * size_of::<CellEntry>()
+            + self.grid.candidates.len() * size_of::<u32>()
+            + self.grid.candidate_bounds.len() * size_of::<f32>()
+    }
+
+    /// `mesh` checked and its per-triangle tables built, with an empty grid (every query
+    /// through the BVH).
+    fn prepared(mut mesh: TriangleMesh, source: &str) -> Result<Self> {
         mesh.require_closed_manifold(source)?;
         let volume = mesh.enclosed_volume();
         if volume < 0.0 {
@@ -277,14 +437,9 @@ impl Lumen {
         })
     }
 
-    /// The narrow-band grid (for the stored form).
-    pub(crate) fn grid(&self) -> &CellGrid {
-        &self.grid
-    }
-
     /// Puts in a grid read back from the stored form, refusing one that does not fit this
     /// surface (an index past its arrays): a query never reads out of bounds.
-    pub(crate) fn set_grid(&mut self, grid: CellGrid) -> std::result::Result<(), String> {
+    fn set_grid(&mut self, grid: CellGrid) -> std::result::Result<(), String> {
         let per_block = BLOCK * BLOCK * BLOCK;
         let finite = grid.inverse_cell.is_finite()
             && grid.inverse_cell > 0.0
@@ -326,12 +481,6 @@ impl Lumen {
         }
         self.grid = grid;
         Ok(())
-    }
-
-    /// Rebuilds the narrow-band grid with other settings.
-    pub fn with_grid(mut self, settings: GridSettings) -> Result<Self> {
-        self.grid = self.build_grid(settings)?;
-        Ok(self)
     }
 
     fn build_grid(&self, settings: GridSettings) -> Result<CellGrid> {
@@ -513,7 +662,7 @@ impl Lumen {
 
     /// Number of candidate triangles the grid holds for `point`'s cell (`None`: the query
     /// falls back to the BVH there).
-    pub fn grid_candidates(&self, point: &Point3<f64>) -> Option<usize> {
+    fn grid_candidates(&self, point: &Point3<f64>) -> Option<usize> {
         self.grid
             .entry(point)
             .filter(|e| e.count > 0)
@@ -521,14 +670,14 @@ impl Lumen {
     }
 
     /// Memory held by the narrow-band grid (bytes).
-    pub fn grid_bytes(&self) -> usize {
+    fn grid_bytes(&self) -> usize {
         self.grid.block_of.len() * 4
             + self.grid.cells.len() * std::mem::size_of::<CellEntry>()
             + self.grid.candidates.len() * 8
     }
 
     /// The grid in words: cell size, cells, cells with candidates, candidates.
-    pub fn grid_summary(&self) -> String {
+    fn grid_summary(&self) -> String {
         let listed = self.grid.cells.iter().filter(|c| c.count > 0).count();
         format!(
             "cell {:.3} mm, {} cells ({} with candidates), {} candidates ({:.1} per listed cell)",
@@ -543,7 +692,7 @@ impl Lumen {
     /// Exact wall query for a point: the grid's candidate triangles near the wall, the BVH
     /// elsewhere.
     #[inline]
-    pub fn query(&self, point: &Point3<f64>) -> WallQuery {
+    fn query(&self, point: &Point3<f64>) -> WallQuery {
         match self.grid.entry(point) {
             Some(e) if e.count > 0 => {
                 let range = e.start as usize..(e.start + e.count) as usize;
@@ -556,9 +705,9 @@ impl Lumen {
     }
 
     /// The wall query if the wall is within `max_distance` (m) of `point`, else which side
-    /// of the wall the point is on. Cheaper than [`Lumen::query`] far from the wall.
+    /// of the wall the point is on.
     #[inline]
-    pub fn proximity(&self, point: &Point3<f64>, max_distance: f64) -> Proximity {
+    fn proximity(&self, point: &Point3<f64>, max_distance: f64) -> Proximity {
         if let Some(e) = self.grid.entry(point)
             && f64::from(e.far_bound.abs()) > max_distance
         {
@@ -611,13 +760,8 @@ impl Lumen {
         }
     }
 
-    /// The surface.
-    pub fn mesh(&self) -> &TriangleMesh {
-        &self.mesh
-    }
-
     /// Wall query for a point through parry's BVH.
-    pub fn query_bvh(&self, point: &Point3<f64>) -> WallQuery {
+    fn query_bvh(&self, point: &Point3<f64>) -> WallQuery {
         let (projection, (triangle, _)) = self
             .trimesh
             .project_local_point_and_get_location(to_glam(point), false);

@@ -20,10 +20,11 @@ const MAGIC: &[u8; 8] = b"CLANATMY";
 /// Version of the layout; a file of another version is refused.
 pub const FORMAT_VERSION: u32 = 1;
 
-/// `anatomy` as bytes, stored under `key` (what identifies how it was built).
-pub fn encode(anatomy: &Anatomy, key: &str) -> Vec<u8> {
+/// `anatomy` as bytes, stored under `key` (what identifies how it was built); `None` for an
+/// anatomy whose wall is its graph's implicit lumen (rebuilt in milliseconds, never stored).
+pub fn encode(anatomy: &Anatomy, key: &str) -> Option<Vec<u8>> {
     let mesh = anatomy.lumen.mesh();
-    let grid = anatomy.lumen.grid();
+    let grid = anatomy.lumen.grid()?;
     let mut out = Vec::with_capacity(
         64 + mesh.vertices.len() * 48
             + mesh.triangles.len() * 12
@@ -69,7 +70,7 @@ pub fn encode(anatomy: &Anatomy, key: &str) -> Vec<u8> {
         .for_each(|&b| put_f32(&mut out, b));
     let crc = crc32fast::hash(&out);
     put_u32(&mut out, crc);
-    out
+    Some(out)
 }
 
 /// The anatomy `bytes` hold, if they were stored under `key` by this format version and
@@ -289,7 +290,7 @@ mod tests {
     #[test]
     fn a_stored_anatomy_reads_back_equal_and_answers_the_same_queries() {
         let a = built();
-        let bytes = encode(&a, "y:1");
+        let bytes = encode(&a, "y:1").unwrap();
         let b = decode(&bytes, "y:1", "test").unwrap();
         assert_eq!(a.graph, b.graph);
         assert_eq!(a.lumen.mesh(), b.lumen.mesh());
@@ -305,7 +306,7 @@ mod tests {
 
     #[test]
     fn damaged_truncated_foreign_or_stale_bytes_are_refused_by_name() {
-        let bytes = encode(&built(), "y:1");
+        let bytes = encode(&built(), "y:1").unwrap();
         let err = |b: &[u8], key: &str| decode(b, key, "cache/y.bin").unwrap_err().to_string();
         assert!(err(&bytes, "y:2").contains("another key"));
         let mut flipped = bytes.clone();
@@ -325,9 +326,9 @@ mod tests {
     #[test]
     fn a_grid_that_names_triangles_past_the_surface_is_refused() {
         let a = built();
-        let mut bytes = encode(&a, "k");
+        let mut bytes = encode(&a, "k").unwrap();
         // The last candidate (just before its bounds and the checksum) set past the surface.
-        let n = a.lumen.grid().candidates.len();
+        let n = a.lumen.grid().unwrap().candidates.len();
         let at = bytes.len() - 4 - 4 * n - 4;
         bytes[at..at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
         let body = bytes.len() - 4;

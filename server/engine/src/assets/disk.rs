@@ -119,7 +119,10 @@ impl DiskCache {
     /// none), then removes the files other code stored (they can never be read again).
     fn write(&self, file: &Path, full_key: &str, anatomy: &Anatomy) -> std::io::Result<()> {
         std::fs::create_dir_all(&self.dir)?;
-        let bytes = cathlab_anatomy::stored::encode(anatomy, full_key);
+        let Some(bytes) = cathlab_anatomy::stored::encode(anatomy, full_key) else {
+            // An implicit wall: rebuilt in milliseconds, never stored.
+            return Ok(());
+        };
         let partial = file.with_extension(format!("partial-{}", std::process::id()));
         std::fs::write(&partial, &bytes)?;
         std::fs::rename(&partial, file)?;
