@@ -339,11 +339,24 @@ async fn main() -> Result<()> {
     // Memory: one session, then more on the same scene.
     let mut loaded = Vec::new();
     let mut rss = Vec::new();
+    let mut created = Vec::new();
     for _ in 0..4 {
+        let started = std::time::Instant::now();
         loaded.push(load_session(&mut client, &cli.scene).await?);
+        created.push(started.elapsed().as_secs_f64());
         tokio::time::sleep(Duration::from_secs(3)).await;
         rss.push(rss_mib(pid));
     }
+    // The first creation loads the scene's assets (cold, no disk cache); the others share them.
+    println!(
+        "load: {} session created in {:.2} s (its assets built), then {:?} s",
+        cli.scene,
+        created[0],
+        created[1..]
+            .iter()
+            .map(|v| (v * 100.0).round() / 100.0)
+            .collect::<Vec<_>>()
+    );
     let growth: Vec<f64> = rss.windows(2).map(|w| w[1] - w[0]).collect();
     println!(
         "memory: RSS with 1..4 sessions {:?} MiB; growth per extra session {:?} MiB",

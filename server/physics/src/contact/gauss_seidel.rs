@@ -14,7 +14,10 @@ use crate::substructure::Flexibility;
 
 /// Displacements of every unknown node under nodal `loads`, u = K⁻¹ F, by the propagation
 /// u_i = B_i + D_i A_i of the module documentation: O(N).
-fn node_displacements(flexibility: &Flexibility, loads: &[Vector6<f64>]) -> Vec<Vector6<f64>> {
+pub(super) fn node_displacements(
+    flexibility: &Flexibility,
+    loads: &[Vector6<f64>],
+) -> Vec<Vector6<f64>> {
     let d = &flexibility.diagonal;
     let h = &flexibility.coupling;
     let n = d.len();
@@ -31,7 +34,7 @@ fn node_displacements(flexibility: &Flexibility, loads: &[Vector6<f64>]) -> Vec<
 }
 
 /// Normal displacement of contact `p` (its frame's first axis) under node displacements `u`.
-fn normal_displacement(p: &Prepared, u: &[Vector6<f64>]) -> f64 {
+pub(super) fn normal_displacement(p: &Prepared, u: &[Vector6<f64>]) -> f64 {
     let mut delta = translation(&u[p.second]) * p.t;
     if let Some(i) = p.first {
         delta += translation(&u[i]) * (1.0 - p.t);

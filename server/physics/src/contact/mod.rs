@@ -39,7 +39,7 @@ pub use problem::{
     Contact, ContactMethod, ContactResponse, ContactSettings, NEWTON_ITERATIONS, perpendicular,
     point_displacement, solve_local,
 };
-use problem::{accumulate_loads, prepare};
+use problem::{Prepared, accumulate_loads, prepare};
 pub(crate) use problem::{
     force6, local_law, normal_with_fixed_tangent, project_on_cone, tip_ward_pass, top_left,
     translation,
@@ -100,9 +100,9 @@ pub fn record<R>(plan: RecordingPlan, body: impl FnOnce() -> R) -> (R, Vec<Recor
     (result, recorded.map(|r| r.kept).unwrap_or_default())
 }
 
-/// The most contacts [`ContactMethod::Newton`] solves by Newton; larger problems go to
-/// Gauss–Seidel.
-pub const NEWTON_MAX_CONTACTS: usize = 48;
+/// The most contacts [`ContactMethod::Newton`] solves by Newton at once (those that can
+/// push: see [`newton_solve_observed`]); past it, Gauss–Seidel.
+pub const NEWTON_MAX_CONTACTS: usize = 160;
 
 /// Solves the contact problem with the method `settings` names (see [`ContactMethod`]).
 pub fn solve(
@@ -132,11 +132,6 @@ pub fn solve(
     });
     match settings.method {
         ContactMethod::GaussSeidel => {
-            gauss_seidel(flexibility, free, contacts, settings, warm_start)
-        }
-        // Past a few dozen contacts (a long device looped against the wall) a Newton
-        // iteration's dense factorization costs more than Gauss–Seidel's sweeps.
-        ContactMethod::Newton if contacts.len() > NEWTON_MAX_CONTACTS => {
             gauss_seidel(flexibility, free, contacts, settings, warm_start)
         }
         ContactMethod::Newton => newton_solve(flexibility, free, contacts, settings, warm_start),
@@ -187,6 +182,15 @@ pub fn newton_solve(
 
 /// [`newton_solve`], with `observer` shown the forces after every Newton iteration (and
 /// every sweep of a Gauss–Seidel finish).
+///
+/// Newton runs on the contacts that can push, not on every contact detected: a step in a
+/// narrow vessel detects one contact per element near the wall (a hundred) of which about
+/// ten push. The set starts from the contacts pushing at the warm start and those closed
+/// with no force at all; after each solve the gaps of all the others under its forces come
+/// from one O(N + M) propagation, and every contact they leave violated (by more than the
+/// tolerance allows its residual) joins the set for the next pass. The Delassus matrix of
+/// the set costs O(N + S²) (S its nodes), each Newton iteration O(A³): a pass is O(N + M +
+/// A³) where the whole problem's matrix was O(N + M²).
 pub fn newton_solve_observed(
     flexibility: &Flexibility,
     free: &[Vector6<f64>],
@@ -196,39 +200,100 @@ pub fn newton_solve_observed(
     observer: &mut dyn FnMut(&[Vector3<f64>]),
 ) -> Result<ContactResponse> {
     let prepared = prepare(flexibility, free, contacts)?;
-    let problem = delassus::assemble(flexibility, &prepared);
-    let outcome = newton::solve(&problem, warm_start, &newton_tolerance(settings), observer);
-    let finite = outcome
-        .local
-        .iter()
-        .all(|l| l.iter().all(|v| v.is_finite()));
-    if !outcome.converged || !finite {
-        let start = finite.then_some(outcome.local.as_slice()).or(warm_start);
+    let m = prepared.len();
+    let warm = warm_start.filter(|w| w.len() == m);
+    let tolerance = newton_tolerance(settings);
+    let mut candidate: Vec<bool> = (0..m)
+        .map(|k| warm.is_some_and(|w| w[k].x > 0.0) || prepared[k].gap + prepared[k].free.x < 0.0)
+        .collect();
+    let mut local: Vec<Vector3<f64>> = vec![Vector3::zeros(); m];
+    let mut iterations = 0;
+    let mut converged = false;
+    let mut loads = vec![Vector6::zeros(); flexibility.diagonal.len()];
+    for _ in 0..ACTIVE_SET_PASSES {
+        let set: Vec<usize> = (0..m).filter(|&k| candidate[k]).collect();
+        if set.len() > NEWTON_MAX_CONTACTS {
+            break;
+        }
+        let subset: Vec<Prepared> = set.iter().map(|&k| prepared[k]).collect();
+        let problem = delassus::assemble(flexibility, &subset);
+        let sub_warm: Option<Vec<Vector3<f64>>> = warm.map(|w| set.iter().map(|&k| w[k]).collect());
+        let outcome = newton::solve(
+            &problem,
+            sub_warm.as_deref(),
+            &tolerance,
+            &mut |forces: &[Vector3<f64>]| {
+                let mut all = vec![Vector3::zeros(); m];
+                for (&k, f) in set.iter().zip(forces) {
+                    all[k] = *f;
+                }
+                observer(&all);
+            },
+        );
+        iterations += outcome.iterations;
+        local.iter_mut().for_each(|l| *l = Vector3::zeros());
+        for (&k, f) in set.iter().zip(&outcome.local) {
+            local[k] = *f;
+        }
+        if !outcome.converged || !local.iter().all(|l| l.iter().all(|v| v.is_finite())) {
+            break;
+        }
+        // The others' gaps under these forces: one propagation.
+        loads.iter_mut().for_each(|l| *l = Vector6::zeros());
+        accumulate_loads(&prepared, &local, &mut loads);
+        let u = gauss_seidel::node_displacements(flexibility, &loads);
+        let force = local.iter().map(|l| l.norm()).fold(0.0, f64::max);
+        let allowed_force = (tolerance.relative * force).max(tolerance.absolute_n);
+        let mut added = false;
+        for k in 0..m {
+            if candidate[k] {
+                continue;
+            }
+            let p = &prepared[k];
+            let w_nn = p.compliance[(0, 0)];
+            if !(w_nn.is_finite() && w_nn > 0.0) {
+                continue;
+            }
+            let gap = p.gap + p.free.x + gauss_seidel::normal_displacement(p, &u);
+            // Its residual would be the force that closes the gap: −gap / W_nn.
+            if gap < 0.0 && (-gap / w_nn > allowed_force || -gap > tolerance.violation_m) {
+                candidate[k] = true;
+                added = true;
+            }
+        }
+        if !added {
+            converged = true;
+            break;
+        }
+    }
+    if !converged {
+        let finite = local.iter().all(|l| l.iter().all(|v| v.is_finite()));
+        let start = if finite { Some(local.as_slice()) } else { warm };
         // The sweeps left of the budget (an overload governor's cap counts both).
         let rest = ContactSettings {
-            max_iterations: settings
-                .max_iterations
-                .saturating_sub(outcome.iterations)
-                .max(1),
+            max_iterations: settings.max_iterations.saturating_sub(iterations).max(1),
             ..*settings
         };
         let mut response =
             gauss_seidel_observed(flexibility, free, contacts, &rest, start, observer)?;
-        response.iterations += outcome.iterations;
+        response.iterations += iterations;
         return Ok(response);
     }
-    let mut loads = vec![Vector6::zeros(); flexibility.diagonal.len()];
-    accumulate_loads(&prepared, &outcome.local, &mut loads);
+    loads.iter_mut().for_each(|l| *l = Vector6::zeros());
+    accumulate_loads(&prepared, &local, &mut loads);
     Ok(ContactResponse {
         forces: prepared
             .iter()
-            .zip(&outcome.local)
+            .zip(&local)
             .map(|(p, l)| p.frame * l)
             .collect(),
-        local: outcome.local,
+        local,
         nodal_loads: loads,
-        iterations: outcome.iterations,
+        iterations,
         converged: true,
         polished: false,
     })
 }
+
+/// Most Newton solves on a growing set of contacts before Gauss–Seidel takes over.
+const ACTIVE_SET_PASSES: usize = 6;

@@ -60,9 +60,11 @@ pub fn point_displacement(increments: &[Vector6<f64>], element: usize, t: f64) -
 /// Which algorithm solves a step's contact problem.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum ContactMethod {
-    /// Semismooth Newton on the Delassus matrix ([`super::newton`]): a few iterations, each
-    /// O(N + M²) to set up and O(A³) to factor (A the pushing contacts); Gauss–Seidel
-    /// finishes a problem it does not converge on within [`ContactSettings::newton_iterations`].
+    /// Semismooth Newton on the Delassus matrix of the contacts that can push
+    /// ([`super::newton`], [`super::newton_solve_observed`]): the set grown until no other
+    /// contact is violated, each pass O(N + M + S²) to set up (S the set's nodes) and O(A³)
+    /// an iteration (A the pushing contacts); Gauss–Seidel finishes a problem it does not
+    /// converge on within [`ContactSettings::newton_iterations`].
     Newton,
     /// Projected Gauss–Seidel through the flexibility blocks, O(M + N) a sweep (the paper's
     /// Algorithm 3): the reference, and still the default (see docs/physics.md: on the
