@@ -22,6 +22,7 @@ pub mod real;
 pub mod stored;
 pub mod surface;
 pub mod tubes;
+pub mod wall_query;
 
 pub use error::{AnatomyError, Result};
 pub use graph::{Branch, BranchSpec, GraphLocation, Side, VesselGraph, VesselKind, VesselPath};

@@ -18,27 +18,7 @@ use crate::field_wall::{FieldWall, FieldWallSettings};
 use crate::glam_conv::{to_glam, to_point};
 use crate::graph::VesselGraph;
 use crate::mesh::TriangleMesh;
-
-/// The answer to a wall query.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct WallQuery {
-    /// Signed distance to the wall (m): negative inside the lumen, positive outside.
-    pub signed_distance: f64,
-    /// Closest point on the wall (m).
-    pub closest_wall_point: Point3<f64>,
-    /// Unit normal at the closest point, pointing out of the lumen (interpolated from vertex
-    /// normals, so it varies smoothly over the faceted surface).
-    pub outward_normal: Vector3<f64>,
-    /// Index of the triangle holding the closest point.
-    pub triangle: u32,
-}
-
-impl WallQuery {
-    /// True when the query point is inside the lumen.
-    pub fn inside(&self) -> bool {
-        self.signed_distance < 0.0
-    }
-}
+pub use crate::wall_query::{Proximity, WallQuery};
 
 /// A lumen prepared for queries: a closed surface, or a vessel graph's implicit lumen with a
 /// mesh to show.
@@ -92,18 +72,6 @@ impl Default for GridSettings {
             band: 3e-3,
         }
     }
-}
-
-/// Whether the wall is near a point.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Proximity {
-    /// The wall is within the asked distance: the full answer.
-    Near(WallQuery),
-    /// The wall is farther than the asked distance; `inside` says on which side the point is.
-    Far {
-        /// True inside the lumen.
-        inside: bool,
-    },
 }
 
 /// Cells along each edge of a grid block.
