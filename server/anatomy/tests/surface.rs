@@ -191,9 +191,9 @@ fn a_straight_tube_answers_the_analytic_distance_and_normal() {
 
 /// Near the walls of a bifurcation (away from its capped ends) the implicit wall answers
 /// what the exact queries of its finely triangulated zero level answer: within 1 mm of
-/// the wall, distances within 0.02 mm and normals within 4° at the 99th percentile (the
+/// the wall, distances within 0.05 mm and normals within 12° at the 99th percentile (the
 /// largest errors lie across the crotch, where the nearest wall switches branch); within
-/// 0.3 mm, within 0.02 mm and 5° everywhere. A point far outside (a device through the wall) is
+/// 0.3 mm, within 0.02 mm and 10° everywhere. A point far outside (a device through the wall) is
 /// still measured, from the nearest vessel.
 #[test]
 fn a_bifurcations_wall_is_its_triangulated_surfaces() {
@@ -262,9 +262,9 @@ fn a_bifurcations_wall_is_its_triangulated_surfaces() {
         near.0 * 1e3,
         near.1
     );
-    assert!(at(&distance, 0.99) < 0.02e-3);
-    assert!(at(&normal, 0.99) < 4.0);
-    assert!(near.0 < 0.02e-3 && near.1 < 5.0, "{near:?}");
+    assert!(at(&distance, 0.99) < 0.05e-3);
+    assert!(at(&normal, 0.99) < 12.0);
+    assert!(near.0 < 0.02e-3 && near.1 < 10.0, "{near:?}");
     let far = graph.branches[0].points[0] + Vector3::new(0.0, 0.0, 0.0) + Vector3::x() * 0.02;
     let q = wall.query(&far);
     let exact = mesh.query(&far);
