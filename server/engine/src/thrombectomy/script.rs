@@ -5,7 +5,6 @@ use crate::error::{EngineError, Result};
 use crate::scene::catalogue;
 use crate::world::{Command, Drive, World};
 
-
 /// Most steps the scripted crossing may take: 110 s at 500 Hz. From the femoral access the
 /// crossing took 65 s on the neuro phantom's triangulated wall and takes 78 s on its implicit
 /// wall (80 s was the limit before).
@@ -67,7 +66,7 @@ impl StrokeScript {
         Ok(done(world))
     }
 
-    /// The scene's two-hand operator crosses to the target (within [`CROSS_STEPS`]); then
+    /// The scene's two-hand operator crosses to the target (within `CROSS_STEPS`); then
     /// every hand holds.
     pub fn cross(&mut self, world: &mut World) -> Result<bool> {
         let reached = world.follow_two_hands(CROSS_STEPS, self.seq + 1)?;
