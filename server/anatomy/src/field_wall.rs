@@ -93,10 +93,11 @@ impl FieldWall {
     }
 
     fn answer(&self, point: &Point3<f64>, value: f64, gradient: Vector3<f64>) -> WallQuery {
-        if value >= self.field.far_value() {
-            let (value, gradient) = self.field.nearest_wall(point);
-            return Self::newton(point, value, gradient);
-        }
+        let (value, gradient) = if value >= self.field.far_value() {
+            self.field.nearest_wall(point)
+        } else {
+            (value, gradient)
+        };
         Self::newton(point, value, gradient)
     }
 
