@@ -12,11 +12,18 @@ fn the_load_benchmark_runs() {
             "2",
             "--samples",
             "100",
+            "--memory-sessions",
+            "2",
             "--server",
         ])
         .arg(cathlab_tests::binary("cathlab-server"))
         .arg("--scenes")
         .arg(cathlab_tests::repo_root().join("scenes"))
+        // The server it starts reads the anatomy the other suites built.
+        .env(
+            "CATHLAB_ASSET_DISK_CACHE",
+            cathlab_tests::asset_disk_cache(),
+        )
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&output.stdout);

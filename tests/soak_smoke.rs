@@ -22,6 +22,11 @@ fn a_short_soak_passes() {
         .arg(cathlab_tests::binary("cathlab-server"))
         .arg("--scenes")
         .arg(cathlab_tests::repo_root().join("scenes"))
+        // The servers it starts read the anatomy the other suites built.
+        .env(
+            "CATHLAB_ASSET_DISK_CACHE",
+            cathlab_tests::asset_disk_cache(),
+        )
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&output.stdout);

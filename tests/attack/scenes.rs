@@ -173,6 +173,8 @@ fn a_catalog_scene_naming_a_missing_file_stops_the_server_at_start() {
 
 #[test]
 fn check_scenes_prints_a_line_per_scene_and_fails_if_one_fails() {
+    // Alone, as the other suites here: a memory test beside it would count its work.
+    let _exclusive = EXCLUSIVE.blocking_lock();
     let dir = temp_dir("check-scenes");
     let scenes = dir.join("scenes");
     std::fs::create_dir_all(&scenes).unwrap();
@@ -202,6 +204,10 @@ fn check_scenes_prints_a_line_per_scene_and_fails_if_one_fails() {
             .arg("--check-scenes")
             .arg(&scenes)
             .env("RUST_LOG", "warn")
+            .env(
+                "CATHLAB_ASSET_DISK_CACHE",
+                cathlab_tests::asset_disk_cache(),
+            )
             .output()
             .unwrap()
     };

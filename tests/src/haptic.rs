@@ -124,6 +124,8 @@ impl Server {
             web_root: crate::repo_root().join("no-web-client"),
             // The bridge sends its wall scene as a scene text.
             inline_scenes: InlineScenes::Anyone,
+            // The anatomy built once for every suite (as the spawned servers read it).
+            asset_disk_cache: Some(crate::asset_disk_cache()),
             ..ServerConfig::default()
         };
         let (stop, stopped) = tokio::sync::oneshot::channel::<()>();

@@ -7,7 +7,13 @@
 //! Alart–Curnier residual, relative to the largest force, against solve time. It prints each
 //! method's iterations (p50, p95, max) and how many problems Newton solved in at most five.
 //! Without `--bench` (as in `cargo test`) it records a few problems of one scene and writes
-//! nothing.
+//! nothing. To study a solver on the same problems again and again: `CONTACT_SCENES` (scenes
+//! to record), `CONTACT_SECONDS`, `CONTACT_EVERY`, `CONTACT_LIMIT` (what is recorded),
+//! `CONTACT_PROBLEMS=file.json` (read the problems from there, or record and write them),
+//! `CONTACT_PICK=k` (one problem), `CONTACT_METHODS` (methods whose label contains it),
+//! `CONTACT_SCENE_TOLERANCE` (the scenes' stopping rule instead of the tight one, with
+//! `CONTACT_TOL` and `CONTACT_VIOLATION` to change it); any of them leaves the committed
+//! chart alone.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -105,7 +111,7 @@ fn main() {
     let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
     let disk = Path::new(env!("CARGO_TARGET_TMPDIR")).join("asset-cache");
     let cache = AssetCache::default().with_disk_cache(&disk);
-    let names: &[&str] = if full {
+    let default_names: &[&str] = if full {
         &[
             "arch_to_cow_lcca",
             "arch_to_cow_basilar",
@@ -116,30 +122,85 @@ fn main() {
     } else {
         &["arch_to_cow_lcca"]
     };
+    // CONTACT_SCENES (comma-separated) records other scenes; CONTACT_PROBLEMS=file reads the
+    // problems from that JSON file if it exists, else records them and writes it (to try a
+    // solver again and again on the same problems); neither changes the committed chart's run.
+    let names: Vec<String> = std::env::var("CONTACT_SCENES")
+        .map(|s| s.split(',').map(str::to_owned).collect())
+        .unwrap_or_else(|_| default_names.iter().map(|s| s.to_string()).collect());
+    let stored = std::env::var("CONTACT_PROBLEMS").ok().map(PathBuf::from);
+    let number = |name: &str, default: usize| {
+        std::env::var(name)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(default)
+    };
+    // CONTACT_EVERY, CONTACT_LIMIT and CONTACT_SECONDS change what is recorded.
     let plan = RecordingPlan {
         min_contacts: 4,
-        every: if full { 97 } else { 5 },
-        limit: if full { 60 } else { 4 },
+        every: number("CONTACT_EVERY", if full { 97 } else { 5 }),
+        limit: number("CONTACT_LIMIT", if full { 60 } else { 4 }),
     };
-    let mut problems = Vec::new();
-    for name in names {
-        let text = std::fs::read_to_string(scenes.join(format!("{name}.toml"))).unwrap();
-        let spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
-        let mut world = World::new(cache.load(&spec, &scenes).unwrap()).unwrap();
-        let seconds = if full { 30.0 } else { 2.0 };
-        let (_, recorded) = record(plan, || run(&mut world, &StressSettings::new(7, seconds)));
-        println!("{name}: {} problems recorded", recorded.len());
-        problems.extend(recorded);
-    }
-    let tight = |method, depth, polish| ContactSettings {
-        method,
-        tolerance: 1e-9,
-        absolute_tolerance_n: 0.0,
-        violation_tolerance_m: f64::INFINITY,
-        max_iterations: 300,
-        acceleration_depth: depth,
-        polish,
-        ..ContactSettings::default()
+    let seconds = number("CONTACT_SECONDS", if full { 30 } else { 2 }) as f64;
+    let problems: Vec<RecordedProblem> = match &stored {
+        Some(path) if path.exists() => {
+            let problems: Vec<RecordedProblem> =
+                serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
+            println!("{} problems read from {}", problems.len(), path.display());
+            problems
+        }
+        _ => {
+            let mut problems = Vec::new();
+            for name in &names {
+                let text = std::fs::read_to_string(scenes.join(format!("{name}.toml"))).unwrap();
+                let spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
+                let mut world = World::new(cache.load(&spec, &scenes).unwrap()).unwrap();
+                let (_, recorded) =
+                    record(plan, || run(&mut world, &StressSettings::new(7, seconds)));
+                println!("{name}: {} problems recorded", recorded.len());
+                problems.extend(recorded);
+            }
+            if let Some(path) = &stored {
+                std::fs::write(path, serde_json::to_vec(&problems).unwrap()).unwrap();
+            }
+            problems
+        }
+    };
+    // CONTACT_PICK=k: only the k-th problem (to trace one solve).
+    let problems: Vec<RecordedProblem> = match std::env::var("CONTACT_PICK") {
+        Ok(k) => vec![problems[k.parse::<usize>().unwrap()].clone()],
+        Err(_) => problems,
+    };
+    // CONTACT_SCENE_TOLERANCE: the scenes' own stopping rule instead of the chart's tight one.
+    let scene_tolerance = std::env::var("CONTACT_SCENE_TOLERANCE").is_ok();
+    let tight = |method, depth, polish| {
+        if scene_tolerance {
+            let base = cathlab_physics::NavigationSettings::default().contact;
+            let env = |name: &str, default: f64| {
+                std::env::var(name)
+                    .ok()
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(default)
+            };
+            return ContactSettings {
+                method,
+                acceleration_depth: depth,
+                polish,
+                tolerance: env("CONTACT_TOL", base.tolerance),
+                violation_tolerance_m: env("CONTACT_VIOLATION", base.violation_tolerance_m),
+                ..base
+            };
+        }
+        ContactSettings {
+            method,
+            tolerance: 1e-9,
+            absolute_tolerance_n: 0.0,
+            violation_tolerance_m: f64::INFINITY,
+            max_iterations: 300,
+            acceleration_depth: depth,
+            polish,
+            ..ContactSettings::default()
+        }
     };
     let methods: [(&str, ContactSettings, Solver, RGBColor); 3] = [
         (
@@ -163,7 +224,12 @@ fn main() {
     ];
     let mut csv = String::from("method,problem,contacts,iteration,seconds,relative_residual\n");
     let mut series: Vec<Series> = Vec::new();
+    // CONTACT_METHODS: only the methods whose label contains it.
+    let only = std::env::var("CONTACT_METHODS").ok();
     for (label, settings, solver, color) in methods {
+        if only.as_ref().is_some_and(|o| !label.contains(o.as_str())) {
+            continue;
+        }
         let traces: Vec<Trace> = problems
             .iter()
             .map(|p| trace(p, &settings, solver))
@@ -219,7 +285,7 @@ fn main() {
             .collect();
         series.push((label.to_owned(), curve, color));
     }
-    if !full {
+    if !full || std::env::var("CONTACT_SCENES").is_ok() || stored.is_some() || only.is_some() {
         return;
     }
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../docs/figures");

@@ -6,11 +6,12 @@
 //! that read back.
 
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 use cathlab_anatomy::VesselGraph;
 use cathlab_anatomy::io::{LengthUnit, obj, stl, vtp};
 use cathlab_imaging::segment::phantom::{SyntheticCt, occupancy, reference_tree, synthetic_cta};
-use cathlab_imaging::segment::{Seed, SegmentSettings, segment};
+use cathlab_imaging::segment::{Seed, SegmentSettings, Segmentation, segment};
 use cathlab_imaging::{ImagingError, ScalarVolume};
 use nalgebra::{Point3, Vector3};
 
@@ -255,15 +256,23 @@ fn aorta_path() -> PathBuf {
 /// middle of the abdominal aorta below the renal arteries.
 pub const AORTA_SEED_VOXEL: [usize; 3] = [72, 300, 17];
 
+/// The real aorta segmented with the default settings: once for the two tests that read it.
+fn default_aorta() -> &'static Segmentation {
+    static SEGMENTED: OnceLock<Segmentation> = OnceLock::new();
+    SEGMENTED.get_or_init(|| {
+        let ct = ScalarVolume::load(&aorta_path()).unwrap();
+        segment(
+            &ct,
+            &Seed::Voxel(AORTA_SEED_VOXEL),
+            &SegmentSettings::default(),
+        )
+        .unwrap()
+    })
+}
+
 #[test]
 fn the_real_aorta_gives_a_plausible_tree_and_a_watertight_surface() {
-    let ct = ScalarVolume::load(&aorta_path()).unwrap();
-    let s = segment(
-        &ct,
-        &Seed::Voxel(AORTA_SEED_VOXEL),
-        &SegmentSettings::default(),
-    )
-    .unwrap();
+    let s = default_aorta();
     let r = &s.report;
     println!("aorta.mha: {}", serde_json::to_string(r).unwrap());
     // An abdominal aorta (radius about 8–13 mm) with iliac, renal and smaller branches.
@@ -467,16 +476,17 @@ fn the_real_aorta_radii_match_vmtks_reference_segmentation() {
     let walls = SurfaceWalls::new(&lumen, 0.05 * MM);
     let ct = ScalarVolume::load(&aorta_path()).unwrap();
     let mut medians = Vec::new();
-    for correct_blur in [false, true] {
-        let s = segment(
-            &ct,
-            &Seed::Voxel(AORTA_SEED_VOXEL),
-            &SegmentSettings {
-                correct_blur,
-                ..SegmentSettings::default()
-            },
-        )
-        .unwrap();
+    let uncorrected = segment(
+        &ct,
+        &Seed::Voxel(AORTA_SEED_VOXEL),
+        &SegmentSettings {
+            correct_blur: false,
+            ..SegmentSettings::default()
+        },
+    )
+    .unwrap();
+    assert!(SegmentSettings::default().correct_blur);
+    for (correct_blur, s) in [(false, &uncorrected), (true, default_aorta())] {
         let g = &s.graph;
         let degree = g.node_degrees();
         let junctions: Vec<Point3<f64>> = (0..g.nodes.len())

@@ -198,7 +198,7 @@ impl Substructure {
 
 /// Diagonal blocks of K⁻¹ and the coupling blocks that reach every other block of K⁻¹:
 /// what contact response needs (Delassus operator W = Cᵀ K⁻¹ C).
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Flexibility {
     /// (K⁻¹)(n,n), in metres per newton / radians per newton-metre.
     pub diagonal: Vec<Matrix6<f64>>,

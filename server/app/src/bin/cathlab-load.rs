@@ -46,6 +46,10 @@ struct Cli {
     /// Sessions on each server of the fleet.
     #[arg(long, default_value_t = 1)]
     sessions_per_server: usize,
+    /// Sessions the memory measurement opens one after another (at least 2: the growth per
+    /// extra session), 3 s apart.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(2..=16))]
+    memory_sessions: u64,
     #[command(flatten)]
     target: ServerArgs,
 }
@@ -340,7 +344,7 @@ async fn main() -> Result<()> {
     let mut loaded = Vec::new();
     let mut rss = Vec::new();
     let mut created = Vec::new();
-    for _ in 0..4 {
+    for _ in 0..cli.memory_sessions {
         let started = std::time::Instant::now();
         loaded.push(load_session(&mut client, &cli.scene).await?);
         created.push(started.elapsed().as_secs_f64());
@@ -359,7 +363,8 @@ async fn main() -> Result<()> {
     );
     let growth: Vec<f64> = rss.windows(2).map(|w| w[1] - w[0]).collect();
     println!(
-        "memory: RSS with 1..4 sessions {:?} MiB; growth per extra session {:?} MiB",
+        "memory: RSS with 1..{} sessions {:?} MiB; growth per extra session {:?} MiB",
+        cli.memory_sessions,
         rss.iter()
             .map(|v| (v * 10.0).round() / 10.0)
             .collect::<Vec<_>>(),

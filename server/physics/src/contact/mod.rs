@@ -50,8 +50,8 @@ pub(crate) use gauss_seidel::{Anderson, active_set_normals, relax};
 pub use gauss_seidel::{POLISH_EVERY, dense_reference, gauss_seidel, gauss_seidel_observed};
 
 /// A single chain's contact problem as a step posed it, to solve again by every method (the
-/// contact solvers' convergence chart).
-#[derive(Debug, Clone, PartialEq)]
+/// contact solvers' convergence chart; stored as JSON without its settings).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RecordedProblem {
     /// The chain's flexibility blocks.
     pub flexibility: Flexibility,
@@ -59,7 +59,8 @@ pub struct RecordedProblem {
     pub free: Vec<Vector6<f64>>,
     /// The contacts.
     pub contacts: Vec<Contact>,
-    /// The settings the step solved it with.
+    /// The settings the step solved it with (not stored: the defaults when read back).
+    #[serde(skip)]
     pub settings: ContactSettings,
     /// The warm start the step gave it.
     pub warm_start: Option<Vec<Vector3<f64>>>,

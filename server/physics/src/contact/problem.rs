@@ -8,7 +8,7 @@ use crate::error::{PhysicsError, Result};
 use crate::substructure::Flexibility;
 
 /// One contact between the device and the vessel wall.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Contact {
     /// Element index: the contact point lies between model nodes `element` and `element + 1`.
     pub element: usize,
