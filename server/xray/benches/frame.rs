@@ -1,7 +1,8 @@
 //! Frame-rate benchmarks: a fluoroscopy frame at 512² and 1024² from a cached background
 //! (contrast and device layers, transmission, Poisson noise, blur, log, 8-bit encoding) on
 //! the CPU; background re-projection of a 256³ volume at 512² after a pose change, CPU and
-//! wgpu; and the memory a 256³ volume takes on each (printed).
+//! wgpu; the memory a 256³ volume takes on each (printed); and the synthetic CT of the neuro
+//! phantom's body at the stroke scenes' 2 mm (the largest part of loading a stroke scene).
 
 use std::path::Path;
 use std::sync::Arc;
@@ -148,5 +149,21 @@ fn background(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, frame, background);
+/// The body phantom around the default neuro phantom, sampled at 2 mm with 2³ sub-samples
+/// per voxel, as a stroke scene's `[ct] phantom` loads it.
+fn phantom_volume(c: &mut Criterion) {
+    let graph = cathlab_anatomy::phantom::neuro_phantom(
+        &cathlab_anatomy::phantom::NeuroPhantomParams::default(),
+    )
+    .unwrap();
+    let body = BodyPhantom::around_graph(&graph, &nalgebra::Matrix3::identity()).unwrap();
+    let mut group = c.benchmark_group("synthetic_ct");
+    group.sample_size(10);
+    group.bench_function("neuro_phantom_body_2mm", |b| {
+        b.iter(|| body.volume(2e-3).unwrap())
+    });
+    group.finish();
+}
+
+criterion_group!(benches, frame, background, phantom_volume);
 criterion_main!(benches);
