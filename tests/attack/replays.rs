@@ -163,9 +163,10 @@ async fn stalled_frame_streams_stay_within_their_budget_and_are_cut() {
     assert!(cut >= 1.0 && ended >= 6, "{cut} {ended}");
     assert_eq!(held_after, 0.0);
     // What the allocator keeps of the freed buffers: +10-16 MiB alone, +26 MiB once in a
-    // fresh-clone run with the machine loaded (more threads at work, more malloc arenas);
-    // the server's own accounting (held_after) is the exact check.
-    assert!(after < base + (32 << 20), "{after} vs {base}");
+    // fresh-clone run with a check-scenes run beside it (more threads at work, more malloc
+    // arenas; that test now waits for the exclusive lock); the server's own accounting
+    // (held_after) is the exact check. Under the 32 MiB an address may hold.
+    assert!(after < base + (28 << 20), "{after} vs {base}");
     // 0 when run alone; once in a full run of this binary a single catch-up drop (25-50
     // steps of the ~7,000 in the window) was seen: at most one is allowed.
     assert!(missed <= 50, "{missed}");

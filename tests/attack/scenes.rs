@@ -173,7 +173,8 @@ fn a_catalog_scene_naming_a_missing_file_stops_the_server_at_start() {
 
 #[test]
 fn check_scenes_prints_a_line_per_scene_and_fails_if_one_fails() {
-    // Alone, as the other suites here: a memory test beside it would count its work.
+    // Alone, as the other suites here: its server's work beside a timing or memory test
+    // would slow that test's server (missed steps, later frees).
     let _exclusive = EXCLUSIVE.blocking_lock();
     let dir = temp_dir("check-scenes");
     let scenes = dir.join("scenes");

@@ -54,10 +54,16 @@ async fn three_servers_on_one_postgres_share_sessions_and_survive_one_being_kill
             .unwrap_or_else(|| panic!("{location} is no server of the fleet"));
         let mut client = servers[i].client().await;
         let session = create(&mut client).await;
-        // The last command stops the push: six devices pushed into the wall for the rest
-        // of the test would load the fleet's two cores for nothing.
+        // Server 1's sessions (killed, then replayed) keep pushing, so that their replay
+        // checks a device on the move; the others' last command stops the push: four devices
+        // pushed into the wall for the rest of the test would load the fleet's two cores for
+        // nothing.
         for seq in 1..=3 {
-            let speed = if seq < 3 { 10.0 * seq as f64 } else { 0.0 };
+            let speed = if seq < 3 || i == 1 {
+                10.0 * seq as f64
+            } else {
+                0.0
+            };
             send(&mut client, &session, seq, push(speed)).await.unwrap();
         }
         sessions.push((i, session));

@@ -130,10 +130,10 @@ fn main() {
         .unwrap_or_else(|_| default_names.iter().map(|s| s.to_string()).collect());
     let stored = std::env::var("CONTACT_PROBLEMS").ok().map(PathBuf::from);
     let number = |name: &str, default: usize| {
-        std::env::var(name)
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(default)
+        std::env::var(name).map_or(default, |v| {
+            v.parse()
+                .unwrap_or_else(|_| panic!("{name}: a whole number, not {v:?}"))
+        })
     };
     // CONTACT_EVERY, CONTACT_LIMIT and CONTACT_SECONDS change what is recorded.
     let plan = RecordingPlan {
@@ -141,7 +141,10 @@ fn main() {
         every: number("CONTACT_EVERY", if full { 97 } else { 5 }),
         limit: number("CONTACT_LIMIT", if full { 60 } else { 4 }),
     };
-    let seconds = number("CONTACT_SECONDS", if full { 30 } else { 2 }) as f64;
+    let seconds: f64 = std::env::var("CONTACT_SECONDS")
+        .map_or(if full { 30.0 } else { 2.0 }, |v| {
+            v.parse().expect("CONTACT_SECONDS: simulated seconds")
+        });
     let problems: Vec<RecordedProblem> = match &stored {
         Some(path) if path.exists() => {
             let problems: Vec<RecordedProblem> =
@@ -285,7 +288,9 @@ fn main() {
             .collect();
         series.push((label.to_owned(), curve, color));
     }
-    if !full || std::env::var("CONTACT_SCENES").is_ok() || stored.is_some() || only.is_some() {
+    // Any CONTACT_* option makes the run an experiment: the committed chart stays.
+    let custom = std::env::vars().any(|(name, _)| name.starts_with("CONTACT_"));
+    if !full || custom {
         return;
     }
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../docs/figures");

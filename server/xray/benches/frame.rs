@@ -150,7 +150,9 @@ fn background(c: &mut Criterion) {
 }
 
 /// The body phantom around the default neuro phantom, sampled at 2 mm with 2³ sub-samples
-/// per voxel, as a stroke scene's `[ct] phantom` loads it.
+/// per voxel, as a stroke scene's `[ct] phantom` loads it (the default phantom, seed 1; the
+/// stroke scenes' is seed 0). `-- synthetic_ct` runs this group alone, after the other
+/// groups' set-up (scene, 256³ volume, renderers).
 fn phantom_volume(c: &mut Criterion) {
     let graph = cathlab_anatomy::phantom::neuro_phantom(
         &cathlab_anatomy::phantom::NeuroPhantomParams::default(),

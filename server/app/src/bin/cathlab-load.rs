@@ -351,9 +351,10 @@ async fn main() -> Result<()> {
         tokio::time::sleep(Duration::from_secs(3)).await;
         rss.push(rss_mib(pid));
     }
-    // The first creation loads the scene's assets (cold, no disk cache); the others share them.
+    // The first creation loads the scene's assets (built, or read from a disk cache where the
+    // server has one); the others share them.
     println!(
-        "load: {} session created in {:.2} s (its assets built), then {:?} s",
+        "load: {} session created in {:.2} s (its assets loaded), then {:?} s",
         cli.scene,
         created[0],
         created[1..]

@@ -218,5 +218,21 @@ mod clavicle_tests {
             let p = Point3::from(lo + (hi - lo).component_mul(&Vector3::new(u, v, w)));
             prop_assert_eq!(body.clavicle(&p).map(|s| s.tissue), naive(body, &p));
         }
+
+        /// The same near the bone itself (cortex, marrow and just outside): a point on a piece
+        /// moved up to 1.5 radii in any direction.
+        #[test]
+        fn the_boxed_clavicle_test_is_the_naive_one_at_the_bone(
+            side in prop::bool::ANY,
+            piece in 0usize..24,
+            along in 0.0f64..1.0,
+            offset in prop::array::uniform3(-1.5f64..1.5),
+        ) {
+            let body = body();
+            let line = &body.clavicles[usize::from(side)];
+            let (a, b) = (line[piece], line[piece + 1]);
+            let p = a + (b - a) * along + Vector3::from(offset) * CLAVICLE_RADIUS;
+            prop_assert_eq!(body.clavicle(&p).map(|s| s.tissue), naive(body, &p));
+        }
     }
 }

@@ -356,7 +356,8 @@ pub struct BodyPhantom {
     chest_p: f64,
     /// Clavicles: polylines (LPS, m).
     clavicles: [Vec<Point3<f64>>; 2],
-    /// Per clavicle: the box of its ends and the box of each piece, grown by its radius.
+    /// Per clavicle: the box of all its pieces and the box of each piece, grown by the bone's
+    /// radius (LPS, m).
     clavicle_boxes: [ClavicleBoxes; 2],
     canals: HashSet<[i32; 3]>,
 }
