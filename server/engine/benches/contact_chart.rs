@@ -102,6 +102,15 @@ fn trace(problem: &RecordedProblem, settings: &ContactSettings, solver: Solver) 
     }
 }
 
+/// The value of the experiment option `name` (an environment variable), or `default` where it
+/// is unset; a value that does not read stops the run, naming the option.
+fn option<T: std::str::FromStr>(name: &str, default: T) -> T {
+    std::env::var(name).map_or(default, |v| {
+        v.parse()
+            .unwrap_or_else(|_| panic!("{name}: cannot read {v:?}"))
+    })
+}
+
 fn quantile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
@@ -129,22 +138,13 @@ fn main() {
         .map(|s| s.split(',').map(str::to_owned).collect())
         .unwrap_or_else(|_| default_names.iter().map(|s| s.to_string()).collect());
     let stored = std::env::var("CONTACT_PROBLEMS").ok().map(PathBuf::from);
-    let number = |name: &str, default: usize| {
-        std::env::var(name).map_or(default, |v| {
-            v.parse()
-                .unwrap_or_else(|_| panic!("{name}: a whole number, not {v:?}"))
-        })
-    };
     // CONTACT_EVERY, CONTACT_LIMIT and CONTACT_SECONDS change what is recorded.
     let plan = RecordingPlan {
         min_contacts: 4,
-        every: number("CONTACT_EVERY", if full { 97 } else { 5 }),
-        limit: number("CONTACT_LIMIT", if full { 60 } else { 4 }),
+        every: option("CONTACT_EVERY", if full { 97 } else { 5 }),
+        limit: option("CONTACT_LIMIT", if full { 60 } else { 4 }),
     };
-    let seconds: f64 = std::env::var("CONTACT_SECONDS")
-        .map_or(if full { 30.0 } else { 2.0 }, |v| {
-            v.parse().expect("CONTACT_SECONDS: simulated seconds")
-        });
+    let seconds: f64 = option("CONTACT_SECONDS", if full { 30.0 } else { 2.0 });
     let problems: Vec<RecordedProblem> = match &stored {
         Some(path) if path.exists() => {
             let problems: Vec<RecordedProblem> =
@@ -171,27 +171,26 @@ fn main() {
     };
     // CONTACT_PICK=k: only the k-th problem (to trace one solve).
     let problems: Vec<RecordedProblem> = match std::env::var("CONTACT_PICK") {
-        Ok(k) => vec![problems[k.parse::<usize>().unwrap()].clone()],
+        Ok(_) => vec![problems[option("CONTACT_PICK", 0usize)].clone()],
         Err(_) => problems,
     };
-    // CONTACT_SCENE_TOLERANCE: the scenes' own stopping rule instead of the chart's tight one.
-    let scene_tolerance = std::env::var("CONTACT_SCENE_TOLERANCE").is_ok();
+    // CONTACT_SCENE_TOLERANCE: the scenes' own stopping rule instead of the chart's tight one,
+    // CONTACT_TOL and CONTACT_VIOLATION changing it.
+    let scene_rule = std::env::var("CONTACT_SCENE_TOLERANCE").is_ok().then(|| {
+        let base = cathlab_physics::NavigationSettings::default().contact;
+        ContactSettings {
+            tolerance: option("CONTACT_TOL", base.tolerance),
+            violation_tolerance_m: option("CONTACT_VIOLATION", base.violation_tolerance_m),
+            ..base
+        }
+    });
     let tight = |method, depth, polish| {
-        if scene_tolerance {
-            let base = cathlab_physics::NavigationSettings::default().contact;
-            let env = |name: &str, default: f64| {
-                std::env::var(name)
-                    .ok()
-                    .and_then(|v| v.parse().ok())
-                    .unwrap_or(default)
-            };
+        if let Some(rule) = scene_rule {
             return ContactSettings {
                 method,
                 acceleration_depth: depth,
                 polish,
-                tolerance: env("CONTACT_TOL", base.tolerance),
-                violation_tolerance_m: env("CONTACT_VIOLATION", base.violation_tolerance_m),
-                ..base
+                ..rule
             };
         }
         ContactSettings {
