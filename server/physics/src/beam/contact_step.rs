@@ -114,12 +114,20 @@ impl BeamModel {
                 break;
             }
             // Keep the earlier rounds' contacts too (a wall the contact forces pushed the device
-            // away from still bounds it), ordered along the device.
-            for old in &contacts {
-                if !next.iter().any(|c| same_contact(c, old)) {
-                    next.push(*old);
-                }
-            }
+            // away from still bounds it), ordered along the device. A point found again still
+            // penetrating, on a wall whose normal turned (a tip wedged into a narrowing,
+            // sliding along the curve round after round), keeps its earlier plane beside the
+            // new one, so that the wedge holds it.
+            let kept: Vec<Contact> = contacts
+                .iter()
+                .filter(|old| {
+                    next.iter().find(|c| same_contact(c, old)).is_none_or(|c| {
+                        !same_plane(c, old) && depth(c) > settings.penetration_tolerance_m
+                    })
+                })
+                .copied()
+                .collect();
+            next.extend(kept);
             next.sort_by(|a, b| {
                 (a.element, a.t)
                     .partial_cmp(&(b.element, b.t))
@@ -208,17 +216,25 @@ fn same_contact(a: &Contact, b: &Contact) -> bool {
     a.element == b.element && (a.t - b.t).abs() <= 1e-9 && a.normal.dot(&b.normal) > 0.9
 }
 
+/// Whether two contacts are one plane: the same point with normals within about 0.25°.
+fn same_plane(a: &Contact, b: &Contact) -> bool {
+    a.element == b.element && (a.t - b.t).abs() <= 1e-9 && a.normal.dot(&b.normal) > 0.99999
+}
+
 /// Forces of `old` contacts carried over to the same `new` ones (zero for the rest): the
-/// warm start of a repeated detection round.
+/// warm start of a repeated detection round. Each old force goes to one new contact, the one
+/// whose normal is nearest its own.
 fn carry_forces(new: &[Contact], old: &[Contact], forces: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-    new.iter()
-        .map(|c| {
-            old.iter()
-                .zip(forces)
-                .filter(|(o, _)| same_contact(o, c))
-                .map(|(_, f)| *f)
-                .next()
-                .unwrap_or_else(Vector3::zeros)
-        })
-        .collect()
+    let mut carried = vec![Vector3::zeros(); new.len()];
+    for (o, f) in old.iter().zip(forces) {
+        let best = new
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| same_contact(o, c))
+            .max_by(|(_, a), (_, b)| a.normal.dot(&o.normal).total_cmp(&b.normal.dot(&o.normal)));
+        if let Some((k, _)) = best {
+            carried[k] = *f;
+        }
+    }
+    carried
 }
