@@ -3,15 +3,18 @@
 //! (no governor), `STRESS_SEEDS` seeds (default 3) of `STRESS_SECONDS` simulated seconds each
 //! (default 1,200: an hour per scene), then one run with the governor's level switched at
 //! random; prints a table (divergences, errors, step p50/p99/max, steps over 2 ms, deepest
-//! penetration, largest hand force) and fails on any divergence, error or panic.
+//! penetration, largest hand force) and fails on any divergence, error or panic, or a hand
+//! that felt more than its strength (the scene's push limit, within 2 %).
 //! `STRESS_SCENES` (comma-separated names) picks scenes; `STRESS_SOLVER=newton` or
 //! `gauss_seidel` runs them with that contact solve instead of their own. Without `--bench` (as in
 //! `cargo test`) it runs the smoke: every scene, one seed, 4 simulated seconds, and one
-//! switched-level run of the default scene.
+//! switched-level run of the default scene, and runs at each of the governor's levels held
+//! throughout on the default scene and its coaxial stack (every scene with `--bench`).
 
 use std::path::Path;
 
 use cathlab_engine::stress::{Levels, StressReport, StressSettings, run};
+use cathlab_engine::world::MAX_FIDELITY_LEVEL;
 use cathlab_engine::*;
 
 fn env_number(name: &str, default: f64) -> f64 {
@@ -52,8 +55,17 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
         if let Some(failure) = &r.first_failure {
             println!("    run {i}: {failure}");
         }
+        if !r.hands_within_limits() {
+            println!(
+                "    run {i}: a hand felt {:.1} N, past its {:.0} N",
+                r.worst_hand_force_n, r.hand_limit_n
+            );
+        }
     }
-    divergences == 0 && errors == 0 && panics == 0
+    divergences == 0
+        && errors == 0
+        && panics == 0
+        && reports.iter().all(|r| r.hands_within_limits())
 }
 
 fn main() {
@@ -112,9 +124,25 @@ fn main() {
             };
             sound &= row(name, "switched", &[run(&mut world, &settings)]);
         }
+        // Each of the governor's levels held throughout: the smoke on a single wire and a
+        // coaxial stack (at level 3 a stack's shaft once passed the wall by millimetres).
+        if full || name == "arch_to_cow_lcca" || name == "arch_to_cow_lcca_coaxial" {
+            for level in 1..=MAX_FIDELITY_LEVEL {
+                let mut world = World::new(assets.clone()).unwrap();
+                let settings = StressSettings {
+                    levels: Levels::Fixed(level),
+                    ..StressSettings::new(2000 + u64::from(level), seconds.min(600.0))
+                };
+                sound &= row(
+                    name,
+                    &format!("level {level}"),
+                    &[run(&mut world, &settings)],
+                );
+            }
+        }
     }
     assert!(
         sound,
-        "the random operator made a scene diverge, fail or panic"
+        "the random operator made a scene diverge, fail or panic, or a hand felt more than its strength"
     );
 }

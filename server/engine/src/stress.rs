@@ -73,6 +73,8 @@ pub struct StressReport {
     pub worst_penetration_m: f64,
     /// The largest axial force any hand felt (N).
     pub worst_hand_force_n: f64,
+    /// The hands' strength in the scene (N): the most any may push or pull with.
+    pub hand_limit_n: f64,
 }
 
 impl StressReport {
@@ -92,6 +94,12 @@ impl StressReport {
     /// Whether nothing diverged, failed or panicked.
     pub fn sound(&self) -> bool {
         self.divergences == 0 && self.errors == 0 && !self.panicked
+    }
+
+    /// Whether no hand felt more than its strength (within the step's
+    /// [`crate::world::FORCE_OVERSHOOT`]).
+    pub fn hands_within_limits(&self) -> bool {
+        self.worst_hand_force_n <= self.hand_limit_n * (1.0 + crate::world::FORCE_OVERSHOOT) + 1e-9
     }
 }
 
@@ -235,6 +243,7 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
         .iter()
         .map(|m| m.peak_axial_force_n.abs())
         .fold(0.0, f64::max);
+    report.hand_limit_n = world.assets().spec.limits.push_force_n;
     report.step_s.sort_by(f64::total_cmp);
     report
 }

@@ -23,13 +23,13 @@ pub fn fidelity_effort(level: u8) -> (Effort, Option<f64>, &'static str) {
         2 => (
             Effort {
                 max_substep_depth: 0,
-                max_detection_rounds: 1,
+                max_detection_rounds: 2,
                 max_sweeps: 60,
                 polish: true,
                 refinement_scale: 2.0,
             },
             None,
-            "no sub-steps, one detection round, 60 contact sweeps, refinement halved",
+            "no sub-steps, two detection rounds, 60 contact sweeps, refinement halved",
         ),
         _ => (
             Effort {

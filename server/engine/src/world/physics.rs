@@ -9,11 +9,18 @@ use nalgebra::Point3;
 
 use super::World;
 use super::fidelity::fidelity_effort;
-use super::hand::{LIMIT_REARM_S, PushLimit, start_hands};
+use super::hand::{FORCE_OVERSHOOT, LIMIT_REARM_S, PushLimit, start_hands};
 use super::tips::{MAX_ESCAPE_M, tracked_tip};
 use crate::error::Result;
 use crate::metrics::EventKind;
 use crate::strand::Strand;
+
+/// While any hand's last reaction is at least this share of its limit, a step that moves an
+/// instrument is guarded ([`World::step_within_force_limits`]).
+const FORCE_GUARD_FRACTION: f64 = 0.25;
+
+/// The most a hand held past its strength gives way in one step (m).
+const MAX_GIVE_M: f64 = 0.5e-3;
 
 impl World {
     /// Steps the strand with every hand's command within its limits (the operators' commands
@@ -23,19 +30,18 @@ impl World {
         let operators: Vec<cathlab_physics::Command> = (0..self.strand.len())
             .map(|i| self.strand.command(i))
             .collect();
-        let mut limited = Vec::with_capacity(operators.len());
+        let mut moves = Vec::with_capacity(operators.len());
         for (i, operator) in operators.iter().enumerate() {
             let command = self.limited_command(i, *operator, dt);
             if let Some(command) = command {
                 self.strand.set_command(i, command)?;
             }
-            limited.push(command.is_some());
+            moves.push(command.unwrap_or(*operator).insertion);
         }
-        let outcome = self.strand.step();
+        let outcome = self.step_within_force_limits(&moves, dt);
+        // The operators' commands back (a limit or a retake changed some).
         for (i, operator) in operators.iter().enumerate() {
-            if limited[i] {
-                self.strand.set_command(i, *operator)?;
-            }
+            self.strand.set_command(i, *operator)?;
         }
         let diverged = match outcome {
             Ok(()) => {
@@ -64,6 +70,7 @@ impl World {
                     }
                 }
             }
+            Err(crate::error::EngineError::Physics(e)) => Some(e.to_string()),
             Err(e) => Some(e.to_string()),
         };
         if let Some(reason) = diverged {
@@ -73,6 +80,89 @@ impl World {
                 EventKind::Divergence,
                 format!("physics diverged ({reason}); the device was put back at its start"),
             );
+        }
+        Ok(())
+    }
+
+    /// Steps the strand so that no hand ends the step pushed or pulled harder than its
+    /// limit by the instruments' moves: where an instrument moves while some hand's last
+    /// reaction is at [`FORCE_GUARD_FRACTION`] of its limit or more, the strand is kept, and a
+    /// step that leaves a hand beyond its limit is taken again with every moving instrument
+    /// advanced only as far as the force allows (the force taken as linear in the advance,
+    /// between the last reaction and this step's, for the hand that allows least); if that is
+    /// still too far, they are held where they were. A hand already past its limit while
+    /// holding gives way (`limited_command`). `moves` are the insertions this step runs.
+    fn step_within_force_limits(&mut self, moves: &[Insertion], dt: f64) -> Result<()> {
+        // Per instrument: inserted before and advance this step (m).
+        let advances: Vec<(f64, f64)> = moves
+            .iter()
+            .enumerate()
+            .map(|(i, insertion)| {
+                let inserted = self.strand.inserted_m(i);
+                let advance = match insertion {
+                    Insertion::Velocity(v) => v * dt,
+                    Insertion::Target(x) => x - inserted,
+                };
+                (inserted, advance)
+            })
+            .collect();
+        // Per hand: its limits as signed forces (push, pull) and its last reaction (N).
+        let hands: Vec<(f64, f64, f64)> = self
+            .hands
+            .iter()
+            .map(|h| {
+                (
+                    h.limits.force_n,
+                    -h.limits.pull_force_n,
+                    h.reaction.axial_force_n,
+                )
+            })
+            .collect();
+        let moving = advances.iter().any(|&(_, a)| a != 0.0);
+        let near = hands.iter().any(|&(push, pull, last)| {
+            last / push >= FORCE_GUARD_FRACTION || last / pull >= FORCE_GUARD_FRACTION
+        });
+        if !(moving && near) {
+            return Ok(self.strand.step()?);
+        }
+        let before = self.strand.clone();
+        self.strand.step()?;
+        // The share of this step's moves that keeps every hand within its limit (1: all).
+        let allowed = |strand: &mut Strand| -> f64 {
+            let (_, reactions) = strand.reactions();
+            hands
+                .iter()
+                .zip(&reactions)
+                .map(|(&(push, pull, last), r)| {
+                    let now = r.axial_force_n;
+                    let limit = if now >= 0.0 { push } else { pull };
+                    if now / limit <= 1.0 + FORCE_OVERSHOOT || (now - last).abs() < 1e-12 {
+                        1.0
+                    } else {
+                        ((limit - last) / (now - last)).clamp(0.0, 1.0)
+                    }
+                })
+                .fold(1.0, f64::min)
+        };
+        let share = allowed(&mut self.strand);
+        if share >= 1.0 {
+            return Ok(());
+        }
+        for share in [share, 0.0] {
+            self.strand = before.clone();
+            for (i, &(inserted, advance)) in advances.iter().enumerate() {
+                if advance == 0.0 {
+                    continue;
+                }
+                let insertion = Insertion::Target(inserted + share * advance);
+                let twist = self.strand.command(i).twist;
+                self.strand
+                    .set_command(i, cathlab_physics::Command { insertion, twist })?;
+            }
+            self.strand.step()?;
+            if share == 0.0 || allowed(&mut self.strand) >= 1.0 {
+                break;
+            }
         }
         Ok(())
     }
@@ -97,9 +187,25 @@ impl World {
         let force = hand.reaction.axial_force_n;
         let limits = hand.limits;
         let cap = fidelity_effort(self.fidelity).1;
-        let pulled_too_hard = advance < 0.0 && -force >= limits.pull_force_n;
+        // Pulling, or holding while something else pulls it (a held hand is past its
+        // strength either way).
+        let pulled_too_hard = advance <= 0.0 && -force >= limits.pull_force_n;
+        let pushed_too_hard = advance >= 0.0 && force >= limits.force_n;
+        // A hand held past its strength gives way: back (or forward, pulling) by the excess
+        // over the inserted length's axial stiffness, the least that relieves it.
+        let axial_stiffness = self
+            .strand
+            .device(index)
+            .and_then(|d| d.sections.first())
+            .map_or(f64::INFINITY, |s| s.beam_properties().axial_stiffness_n)
+            / inserted.max(1e-3);
+        let give = |excess: f64| (excess.max(0.0) / axial_stiffness).min(MAX_GIVE_M);
         let (limit, insertion) = if pulled_too_hard {
-            (PushLimit::Force, Some(Insertion::Velocity(0.0)))
+            let to = inserted + give(-force - limits.pull_force_n);
+            (PushLimit::Force, Some(Insertion::Target(to)))
+        } else if advance == 0.0 && pushed_too_hard {
+            let to = inserted - give(force - limits.force_n);
+            (PushLimit::Force, Some(Insertion::Target(to)))
         } else if advance <= 0.0 {
             (PushLimit::None, None)
         } else if inserted + advance > limits.max_inserted_m {
@@ -107,8 +213,9 @@ impl World {
                 PushLimit::Length,
                 Some(Insertion::Target(limits.max_inserted_m.max(inserted))),
             )
-        } else if force >= limits.force_n {
-            (PushLimit::Force, Some(Insertion::Velocity(0.0)))
+        } else if pushed_too_hard {
+            let to = inserted - give(force - limits.force_n);
+            (PushLimit::Force, Some(Insertion::Target(to)))
         } else if let Some(cap) = cap
             && advance > cap * dt
         {

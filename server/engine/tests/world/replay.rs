@@ -130,7 +130,7 @@ fn a_diverging_world_is_reset_reported_and_stays_finite() {
     world.apply(1, &Command::PushVelocity(0.5)).unwrap();
     world.apply(2, &Command::TwistRate(30.0)).unwrap();
     let mut divergences = Vec::new();
-    // The hook breaks the coarse elements sooner or later (after 450–2,000 steps as the
+    // The hook breaks the coarse elements sooner or later (after 200–2,000 steps as the
     // physics has changed): step until it has, and 100 steps beyond.
     let mut after = 0;
     for _ in 0..3000 {
