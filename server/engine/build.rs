@@ -1,5 +1,6 @@
 //! Build script: `CATHLAB_ASSET_CODE_HASH`, a hash of the source of the code that builds the
-//! assets the disk cache keeps (the anatomy and imaging crates, the engine's asset loader)
+//! assets the disk cache keeps (the anatomy and imaging crates, the X-ray crate's body phantom
+//! and volume, the engine's asset loader)
 //! and of the locked dependency versions, so that a cached asset built by other code is
 //! never read back (`src/assets/disk.rs`).
 
@@ -29,6 +30,8 @@ fn main() {
     for root in [
         "../anatomy/src",
         "../imaging/src",
+        "../xray/src/phantom",
+        "../xray/src/volume.rs",
         "src/assets",
         "../../Cargo.lock",
     ] {

@@ -1,7 +1,7 @@
 //! The disk cache of built assets: an anatomy that takes seconds to build (the neuro
 //! phantom's surface and query grid, a surface imported with its circle of Willis, a CT's
-//! segmentation) is written once to a directory and read back by later loads, in this process
-//! or another. Its key is the hash of the code that builds it (made by the build script from
+//! segmentation) and a synthetic CT (a second of sampling the body phantom) are written once
+//! to a directory and read back by later loads, in this process or another. Its key is the hash of the code that builds it (made by the build script from
 //! the source), its parameters and the SHA-256 of the files it is built from, so a cached
 //! file can never be stale; a file missing, damaged or stored for another key is rebuilt,
 //! never trusted. The directory is kept within a size, the least recently used files going
@@ -15,6 +15,7 @@ use std::time::{Instant, SystemTime};
 use sha2::{Digest, Sha256};
 
 use cathlab_anatomy::real::Anatomy;
+use cathlab_xray::Volume;
 
 use crate::error::Result;
 
@@ -45,15 +46,53 @@ impl DiskCache {
         }
     }
 
-    /// The file for `key`: the code's hash, then the parameters' (the full key is inside).
+    /// The file for an anatomy's `key`: the code's hash, then the parameters' (the full key
+    /// is inside).
     fn file(&self, key: &str) -> PathBuf {
+        self.file_of("anatomy", key)
+    }
+
+    /// The file for an asset of `kind` (`anatomy`, `volume`) under `key`.
+    fn file_of(&self, kind: &str, key: &str) -> PathBuf {
         let mut h = DefaultHasher::new();
         key.hash(&mut h);
         self.dir.join(format!(
-            "anatomy-{}-{:016x}.bin",
+            "{kind}-{}-{:016x}.bin",
             &CODE_HASH[..16],
             h.finish()
         ))
+    }
+
+    /// The CT volume stored under `key`, or `build`'s, then stored; as [`Self::anatomy`],
+    /// reading and writing never fail the load.
+    pub(super) fn volume(
+        &self,
+        key: &str,
+        build: impl FnOnce() -> Result<Volume>,
+    ) -> Result<Volume> {
+        let full_key = format!("{CODE_HASH}:{key}");
+        let file = self.file_of("volume", key);
+        let read = read_bytes(&file)
+            .and_then(|bytes| bytes.map(|b| decode_volume(&b, &full_key)).transpose());
+        match read {
+            Ok(Some(volume)) => {
+                if let Ok(f) = std::fs::OpenOptions::new().write(true).open(&file) {
+                    let _ = f.set_modified(SystemTime::now());
+                }
+                return Ok(volume);
+            }
+            Ok(None) => {}
+            Err(reason) => tracing::warn!(
+                file = %file.display(),
+                %reason,
+                "cached CT volume refused; building it again"
+            ),
+        }
+        let volume = build()?;
+        if let Err(e) = self.store(&file, &encode_volume(&volume, &full_key)) {
+            tracing::warn!(file = %file.display(), error = %e, "cannot write the disk cache");
+        }
+        Ok(volume)
     }
 
     /// The anatomy stored under `key`, or `build`'s, then stored. Reading and writing never
@@ -96,45 +135,45 @@ impl DiskCache {
 
     /// `Ok(None)` when there is no file.
     fn read(&self, file: &Path, full_key: &str) -> std::result::Result<Option<Anatomy>, String> {
-        let meta = match std::fs::metadata(file) {
-            Ok(m) => m,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-            Err(e) => return Err(e.to_string()),
+        let Some(bytes) = read_bytes(file)? else {
+            return Ok(None);
         };
-        if !meta.is_file() || meta.len() > MAX_FILE_BYTES {
-            return Err(format!(
-                "not a regular file of at most {MAX_FILE_BYTES} bytes"
-            ));
-        }
-        let mut bytes = Vec::with_capacity(meta.len() as usize);
-        std::fs::File::open(file)
-            .and_then(|f| f.take(MAX_FILE_BYTES).read_to_end(&mut bytes))
-            .map_err(|e| e.to_string())?;
         cathlab_anatomy::stored::decode(&bytes, full_key, &file.display().to_string())
             .map(Some)
             .map_err(|e| e.to_string())
     }
 
-    /// Writes beside the file and renames it into place (a reader sees the whole file or
-    /// none), then removes the files other code stored (they can never be read again).
+    /// Writes `anatomy` to `file` (see [`Self::store`]).
     fn write(&self, file: &Path, full_key: &str, anatomy: &Anatomy) -> std::io::Result<()> {
-        std::fs::create_dir_all(&self.dir)?;
         let Some(bytes) = cathlab_anatomy::stored::encode(anatomy, full_key) else {
             // An implicit wall: rebuilt in milliseconds, never stored.
             return Ok(());
         };
+        self.store(file, &bytes)
+    }
+
+    /// Writes beside the file and renames it into place (a reader sees the whole file or
+    /// none), then removes the files other code stored (they can never be read again) and,
+    /// past the size limit, the least recently used of this code's.
+    fn store(&self, file: &Path, bytes: &[u8]) -> std::io::Result<()> {
+        std::fs::create_dir_all(&self.dir)?;
         let partial = file.with_extension(format!("partial-{}", std::process::id()));
-        std::fs::write(&partial, &bytes)?;
+        std::fs::write(&partial, bytes)?;
         std::fs::rename(&partial, file)?;
-        let current = format!("anatomy-{}-", &CODE_HASH[..16]);
         // This code's files, most recently used first.
         let mut kept: Vec<(SystemTime, u64, PathBuf)> = Vec::new();
         for entry in std::fs::read_dir(&self.dir)?.flatten() {
             let name = entry.file_name().to_string_lossy().into_owned();
-            if !name.starts_with("anatomy-") || !name.ends_with(".bin") {
+            let Some(rest) = ["anatomy-", "volume-"]
+                .iter()
+                .find_map(|kind| name.strip_prefix(kind))
+            else {
+                continue;
+            };
+            if !name.ends_with(".bin") {
                 continue;
             }
-            if !name.starts_with(&current) {
+            if !rest.starts_with(&CODE_HASH[..16]) {
                 let _ = std::fs::remove_file(entry.path());
             } else if let Ok(meta) = entry.metadata() {
                 let used = meta.modified().unwrap_or(SystemTime::UNIX_EPOCH);
@@ -149,13 +188,119 @@ impl DiskCache {
             }
             total += len;
             if total > self.max_bytes {
-                tracing::info!(file = %path.display(), "least recently used anatomy removed from the disk cache");
+                tracing::info!(file = %path.display(), "least recently used asset removed from the disk cache");
                 let _ = std::fs::remove_file(&path);
             }
         }
-        tracing::info!(file = %file.display(), bytes = bytes.len(), "anatomy stored in the disk cache");
+        tracing::info!(file = %file.display(), bytes = bytes.len(), "asset stored in the disk cache");
         Ok(())
     }
+}
+
+/// A cached file's bytes; `Ok(None)` when there is none.
+fn read_bytes(file: &Path) -> std::result::Result<Option<Vec<u8>>, String> {
+    let meta = match std::fs::metadata(file) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(e.to_string()),
+    };
+    if !meta.is_file() || meta.len() > MAX_FILE_BYTES {
+        return Err(format!(
+            "not a regular file of at most {MAX_FILE_BYTES} bytes"
+        ));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    std::fs::File::open(file)
+        .and_then(|f| f.take(MAX_FILE_BYTES).read_to_end(&mut bytes))
+        .map_err(|e| e.to_string())?;
+    Ok(Some(bytes))
+}
+
+/// First bytes of a stored CT volume.
+const VOLUME_MAGIC: &[u8; 8] = b"CLCTVOL1";
+
+/// A CT volume as stored: the magic, the full key (length, UTF-8), the dimensions (3 × u64),
+/// spacing, origin (3 × f64 each, m) and direction (9 × f64, column-major), then the HU
+/// (i16), all little-endian, then the SHA-256 of everything before it.
+fn encode_volume(volume: &Volume, full_key: &str) -> Vec<u8> {
+    let mut out = Vec::with_capacity(160 + full_key.len() + 2 * volume.hu.len());
+    out.extend_from_slice(VOLUME_MAGIC);
+    out.extend_from_slice(&(full_key.len() as u64).to_le_bytes());
+    out.extend_from_slice(full_key.as_bytes());
+    for d in volume.dims {
+        out.extend_from_slice(&(d as u64).to_le_bytes());
+    }
+    for v in volume
+        .spacing_m
+        .iter()
+        .chain(volume.origin_m.iter())
+        .chain(volume.direction.iter())
+    {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    for h in &volume.hu {
+        out.extend_from_slice(&h.to_le_bytes());
+    }
+    let digest = Sha256::digest(&out);
+    out.extend_from_slice(&digest);
+    out
+}
+
+/// The volume [`encode_volume`] stored under `full_key`, checked: its digest, its key, and
+/// the grid ([`Volume::new`]).
+fn decode_volume(bytes: &[u8], full_key: &str) -> std::result::Result<Volume, String> {
+    let body = bytes
+        .len()
+        .checked_sub(32)
+        .filter(|&n| n >= VOLUME_MAGIC.len())
+        .ok_or("too short for a stored CT volume")?;
+    if Sha256::digest(&bytes[..body]).as_slice() != &bytes[body..] {
+        return Err("its digest does not match (damaged)".into());
+    }
+    let mut at = 0;
+    let mut take = |n: usize| -> std::result::Result<&[u8], String> {
+        let slice = bytes[..body]
+            .get(at..at + n)
+            .ok_or("truncated stored CT volume")?;
+        at += n;
+        Ok(slice)
+    };
+    if take(VOLUME_MAGIC.len())? != VOLUME_MAGIC {
+        return Err("not a stored CT volume".into());
+    }
+    let u64_at = |b: &[u8]| u64::from_le_bytes(b.try_into().unwrap_or([0; 8]));
+    let key_len = usize::try_from(u64_at(take(8)?)).map_err(|e| e.to_string())?;
+    if key_len != full_key.len() || take(key_len)? != full_key.as_bytes() {
+        return Err("stored under another key".into());
+    }
+    let mut dims = [0usize; 3];
+    for d in &mut dims {
+        *d = usize::try_from(u64_at(take(8)?)).map_err(|e| e.to_string())?;
+    }
+    let mut reals = [0.0f64; 15];
+    for r in &mut reals {
+        *r = f64::from_le_bytes(take(8)?.try_into().unwrap_or([0; 8]));
+    }
+    let count = dims
+        .iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(d))
+        .ok_or("dimensions overflow")?;
+    let raw = take(count.checked_mul(2).ok_or("dimensions overflow")?)?;
+    if at != body {
+        return Err("trailing bytes in a stored CT volume".into());
+    }
+    let hu = raw
+        .chunks_exact(2)
+        .map(|c| i16::from_le_bytes([c[0], c[1]]))
+        .collect();
+    Volume::new(
+        dims,
+        nalgebra::Vector3::new(reals[0], reals[1], reals[2]),
+        nalgebra::Vector3::new(reals[3], reals[4], reals[5]),
+        nalgebra::Matrix3::from_column_slice(&reals[6..15]),
+        hu,
+    )
+    .map_err(|e| e.to_string())
 }
 
 /// The SHA-256 (hex) of the files an anatomy is built from: each path a file, or a folder
@@ -269,6 +414,48 @@ mod tests {
         std::fs::write(&stale, b"old").unwrap();
         cache.anatomy("y3", || build(&mut builds)).unwrap();
         assert!(!stale.exists());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_ct_volume_is_built_once_read_back_exactly_and_a_damaged_one_rebuilt() {
+        let dir = std::env::temp_dir().join(format!("cathlab-disk-ct-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let cache = DiskCache::new(&dir, u64::MAX);
+        let mut builds = 0;
+        let build = |builds: &mut usize| -> Result<Volume> {
+            *builds += 1;
+            let direction = nalgebra::Rotation3::from_euler_angles(0.1, -0.2, 0.3).into_inner();
+            Ok(Volume::new(
+                [5, 4, 3],
+                nalgebra::Vector3::new(1e-3, 1.5e-3, 2e-3),
+                nalgebra::Vector3::new(-0.01, 0.02, 0.3),
+                direction,
+                (0..60).map(|v| (v * 997 % 4000 - 1000) as i16).collect(),
+            )?)
+        };
+        let first = cache.volume("ct", || build(&mut builds)).unwrap();
+        let again = cache.volume("ct", || build(&mut builds)).unwrap();
+        assert_eq!(builds, 1, "the second load reads the file");
+        assert_eq!(first, again, "read back bit for bit");
+        cache.volume("ct2", || build(&mut builds)).unwrap();
+        assert_eq!(builds, 2, "another key, another file");
+        // One flipped bit anywhere: refused and rebuilt.
+        let file = cache.file_of("volume", "ct");
+        let mut bytes = std::fs::read(&file).unwrap();
+        let mid = bytes.len() / 2;
+        bytes[mid] ^= 0x01;
+        std::fs::write(&file, &bytes).unwrap();
+        assert!(decode_volume(&bytes, &format!("{CODE_HASH}:ct")).is_err());
+        cache.volume("ct", || build(&mut builds)).unwrap();
+        assert_eq!(builds, 3);
+        // Stored under another key (a file renamed into place): refused.
+        let other = std::fs::read(cache.file_of("volume", "ct2")).unwrap();
+        assert!(decode_volume(&other, &format!("{CODE_HASH}:ct")).is_err());
+        // Truncated: refused, never a panic.
+        for n in [0, 7, 20, other.len() - 33] {
+            assert!(decode_volume(&other[..n], &format!("{CODE_HASH}:ct2")).is_err());
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 

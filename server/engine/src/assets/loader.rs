@@ -132,9 +132,18 @@ impl AssetCache {
             return Ok(found.value.clone());
         }
         let volume = match spec {
-            CtSpec::Phantom { spacing_mm } => phantom()?
-                .volume(spacing_mm * 1e-3)
-                .map_err(|e| scene_error("ct.spacing_mm", e))?,
+            CtSpec::Phantom { spacing_mm } => {
+                let build = || -> Result<Volume> {
+                    phantom()?
+                        .volume(spacing_mm * 1e-3)
+                        .map_err(|e| scene_error("ct.spacing_mm", e))
+                };
+                match &self.disk {
+                    // Built from the graph alone: on disk under its content.
+                    Some(disk) => disk.volume(&key, build)?,
+                    None => build()?,
+                }
+            }
             CtSpec::File {
                 hu_slope,
                 hu_intercept,
@@ -239,7 +248,7 @@ impl AssetCache {
             .enumerate()
             .map(|(i, spare)| spare.resolve(i))
             .collect::<Result<Vec<_>>>()?;
-        let anatomy_key = format!("{:?}", spec.anatomy);
+        let anatomy_key = phantom_key(graph, &to_lps);
         let volume = match file_ct {
             Some(volume) => volume,
             None => self.volume(
@@ -539,4 +548,17 @@ fn scene_clots(spec: &SceneSpec, graph: &VesselGraph) -> Result<Vec<Occlusion>> 
             })
         })
         .collect()
+}
+
+/// What a synthetic CT is built from, as a key: the SHA-256 of the vessel graph (JSON) and of
+/// the rotation into patient coordinates, so that neither a path nor a stale file can stand
+/// for another anatomy's CT.
+fn phantom_key(graph: &cathlab_anatomy::VesselGraph, to_lps: &Matrix3<f64>) -> String {
+    use sha2::{Digest, Sha256};
+    let mut hasher = Sha256::new();
+    hasher.update(serde_json::to_vec(graph).unwrap_or_default());
+    for v in to_lps.iter() {
+        hasher.update(v.to_le_bytes());
+    }
+    format!("{:x}", hasher.finalize())
 }

@@ -70,8 +70,9 @@ impl World {
                     }
                 }
             }
+            // The physics refused the step: a divergence. Anything else is the caller's.
             Err(crate::error::EngineError::Physics(e)) => Some(e.to_string()),
-            Err(e) => Some(e.to_string()),
+            Err(e) => return Err(e),
         };
         if let Some(reason) = diverged {
             self.metrics.divergence_resets += 1;
@@ -84,17 +85,20 @@ impl World {
         Ok(())
     }
 
-    /// Steps the strand so that no hand ends the step pushed or pulled harder than its
-    /// limit by the instruments' moves: where an instrument moves while some hand's last
-    /// reaction is at [`FORCE_GUARD_FRACTION`] of its limit or more, the strand is kept, and a
-    /// step that leaves a hand beyond its limit is taken again with every moving instrument
-    /// advanced only as far as the force allows (the force taken as linear in the advance,
-    /// between the last reaction and this step's, for the hand that allows least); if that is
-    /// still too far, they are held where they were. A hand already past its limit while
-    /// holding gives way (`limited_command`). `moves` are the insertions this step runs.
+    /// Steps the strand so that the instruments' moves do not push or pull a hand past its
+    /// limit: where an instrument moves while some hand's last reaction is at
+    /// [`FORCE_GUARD_FRACTION`] of its limit or more, the strand is kept, and a step that
+    /// leaves a hand that was within its limit more than [`FORCE_OVERSHOOT`] past it is taken
+    /// again with the moves that load the hands scaled by the share the force allows (the
+    /// force taken as linear in the move, between the last reaction and this step's, for the
+    /// hand that allows least), and if that is still too far, without them. A hand already
+    /// past its limit gives way (`limited_command`); its move is never scaled. What the held
+    /// step leaves is accepted: other forces (a twist, a settling shape) may still load a hand.
+    /// `moves` are the insertions this step runs.
     fn step_within_force_limits(&mut self, moves: &[Insertion], dt: f64) -> Result<()> {
-        // Per instrument: inserted before and advance this step (m).
-        let advances: Vec<(f64, f64)> = moves
+        // Per instrument: inserted before (m) and whether its move is scaled in a retake
+        // (it moves, and its hand is within its limit: not giving way).
+        let before_moves: Vec<(f64, bool)> = moves
             .iter()
             .enumerate()
             .map(|(i, insertion)| {
@@ -103,7 +107,10 @@ impl World {
                     Insertion::Velocity(v) => v * dt,
                     Insertion::Target(x) => x - inserted,
                 };
-                (inserted, advance)
+                let hand = &self.hands[i];
+                let last = hand.reaction.axial_force_n;
+                let within = last < hand.limits.force_n && -last < hand.limits.pull_force_n;
+                (inserted, advance != 0.0 && within)
             })
             .collect();
         // Per hand: its limits as signed forces (push, pull) and its last reaction (N).
@@ -118,7 +125,7 @@ impl World {
                 )
             })
             .collect();
-        let moving = advances.iter().any(|&(_, a)| a != 0.0);
+        let moving = before_moves.iter().any(|&(_, scaled)| scaled);
         let near = hands.iter().any(|&(push, pull, last)| {
             last / push >= FORCE_GUARD_FRACTION || last / pull >= FORCE_GUARD_FRACTION
         });
@@ -127,16 +134,18 @@ impl World {
         }
         let before = self.strand.clone();
         self.strand.step()?;
-        // The share of this step's moves that keeps every hand within its limit (1: all).
+        // The share of this step's loading moves that keeps every hand that was within its
+        // limit there (1: all).
         let allowed = |strand: &mut Strand| -> f64 {
             let (_, reactions) = strand.reactions();
             hands
                 .iter()
                 .zip(&reactions)
+                .filter(|&(&(push, pull, last), _)| last < push && last > pull)
                 .map(|(&(push, pull, last), r)| {
                     let now = r.axial_force_n;
                     let limit = if now >= 0.0 { push } else { pull };
-                    if now / limit <= 1.0 + FORCE_OVERSHOOT || (now - last).abs() < 1e-12 {
+                    if now / limit <= 1.0 + FORCE_OVERSHOOT {
                         1.0
                     } else {
                         ((limit - last) / (now - last)).clamp(0.0, 1.0)
@@ -148,13 +157,19 @@ impl World {
         if share >= 1.0 {
             return Ok(());
         }
+        // The moves as the physics took them (clamped to the device's speed and range).
+        let taken: Vec<f64> = before_moves
+            .iter()
+            .enumerate()
+            .map(|(i, &(inserted, _))| self.strand.inserted_m(i) - inserted)
+            .collect();
         for share in [share, 0.0] {
             self.strand = before.clone();
-            for (i, &(inserted, advance)) in advances.iter().enumerate() {
-                if advance == 0.0 {
+            for (i, &(inserted, scaled)) in before_moves.iter().enumerate() {
+                if !scaled {
                     continue;
                 }
-                let insertion = Insertion::Target(inserted + share * advance);
+                let insertion = Insertion::Target(inserted + share * taken[i]);
                 let twist = self.strand.command(i).twist;
                 self.strand
                     .set_command(i, cathlab_physics::Command { insertion, twist })?;
@@ -169,9 +184,11 @@ impl World {
 
     /// The command this step runs instead of the operator's for instrument `index` when a
     /// limit holds its push back (None: the operator's). The force limit looks at the last
-    /// step's proximal reaction: a push (or a pull) that met it holds the instrument where it
-    /// is (the hand pushes or pulls no harder), so it moves only as fast as the force allows.
-    /// Reports each new hold once.
+    /// step's proximal reaction: a push (or a pull) that met it, or a hold that something
+    /// else loads past it, gives way by the excess over the inserted length's axial
+    /// stiffness (at most [`MAX_GIVE_M`]; nothing at the limit itself: the hand pushes or
+    /// pulls no harder), so the instrument moves only as fast as the force allows. Reports
+    /// each new hold once.
     fn limited_command(
         &mut self,
         index: usize,

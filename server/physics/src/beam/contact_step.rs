@@ -222,8 +222,9 @@ fn same_plane(a: &Contact, b: &Contact) -> bool {
 }
 
 /// Forces of `old` contacts carried over to the same `new` ones (zero for the rest): the
-/// warm start of a repeated detection round. Each old force goes to one new contact, the one
-/// whose normal is nearest its own.
+/// warm start of a repeated detection round. Each old force goes to at most one new contact,
+/// the one whose normal is nearest its own (where two old ones choose the same new one, the
+/// later one's force is kept: a warm start only).
 fn carry_forces(new: &[Contact], old: &[Contact], forces: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
     let mut carried = vec![Vector3::zeros(); new.len()];
     for (o, f) in old.iter().zip(forces) {
