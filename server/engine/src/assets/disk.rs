@@ -46,13 +46,8 @@ impl DiskCache {
         }
     }
 
-    /// The file for an anatomy's `key`: the code's hash, then the parameters' (the full key
-    /// is inside).
-    fn file(&self, key: &str) -> PathBuf {
-        self.file_of("anatomy", key)
-    }
-
-    /// The file for an asset of `kind` (`anatomy`, `volume`) under `key`.
+    /// The file for an asset of `kind` (`anatomy`, `volume`) under `key`: the code's hash,
+    /// then the parameters' (the full key is inside).
     fn file_of(&self, kind: &str, key: &str) -> PathBuf {
         let mut h = DefaultHasher::new();
         key.hash(&mut h);
@@ -63,51 +58,59 @@ impl DiskCache {
         ))
     }
 
-    /// The CT volume stored under `key`, or `build`'s, then stored; as [`Self::anatomy`],
-    /// reading and writing never fail the load.
+    /// The CT volume stored under `key`, or `build`'s, then stored (see [`Self::cached`]).
     pub(super) fn volume(
         &self,
         key: &str,
         build: impl FnOnce() -> Result<Volume>,
     ) -> Result<Volume> {
-        let full_key = format!("{CODE_HASH}:{key}");
-        let file = self.file_of("volume", key);
-        let read = read_bytes(&file)
-            .and_then(|bytes| bytes.map(|b| decode_volume(&b, &full_key)).transpose());
-        match read {
-            Ok(Some(volume)) => {
-                if let Ok(f) = std::fs::OpenOptions::new().write(true).open(&file) {
-                    let _ = f.set_modified(SystemTime::now());
-                }
-                return Ok(volume);
-            }
-            Ok(None) => {}
-            Err(reason) => tracing::warn!(
-                file = %file.display(),
-                %reason,
-                "cached CT volume refused; building it again"
-            ),
-        }
-        let volume = build()?;
-        if let Err(e) = self.store(&file, &encode_volume(&volume, &full_key)) {
-            tracing::warn!(file = %file.display(), error = %e, "cannot write the disk cache");
-        }
-        Ok(volume)
+        self.cached(
+            "volume",
+            key,
+            |bytes, full_key, _| decode_volume(bytes, full_key),
+            |volume, full_key| Some(encode_volume(volume, full_key)),
+            build,
+        )
     }
 
-    /// The anatomy stored under `key`, or `build`'s, then stored. Reading and writing never
-    /// fail the load: a file that cannot be read is rebuilt, one that cannot be written is
-    /// logged.
+    /// The anatomy stored under `key`, or `build`'s, then stored (see [`Self::cached`]); an
+    /// implicit wall, rebuilt in milliseconds, is never stored.
     pub(super) fn anatomy(
         &self,
         key: &str,
         build: impl FnOnce() -> Result<Anatomy>,
     ) -> Result<Anatomy> {
+        self.cached(
+            "anatomy",
+            key,
+            |bytes, full_key, file| {
+                cathlab_anatomy::stored::decode(bytes, full_key, &file.display().to_string())
+                    .map_err(|e| e.to_string())
+            },
+            cathlab_anatomy::stored::encode,
+            build,
+        )
+    }
+
+    /// The asset of `kind` stored under `key` (read back by `decode`, which checks the full
+    /// key inside), or `build`'s, then stored as `encode` writes it (`None`: not stored).
+    /// Reading and writing never fail the load: a file that cannot be read is rebuilt, one
+    /// that cannot be written is logged.
+    fn cached<T>(
+        &self,
+        kind: &str,
+        key: &str,
+        decode: impl FnOnce(&[u8], &str, &Path) -> std::result::Result<T, String>,
+        encode: impl FnOnce(&T, &str) -> Option<Vec<u8>>,
+        build: impl FnOnce() -> Result<T>,
+    ) -> Result<T> {
         let full_key = format!("{CODE_HASH}:{key}");
-        let file = self.file(key);
+        let file = self.file_of(kind, key);
         let started = Instant::now();
-        match self.read(&file, &full_key) {
-            Ok(Some(anatomy)) => {
+        let read = read_bytes(&file)
+            .and_then(|bytes| bytes.map(|b| decode(&b, &full_key, &file)).transpose());
+        match read {
+            Ok(Some(asset)) => {
                 // Its time of use, for the eviction order.
                 if let Ok(f) = std::fs::OpenOptions::new().write(true).open(&file) {
                     let _ = f.set_modified(SystemTime::now());
@@ -115,41 +118,24 @@ impl DiskCache {
                 tracing::info!(
                     file = %file.display(),
                     seconds = started.elapsed().as_secs_f64(),
-                    "anatomy read from the disk cache"
+                    "{kind} read from the disk cache"
                 );
-                return Ok(anatomy);
+                return Ok(asset);
             }
             Ok(None) => {}
             Err(reason) => tracing::warn!(
                 file = %file.display(),
                 %reason,
-                "cached anatomy refused; building it again"
+                "cached {kind} refused; building it again"
             ),
         }
-        let anatomy = build()?;
-        if let Err(e) = self.write(&file, &full_key, &anatomy) {
+        let asset = build()?;
+        if let Some(bytes) = encode(&asset, &full_key)
+            && let Err(e) = self.store(&file, &bytes)
+        {
             tracing::warn!(file = %file.display(), error = %e, "cannot write the disk cache");
         }
-        Ok(anatomy)
-    }
-
-    /// `Ok(None)` when there is no file.
-    fn read(&self, file: &Path, full_key: &str) -> std::result::Result<Option<Anatomy>, String> {
-        let Some(bytes) = read_bytes(file)? else {
-            return Ok(None);
-        };
-        cathlab_anatomy::stored::decode(&bytes, full_key, &file.display().to_string())
-            .map(Some)
-            .map_err(|e| e.to_string())
-    }
-
-    /// Writes `anatomy` to `file` (see [`Self::store`]).
-    fn write(&self, file: &Path, full_key: &str, anatomy: &Anatomy) -> std::io::Result<()> {
-        let Some(bytes) = cathlab_anatomy::stored::encode(anatomy, full_key) else {
-            // An implicit wall: rebuilt in milliseconds, never stored.
-            return Ok(());
-        };
-        self.store(file, &bytes)
+        Ok(asset)
     }
 
     /// Writes beside the file and renames it into place (a reader sees the whole file or
@@ -400,7 +386,7 @@ mod tests {
         cache.anatomy("y2", || build(&mut builds)).unwrap();
         assert_eq!(builds, 2);
         // A damaged file is rebuilt (and replaced).
-        let file = cache.file("y");
+        let file = cache.file_of("anatomy", "y");
         let mut bytes = std::fs::read(&file).unwrap();
         let mid = bytes.len() / 2;
         bytes[mid] ^= 0x40;
@@ -467,7 +453,9 @@ mod tests {
         let one = {
             let cache = DiskCache::new(&dir, u64::MAX);
             cache.anatomy("a", || build(&mut builds)).unwrap();
-            std::fs::metadata(cache.file("a")).unwrap().len()
+            std::fs::metadata(cache.file_of("anatomy", "a"))
+                .unwrap()
+                .len()
         };
         // Room for two files: a third removes the least recently used.
         let cache = DiskCache::new(&dir, 2 * one + one / 2);
@@ -479,9 +467,9 @@ mod tests {
         assert_eq!(builds, 2);
         std::thread::sleep(std::time::Duration::from_millis(20));
         cache.anatomy("c", || build(&mut builds)).unwrap();
-        assert!(cache.file("a").exists() && cache.file("c").exists());
+        assert!(cache.file_of("anatomy", "a").exists() && cache.file_of("anatomy", "c").exists());
         assert!(
-            !cache.file("b").exists(),
+            !cache.file_of("anatomy", "b").exists(),
             "the least recently used file is removed"
         );
         let _ = std::fs::remove_dir_all(&dir);
