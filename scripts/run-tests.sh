@@ -8,7 +8,10 @@
 # TEST_JOBS defaults to 1: on the 2-core reference machine three at a time made the whole
 # run slower, not faster (engine/scenes 190 → 453 s, tests/thrombectomy 103 → 1,308 s: the
 # CPU-bound binaries share two cores, and the end-to-end server under load runs behind
-# real time). Larger machines may set it higher.
+# real time). Larger machines may set it higher. The binaries named in `light` below keep
+# about one core busy or less (one long single-threaded test, or a server waited on in real
+# time, with no assertion about time): after the others they run 2 × TEST_JOBS at a time,
+# longest first (the 2-core machine's run: 282 s of them one at a time).
 #
 #   scripts/run-tests.sh            (TEST_JOBS binaries at once, default 1)
 #   TEST_ONLY='^physics/' scripts/run-tests.sh   only the binaries whose name matches (grep -E)
@@ -19,6 +22,13 @@ cd "$(dirname "$0")/.."
 jobs="${TEST_JOBS:-1}"
 # Test binaries whose assertions are about time: run alone, after the others.
 alone=" tests/attack tests/haptic_bridge tests/haptic_latency(bench) tests/load_smoke tests/soak_smoke tests/web_client "
+# Binaries that use about one core or less and assert nothing about time, longest first
+# (their wall seconds alone on the 2-core machine): run two at a time after the others.
+light="tests/deployment tests/thrombectomy imaging/surface_centerlines tests/server
+  physics/coaxial(bench) engine/stress(bench) xray/frame(bench) engine/surface_scene
+  xray/golden engine/segmented_scene engine/iliac(bench) imaging/segment(bench)
+  tests/assessment physics/substructure physics/charts(bench)"
+light=" $(echo $light) "
 
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
@@ -50,7 +60,7 @@ node -e '
     const name = `${require("path").basename(dir)}/${target}`;
     console.log([name, dir, m.executable].join("\t"));
   }' "$work/artifacts.json" | grep -E -- "${TEST_ONLY:-.}" >"$work/list.tsv" || true
-echo "-- $(wc -l <"$work/list.tsv") test binaries, $jobs at a time, then those that measure time alone"
+echo "-- $(wc -l <"$work/list.tsv") test binaries, $jobs at a time, the light ones $((2 * jobs)) at a time, then those that measure time alone"
 
 key() { echo "${1//\//__}"; } # a file name for a binary's name
 
@@ -113,10 +123,19 @@ wait_for_slot() { # reports every finished binary; returns when fewer than $1 ru
 }
 
 while IFS=$'\t' read -r name dir exe; do
-  case "$alone" in *" $name "*) continue ;; esac
+  case "$alone$light" in *" $name "*) continue ;; esac
   wait_for_slot "$jobs"
   run_one "$name" "$dir" "$exe" &
 done <"$work/list.tsv"
+wait
+wait_for_slot 1
+for want in $light; do
+  while IFS=$'\t' read -r name dir exe; do
+    [ "$name" = "$want" ] || continue
+    wait_for_slot $((2 * jobs))
+    run_one "$name" "$dir" "$exe" &
+  done <"$work/list.tsv"
+done
 wait
 wait_for_slot 1
 while IFS=$'\t' read -r name dir exe; do
@@ -125,7 +144,7 @@ while IFS=$'\t' read -r name dir exe; do
   report "$(key "$name")"
 done <"$work/list.tsv"
 
-echo "-- the ten slowest test binaries (wall and CPU seconds; the first group ran $jobs at a time)"
+echo "-- the ten slowest test binaries (wall and CPU seconds; the first group ran $jobs at a time, the light ones $((2 * jobs)))"
 sort -rn "$work/times" | head -10 | awk '{ printf "  %8.1f s  %8.1f s CPU  %s\n", $1, $2, $3 }'
 awk '{ w += $1; c += $2 } END { printf "-- all %d binaries: %.0f s wall, %.0f s CPU\n", NR, w, c }' "$work/times"
 if [ -s "$work/failed" ]; then
