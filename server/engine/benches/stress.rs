@@ -57,7 +57,7 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
         }
         if !r.hands_within_limits() {
             println!(
-                "    run {i}: a hand felt {:.1} N, past its {:.0} N",
+                "    run {i}: a hand felt {:.3} N, past its {:.0} N",
                 r.worst_hand_force_n, r.hand_limit_n
             );
         }

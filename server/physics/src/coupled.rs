@@ -705,7 +705,10 @@ pub fn coupled_gauss_seidel(
                 unit[j] = Vector3::x();
                 normal_displacements(&prepared, flexibilities, &unit)
             };
-            if !active_set_normals(&c, column, &mut local, |k| contacts[k].friction) {
+            let mut columns = vec![None; contacts.len()];
+            if !active_set_normals(&c, column, &mut columns, &mut local, |k| {
+                contacts[k].friction
+            }) {
                 break;
             }
             // Where each lumen point settled: pressed ones belong on their circles, the others

@@ -46,8 +46,8 @@ pub struct FidelitySpec {
 pub enum ContactSolver {
     /// Semismooth Newton on the Delassus matrix.
     Newton,
-    /// Projected Gauss–Seidel with Anderson acceleration and the active-set polish (the
-    /// default until Newton is faster on the bundled scenes).
+    /// Projected Gauss–Seidel with the active-set polish of the normal forces (the default
+    /// until Newton is faster on the bundled scenes).
     #[default]
     GaussSeidel,
 }

@@ -87,6 +87,10 @@ pub(super) struct Hand {
     pub(super) limit_armed: bool,
     pub(super) push_free_since_s: f64,
     pub(super) reaction: HandReaction,
+    /// How fast its force rose with its own instrument's advance in the last step the force
+    /// guard watched (N/m; `None` before one, or where it fell): the share of a move that keeps
+    /// the hand at its limit is predicted from it, so a push held at the limit steps once.
+    pub(super) stiffness_n_per_m: Option<f64>,
 }
 
 impl Hand {
@@ -104,6 +108,7 @@ impl Hand {
             limit_armed: true,
             push_free_since_s: 0.0,
             reaction: HandReaction::default(),
+            stiffness_n_per_m: None,
         }
     }
 }

@@ -19,6 +19,13 @@ use crate::strand::Strand;
 /// instrument is guarded ([`World::step_within_force_limits`]).
 const FORCE_GUARD_FRACTION: f64 = 0.25;
 
+/// The least advance of an instrument (m) from which its hand's stiffness is learnt.
+const MIN_LEARNING_MOVE_M: f64 = 1e-7;
+
+/// How far under its limit a hand that gives way aims (a fraction of the limit): half the
+/// overshoot a step may leave.
+const GIVE_UNDERSHOOT: f64 = FORCE_OVERSHOOT / 2.0;
+
 /// The most a hand held past its strength gives way in one step (m).
 const MAX_GIVE_M: f64 = 0.5e-3;
 
@@ -92,13 +99,16 @@ impl World {
     /// again with the moves that load the hands scaled by the share the force allows (the
     /// force taken as linear in the move, between the last reaction and this step's, for the
     /// hand that allows least), and if that is still too far, without them. A hand already
-    /// past its limit gives way (`limited_command`); its move is never scaled. What the held
-    /// step leaves is accepted: other forces (a twist, a settling shape) may still load a hand.
-    /// `moves` are the insertions this step runs.
+    /// past its limit gives way (`limited_command`); its move is never scaled, and the others'
+    /// moves may not load it further (in a merged stack the guide's hand feels the
+    /// microcatheter pushed). The first try already takes the share each hand's stiffness
+    /// learnt in the last guarded step allows, so a push held at its limit is stepped once, not
+    /// twice. What the held step leaves is accepted: other forces (a twist, a settling shape)
+    /// may still load a hand. `moves` are the insertions this step runs.
     fn step_within_force_limits(&mut self, moves: &[Insertion], dt: f64) -> Result<()> {
-        // Per instrument: inserted before (m) and whether its move is scaled in a retake
-        // (it moves, and its hand is within its limit: not giving way).
-        let before_moves: Vec<(f64, bool)> = moves
+        // Per instrument: inserted before (m), its move this step (m) and whether the move is
+        // scaled in a retake (it moves, and its hand is within its limit: not giving way).
+        let before_moves: Vec<(f64, f64, bool)> = moves
             .iter()
             .enumerate()
             .map(|(i, insertion)| {
@@ -110,7 +120,7 @@ impl World {
                 let hand = &self.hands[i];
                 let last = hand.reaction.axial_force_n;
                 let within = last < hand.limits.force_n && -last < hand.limits.pull_force_n;
-                (inserted, advance != 0.0 && within)
+                (inserted, advance, advance != 0.0 && within)
             })
             .collect();
         // Per hand: its limits as signed forces (push, pull) and its last reaction (N).
@@ -125,7 +135,7 @@ impl World {
                 )
             })
             .collect();
-        let moving = before_moves.iter().any(|&(_, scaled)| scaled);
+        let moving = before_moves.iter().any(|&(_, _, scaled)| scaled);
         let near = hands.iter().any(|&(push, pull, last)| {
             last / push >= FORCE_GUARD_FRACTION || last / pull >= FORCE_GUARD_FRACTION
         });
@@ -133,6 +143,24 @@ impl World {
             return Ok(self.strand.step()?);
         }
         let before = self.strand.clone();
+        // The share of the moves the hands' last stiffness allows: the first try.
+        let predicted = before_moves
+            .iter()
+            .zip(&self.hands)
+            .filter(|&(&(_, _, scaled), _)| scaled)
+            .filter_map(|(&(_, advance, _), hand)| {
+                let limit = if advance > 0.0 {
+                    hand.limits.force_n
+                } else {
+                    -hand.limits.pull_force_n
+                };
+                let room = limit - hand.reaction.axial_force_n;
+                Some((room / hand.stiffness_n_per_m? / advance).clamp(0.0, 1.0))
+            })
+            .fold(1.0, f64::min);
+        if predicted < 1.0 {
+            self.scale_moves(&before_moves, |_, advance| predicted * advance)?;
+        }
         self.strand.step()?;
         // The share of this step's loading moves that keeps every hand that was within its
         // limit there (1: all).
@@ -141,45 +169,83 @@ impl World {
             hands
                 .iter()
                 .zip(&reactions)
-                .filter(|&(&(push, pull, last), _)| last < push && last > pull)
                 .map(|(&(push, pull, last), r)| {
                     let now = r.axial_force_n;
                     let limit = if now >= 0.0 { push } else { pull };
                     if now / limit <= 1.0 + FORCE_OVERSHOOT {
                         1.0
-                    } else {
+                    } else if last / limit < 1.0 {
+                        // Within its limit before: the share that meets it, linearly.
                         ((limit - last) / (now - last)).clamp(0.0, 1.0)
+                    } else if now / limit <= last / limit {
+                        // Past it and giving way: the others' moves may not load it further.
+                        1.0
+                    } else {
+                        0.0
                     }
                 })
                 .fold(1.0, f64::min)
         };
         let share = allowed(&mut self.strand);
         if share >= 1.0 {
+            self.learn_hand_stiffness(&before_moves);
             return Ok(());
         }
         // The moves as the physics took them (clamped to the device's speed and range).
         let taken: Vec<f64> = before_moves
             .iter()
             .enumerate()
-            .map(|(i, &(inserted, _))| self.strand.inserted_m(i) - inserted)
+            .map(|(i, &(inserted, _, _))| self.strand.inserted_m(i) - inserted)
             .collect();
         for share in [share, 0.0] {
             self.strand = before.clone();
-            for (i, &(inserted, scaled)) in before_moves.iter().enumerate() {
-                if !scaled {
-                    continue;
-                }
-                let insertion = Insertion::Target(inserted + share * taken[i]);
-                let twist = self.strand.command(i).twist;
-                self.strand
-                    .set_command(i, cathlab_physics::Command { insertion, twist })?;
-            }
+            self.scale_moves(&before_moves, |i, _| share * taken[i])?;
             self.strand.step()?;
             if share == 0.0 || allowed(&mut self.strand) >= 1.0 {
                 break;
             }
         }
+        self.learn_hand_stiffness(&before_moves);
         Ok(())
+    }
+
+    /// Sets each scaled instrument's insertion this step to `move_m(instrument, planned
+    /// advance)` beyond where it was (`before_moves` as in `step_within_force_limits`).
+    fn scale_moves(
+        &mut self,
+        before_moves: &[(f64, f64, bool)],
+        move_m: impl Fn(usize, f64) -> f64,
+    ) -> Result<()> {
+        for (i, &(inserted, advance, scaled)) in before_moves.iter().enumerate() {
+            if scaled {
+                let insertion = Insertion::Target(inserted + move_m(i, advance));
+                let twist = self.strand.command(i).twist;
+                self.strand
+                    .set_command(i, cathlab_physics::Command { insertion, twist })?;
+            }
+        }
+        Ok(())
+    }
+
+    /// After a step the force guard watched: each hand's force change over its instrument's
+    /// advance (N/m; forgotten where the force did not rise with the advance, kept where the
+    /// instrument hardly moved).
+    fn learn_hand_stiffness(&mut self, before_moves: &[(f64, f64, bool)]) {
+        let (_, reactions) = self.strand.reactions();
+        for (i, ((hand, r), &(inserted, _, _))) in self
+            .hands
+            .iter_mut()
+            .zip(&reactions)
+            .zip(before_moves)
+            .enumerate()
+        {
+            let moved = self.strand.inserted_m(i) - inserted;
+            if moved.abs() < MIN_LEARNING_MOVE_M {
+                continue;
+            }
+            let k = (r.axial_force_n - hand.reaction.axial_force_n) / moved;
+            hand.stiffness_n_per_m = (k.is_finite() && k > 0.0).then_some(k);
+        }
     }
 
     /// The command this step runs instead of the operator's for instrument `index` when a
@@ -209,19 +275,25 @@ impl World {
         let pulled_too_hard = advance <= 0.0 && -force >= limits.pull_force_n;
         let pushed_too_hard = advance >= 0.0 && force >= limits.force_n;
         // A hand held past its strength gives way: back (or forward, pulling) by the excess
-        // over the inserted length's axial stiffness, the least that relieves it.
+        // over its stiffness (the one learnt in the last guarded step, where softer than the
+        // inserted length's axial stiffness), aiming [`GIVE_UNDERSHOOT`] under the limit so
+        // that the others' moves in the same step do not take it past.
         let axial_stiffness = self
             .strand
             .device(index)
             .and_then(|d| d.sections.first())
             .map_or(f64::INFINITY, |s| s.beam_properties().axial_stiffness_n)
             / inserted.max(1e-3);
-        let give = |excess: f64| (excess.max(0.0) / axial_stiffness).min(MAX_GIVE_M);
+        let stiffness = hand
+            .stiffness_n_per_m
+            .map_or(axial_stiffness, |k| k.min(axial_stiffness));
+        let give = |excess: f64| (excess.max(0.0) / stiffness).min(MAX_GIVE_M);
+        let aim = 1.0 - GIVE_UNDERSHOOT;
         let (limit, insertion) = if pulled_too_hard {
-            let to = inserted + give(-force - limits.pull_force_n);
+            let to = inserted + give(-force - aim * limits.pull_force_n);
             (PushLimit::Force, Some(Insertion::Target(to)))
         } else if advance == 0.0 && pushed_too_hard {
-            let to = inserted - give(force - limits.force_n);
+            let to = inserted - give(force - aim * limits.force_n);
             (PushLimit::Force, Some(Insertion::Target(to)))
         } else if advance <= 0.0 {
             (PushLimit::None, None)
@@ -231,7 +303,7 @@ impl World {
                 Some(Insertion::Target(limits.max_inserted_m.max(inserted))),
             )
         } else if pushed_too_hard {
-            let to = inserted - give(force - limits.force_n);
+            let to = inserted - give(force - aim * limits.force_n);
             (PushLimit::Force, Some(Insertion::Target(to)))
         } else if let Some(cap) = cap
             && advance > cap * dt

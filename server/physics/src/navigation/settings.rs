@@ -90,7 +90,7 @@ impl Default for NavigationSettings {
                 relaxation: 1.0,
                 detection_rounds: 4,
                 penetration_tolerance_m: 0.01e-3,
-                acceleration_depth: 5,
+                acceleration_depth: 0,
                 polish: true,
                 ..ContactSettings::default()
             },
