@@ -13,7 +13,7 @@ use super::hand::{FORCE_OVERSHOOT, LIMIT_REARM_S, PushLimit, start_hands};
 use super::tips::{MAX_ESCAPE_M, tracked_tip};
 use crate::error::Result;
 use crate::metrics::EventKind;
-use crate::strand::Strand;
+use crate::strand::{HandReaction, Strand};
 
 /// While any hand's last reaction is at least this share of its limit, a step that moves an
 /// instrument is guarded ([`World::step_within_force_limits`]).
@@ -164,11 +164,10 @@ impl World {
         self.strand.step()?;
         // The share of this step's loading moves that keeps every hand that was within its
         // limit there (1: all).
-        let allowed = |strand: &mut Strand| -> f64 {
-            let (_, reactions) = strand.reactions();
+        let allowed = |reactions: &[HandReaction]| -> f64 {
             hands
                 .iter()
-                .zip(&reactions)
+                .zip(reactions)
                 .map(|(&(push, pull, last), r)| {
                     let now = r.axial_force_n;
                     let limit = if now >= 0.0 { push } else { pull };
@@ -186,26 +185,27 @@ impl World {
                 })
                 .fold(1.0, f64::min)
         };
-        let share = allowed(&mut self.strand);
-        if share >= 1.0 {
-            self.learn_hand_stiffness(&before_moves);
-            return Ok(());
-        }
-        // The moves as the physics took them (clamped to the device's speed and range).
-        let taken: Vec<f64> = before_moves
-            .iter()
-            .enumerate()
-            .map(|(i, &(inserted, _, _))| self.strand.inserted_m(i) - inserted)
-            .collect();
-        for share in [share, 0.0] {
-            self.strand = before.clone();
-            self.scale_moves(&before_moves, |i, _| share * taken[i])?;
-            self.strand.step()?;
-            if share == 0.0 || allowed(&mut self.strand) >= 1.0 {
-                break;
+        // The hands' reactions after the step taken last (computed once a step).
+        let mut reactions = self.strand.reactions().1;
+        let share = allowed(&reactions);
+        if share < 1.0 {
+            // The moves as the physics took them (clamped to the device's speed and range).
+            let taken: Vec<f64> = before_moves
+                .iter()
+                .enumerate()
+                .map(|(i, &(inserted, _, _))| self.strand.inserted_m(i) - inserted)
+                .collect();
+            for share in [share, 0.0] {
+                self.strand = before.clone();
+                self.scale_moves(&before_moves, |i, _| share * taken[i])?;
+                self.strand.step()?;
+                reactions = self.strand.reactions().1;
+                if share == 0.0 || allowed(&reactions) >= 1.0 {
+                    break;
+                }
             }
         }
-        self.learn_hand_stiffness(&before_moves);
+        self.learn_hand_stiffness(&before_moves, &reactions);
         Ok(())
     }
 
@@ -227,15 +227,18 @@ impl World {
         Ok(())
     }
 
-    /// After a step the force guard watched: each hand's force change over its instrument's
-    /// advance (N/m; forgotten where the force did not rise with the advance, kept where the
+    /// After a step the force guard watched (`reactions`: the hands' after it): each hand's
+    /// force change over its instrument's advance (N/m; forgotten where the force did not rise with the advance, kept where the
     /// instrument hardly moved).
-    fn learn_hand_stiffness(&mut self, before_moves: &[(f64, f64, bool)]) {
-        let (_, reactions) = self.strand.reactions();
+    fn learn_hand_stiffness(
+        &mut self,
+        before_moves: &[(f64, f64, bool)],
+        reactions: &[HandReaction],
+    ) {
         for (i, ((hand, r), &(inserted, _, _))) in self
             .hands
             .iter_mut()
-            .zip(&reactions)
+            .zip(reactions)
             .zip(before_moves)
             .enumerate()
         {
