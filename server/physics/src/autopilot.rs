@@ -68,6 +68,13 @@ pub struct AutopilotSettings {
     pub stall_slack_m: f64,
     /// After this many stalls the pilot gives up and holds ([`AutopilotPhase::Stalled`]).
     pub max_stalls: usize,
+    /// How many of the re-aim offsets the retries go round (4: straight, a quarter turn
+    /// either way, the opposite side; up to 8: the eighth turns between).
+    pub aims: usize,
+    /// After straying, back out as far as the tip went into the side branch before the
+    /// `retreat_m`, not `retreat_m` alone: a tip 17 mm into a branch then leaves it, where
+    /// pulled back 15 mm it stayed in and every aim tried took the same branch again.
+    pub retreat_out_of_branch: bool,
 }
 
 impl Default for AutopilotSettings {
@@ -81,6 +88,8 @@ impl Default for AutopilotSettings {
             route_spacing_m: 1e-3,
             stall_slack_m: 0.15,
             max_stalls: 3,
+            aims: 4,
+            retreat_out_of_branch: false,
         }
     }
 }
@@ -99,12 +108,17 @@ pub enum AutopilotPhase {
 }
 
 /// Re-aim offsets tried on successive retries (rad): straight at the route, then a quarter
-/// turn either way, then the opposite side.
-const RETRY_AIM_OFFSETS_RAD: [f64; 4] = [
+/// turn either way, then the opposite side; then the eighth turns between (the first
+/// [`AutopilotSettings::aims`] of them are used).
+const RETRY_AIM_OFFSETS_RAD: [f64; 8] = [
     0.0,
     std::f64::consts::FRAC_PI_2,
     -std::f64::consts::FRAC_PI_2,
     std::f64::consts::PI,
+    std::f64::consts::FRAC_PI_4,
+    -std::f64::consts::FRAC_PI_4,
+    3.0 * std::f64::consts::FRAC_PI_4,
+    -3.0 * std::f64::consts::FRAC_PI_4,
 ];
 
 /// Steers a [`Navigation`] along a [`VesselPath`].
@@ -262,7 +276,8 @@ impl<'g> Autopilot<'g> {
             && wanted.norm() > 0.05
         {
             let error = bend.cross(&wanted).dot(&axis).atan2(bend.dot(&wanted));
-            let offset = RETRY_AIM_OFFSETS_RAD[self.retries % RETRY_AIM_OFFSETS_RAD.len()];
+            let aims = self.settings.aims.clamp(1, RETRY_AIM_OFFSETS_RAD.len());
+            let offset = RETRY_AIM_OFFSETS_RAD[self.retries % aims];
             self.twist_target_rad = navigation.twist_rad() + error + offset;
         }
 
@@ -275,7 +290,12 @@ impl<'g> Autopilot<'g> {
             // stall.
             self.pushed_since_m = 0.0;
             self.phase = AutopilotPhase::Retreating;
-            self.retreat_until_m = navigation.inserted_m() - self.settings.retreat_m;
+            let into_branch = if self.settings.retreat_out_of_branch {
+                location.arc_length
+            } else {
+                0.0
+            };
+            self.retreat_until_m = navigation.inserted_m() - into_branch - self.settings.retreat_m;
             self.retries += 1;
         }
         // Stalled: pushed in `stall_slack_m` (forward motion summed) since the tip last got a

@@ -126,6 +126,14 @@ pub enum PhysicsError {
     },
 }
 
+impl PhysicsError {
+    /// Whether this is a step that failed a divergence check (and left the state as it was):
+    /// one a smaller step may pass.
+    pub fn is_divergence(&self) -> bool {
+        matches!(self, PhysicsError::Diverged { .. })
+    }
+}
+
 /// The divergence check that tripped (see [`PhysicsError::Diverged`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum DivergenceCheck {

@@ -349,16 +349,21 @@ pub struct CoaxialPlan {
     /// Microcatheter and microwire sent through the catheter at the end, and how far beyond
     /// the catheter's tip the microcatheter goes (m).
     pub micro: Option<(crate::device::Device, crate::device::Device, f64)>,
+    /// Where along the route the instruments enter (m from the femoral access): 0, or the
+    /// tip of a guide parked further up.
+    pub start_along_m: f64,
     /// Give up after this many steps.
     pub max_steps: usize,
 }
 
 impl CoaxialPlan {
-    /// The two-hand plans, both from the femoral access with a 5 F catheter (45° tip)
-    /// following 50 mm behind a shaped 0.035" wire, then a 0.017" microcatheter over a 0.014"
-    /// microwire 30 mm beyond the catheter's tip:
-    /// - `LCCA`: the 90°-over-30 mm wire of the single-wire plan all the way;
-    /// - `RVA`: that wire, aimed 50 mm ahead, into the brachiocephalic trunk; the catheter
+    /// The two-hand plans, with a 5 F catheter (45° tip) following 50 mm behind a shaped
+    /// 0.035" wire, then a 0.017" microcatheter over a 0.014" microwire 30 mm beyond the
+    /// catheter's tip:
+    /// - `LCCA`: from the femoral access, the 90°-over-30 mm wire of the single-wire plan all
+    ///   the way (eight aims, backing out of a side branch before each);
+    /// - `RVA`: from the arch at the left common carotid's origin (as the single-wire plan),
+    ///   that wire, aimed 50 mm ahead, into the brachiocephalic trunk; the catheter
     ///   tracked over it to 15 mm behind its tip; the wire withdrawn and exchanged for the
     ///   90°-over-10 mm wire of the single-wire RVA plan, which leaves the parked catheter
     ///   and selects the vertebral while the catheter follows.
@@ -405,9 +410,23 @@ impl CoaxialPlan {
                     ..arch.autopilot
                 }
             } else {
-                single.autopilot
+                // Eight aims, backing out of a side branch before the next (with four, each
+                // pulled back 15 mm, the wire took the left subclavian at every aim with the
+                // catheter behind it once the contacts' normals followed the wall distance's
+                // gradient where the surface's interpolated normals stray from it).
+                crate::autopilot::AutopilotSettings {
+                    aims: 8,
+                    retreat_out_of_branch: true,
+                    ..single.autopilot
+                }
             },
             micro: Some((micro_catheter(), micro_guidewire_014(), 0.03)),
+            // As the single-wire plan: to the vertebral from the arch at the left common
+            // carotid's origin (a guide parked there). From the femoral access the wide bend
+            // took the left subclavian or the left carotid at every aim once the contacts'
+            // normals followed the wall distance's gradient where the surface's interpolated
+            // normals stray from it (under those alone it found the trunk after five tries).
+            start_along_m: single.start_along_m,
             max_steps: 60_000,
         })
     }
@@ -444,11 +463,11 @@ pub struct CoaxialRun {
     pub micro_done_at_step: Option<usize>,
     /// Steps taken.
     pub steps: usize,
-    /// Worst penetration into the wall over all steps, of the collision points the contacts
-    /// resolve (m).
+    /// Worst penetration into the wall over all steps, of each instrument's shaft alone (a
+    /// catheter's rim with the radius of the instrument going on; m).
     pub worst_penetration_m: f64,
-    /// Worst penetration with each catheter's rim at its own radius (m): the rims are not yet
-    /// in the contacts.
+    /// Worst penetration with each catheter's rim at its own radius, as the contacts see it
+    /// (m).
     pub worst_rim_penetration_m: f64,
     /// Wall-clock time of every step (s).
     pub step_times_s: Vec<f64>,
@@ -488,9 +507,15 @@ pub fn coaxial_arch_to_cow_stack<'a>(
         .graph
         .path_to(&access, &plan.target)
         .map_err(|e| crate::error::PhysicsError::Anatomy(e.to_string()))?;
-    let mut hands = TwoHands::new(&anatomy.graph, path.clone(), 0.0, plan.two_hand_plan())?;
+    let mut hands = TwoHands::new(
+        &anatomy.graph,
+        path.clone(),
+        plan.start_along_m,
+        plan.two_hand_plan(),
+    )?;
     let (entry, direction) =
-        crate::autopilot::Autopilot::new(&anatomy.graph, path, 0.0, plan.autopilot)?.entry();
+        crate::autopilot::Autopilot::new(&anatomy.graph, path, plan.start_along_m, plan.autopilot)?
+            .entry();
     let settings = NavigationSettings::default();
     let mut stack = Stack::new(
         vec![

@@ -3,6 +3,7 @@
 //! conditions checked on the result, the analytic stick/slip threshold of a pressed wire, and
 //! the coupled (several-chain) solver against its explicit Delassus matrix.
 
+use cathlab_physics::contact::newton::residual;
 use cathlab_physics::contact::{
     Contact, ContactMethod, ContactSettings, POLISH_EVERY, delassus_problem, dense_reference,
     gauss_seidel, newton_solve, solve_local,
@@ -113,7 +114,8 @@ proptest! {
     /// The Delassus matrix assembled from the flexibility blocks equals `H K⁻¹ Hᵀ` from a dense
     /// inverse, and the semismooth Newton solve on it reaches the explicit-Delassus
     /// Gauss–Seidel's solution (to 1e-6 of the largest force) wherever that converged, on the
-    /// same random problems as above.
+    /// same random problems as above; where friction leaves more than one solution, both
+    /// satisfy the contact law to 1e-6 of the largest force.
     #[test]
     fn newton_equals_the_explicit_delassus_solve(
         elements in 4usize..30,
@@ -145,8 +147,23 @@ proptest! {
         let (a, b) = (lambda(&newton.local), lambda(&dense.local));
         let reach = delta_free.amax().max(contacts.iter().map(|c| c.gap.abs()).fold(0.0, f64::max));
         let moved = (&w * (&a - &b)).amax();
-        prop_assert!(moved <= 1e-6 * reach, "contact displacements differ by {moved} m (scale {reach} m)");
-        let regular = w.clone().symmetric_eigenvalues().min() > 1e-9 * w_scale;
+        let force_scale = a.amax().max(b.amax()).max(1e-12);
+        if moved > 1e-6 * reach {
+            // Coulomb friction on coupled contacts need not have one solution (two contacts
+            // on one element, one sliding, the other sticking or not: the regression file's
+            // case). Then both must be solutions, each to its own residual; without friction
+            // the solution is unique.
+            let (newton_residual, dense_residual) = (residual(&problem, &newton.local), residual(&problem, &dense.local));
+            prop_assert!(
+                with_friction && newton_residual <= 1e-6 * force_scale && dense_residual <= 1e-6 * force_scale,
+                "contact displacements differ by {moved} m (scale {reach} m); residuals {newton_residual:e} and {dense_residual:e} N (scale {force_scale:e} N)"
+            );
+            return Ok(());
+        }
+        // The forces follow from the displacements to W's condition number: compared where
+        // that is at most 1e6 (at 1e9 a case's forces differed by 2e-6 of the largest with
+        // both solves converged).
+        let regular = w.clone().symmetric_eigenvalues().min() > 1e-6 * w_scale;
         if regular {
             let scale = b.amax().max(1e-12);
             prop_assert!((&a - &b).amax() <= 1e-6 * scale, "forces differ by {} (scale {scale})", (&a - &b).amax());

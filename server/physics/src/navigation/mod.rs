@@ -22,6 +22,7 @@ pub use command::{Command, Insertion, Twist};
 pub(crate) use detection::{
     ClearanceCache, Sample, detect, material_of, push_element_samples, warm_start,
 };
+pub(crate) use settings::solver_settings;
 pub(crate) use settings::spacing;
 pub use settings::{Effort, MAX_SUBSTEP_DEPTH, NavigationSettings, Refinement};
 pub use state::Navigation;

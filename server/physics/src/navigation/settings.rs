@@ -2,6 +2,7 @@
 //! work caps an overload governor lowers ([`Effort`]); and the node spacing they give along a
 //! device.
 
+use crate::beam::{SolverSettings, StepMode, ViscousDrag};
 use crate::contact::ContactSettings;
 use crate::error::{PhysicsError, Result};
 
@@ -166,6 +167,31 @@ impl Effort {
     /// The deepest step halving allowed, at most `ceiling`.
     pub fn substep_depth(&self, ceiling: usize) -> usize {
         self.max_substep_depth.min(ceiling)
+    }
+}
+
+/// The beam solver settings of a navigated device or strand, for a solve that covers
+/// `fraction` of a time step (1 for a whole step, ½ⁿ for a step halved n times): the drag's
+/// time step and the caps on a solve's free motion scale with it, so that a halved step moves
+/// the device half as far where it springs back (a loop releasing, a buckled wire snapping
+/// straight), not only where it is pushed. Before, the halves each kept the whole step's drag
+/// and caps, and a step halved three times to stay out of the wall took its elastic recoil
+/// eight times over.
+pub(crate) fn solver_settings(settings: &NavigationSettings, fraction: f64) -> SolverSettings {
+    SolverSettings {
+        mode: StepMode::PAPER,
+        geometric_stiffness: true,
+        compute_flexibility: true,
+        drag: (settings.drag_n_s_per_m2 > 0.0).then_some(ViscousDrag {
+            per_length_n_s_per_m2: settings.drag_n_s_per_m2,
+            time_step_s: settings.time_step_s * fraction,
+        }),
+        max_step_increment: Some((
+            settings.max_step_m * fraction,
+            settings.max_step_rad * fraction,
+        )),
+        geometric_stiffness_in_compression: false,
+        max_substep_halvings: 0,
     }
 }
 

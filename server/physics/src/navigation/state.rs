@@ -6,8 +6,8 @@ use nalgebra::{UnitQuaternion, Vector3, Vector6};
 
 use super::command::{Command, Insertion, Twist};
 use super::detection::ClearanceCache;
-use super::settings::{Effort, NavigationSettings, spacing};
-use crate::beam::{BeamModel, ContactStep, ElementSpec, SolverSettings, StepMode, ViscousDrag};
+use super::settings::{Effort, NavigationSettings, solver_settings, spacing};
+use crate::beam::{BeamModel, ContactStep, ElementSpec};
 use crate::contact::ContactSettings;
 use crate::device::Device;
 use crate::error::{PhysicsError, Result, require_finite, require_positive};
@@ -115,18 +115,7 @@ impl<W: Wall> Navigation<W> {
             &specs,
             entry_position,
             entry_rotation,
-            SolverSettings {
-                mode: StepMode::PAPER,
-                geometric_stiffness: true,
-                compute_flexibility: true,
-                drag: (settings.drag_n_s_per_m2 > 0.0).then_some(ViscousDrag {
-                    per_length_n_s_per_m2: settings.drag_n_s_per_m2,
-                    time_step_s: settings.time_step_s,
-                }),
-                max_step_increment: Some((settings.max_step_m, settings.max_step_rad)),
-                geometric_stiffness_in_compression: false,
-                max_substep_halvings: 0,
-            },
+            solver_settings(&settings, 1.0),
         )?;
         Ok(Self {
             device,

@@ -7,7 +7,7 @@ use nalgebra::{UnitQuaternion, Vector3};
 
 use super::command::{Insertion, Twist};
 use super::detection::{Sample, detect, material_of, push_element_samples, warm_start};
-use super::settings::{MAX_SUBSTEP_DEPTH, spacing};
+use super::settings::{MAX_SUBSTEP_DEPTH, solver_settings, spacing};
 use super::state::{Navigation, element_spec};
 use crate::beam::BeamModel;
 use crate::error::Result;
@@ -62,7 +62,8 @@ impl<W: Wall> Navigation<W> {
 
     /// Advances by `push` (m) and `turn` (rad); where the solved step still penetrates the wall
     /// by more than the sub-step threshold (a violent event: buckling, a slide along a curved
-    /// wall), the step is undone and taken as two halves, up to [`MAX_SUBSTEP_DEPTH`] times.
+    /// wall) or diverged, the step is undone and taken as two halves, up to
+    /// [`MAX_SUBSTEP_DEPTH`] times.
     fn advance(&mut self, push: f64, turn: f64, depth: usize) -> Result<NavigationReport> {
         let max_depth = self.effort.substep_depth(MAX_SUBSTEP_DEPTH);
         let saved = (depth < max_depth).then(|| {
@@ -73,11 +74,19 @@ impl<W: Wall> Navigation<W> {
                 self.previous_contacts.clone(),
             )
         });
-        let report = self.single_step(push, turn)?;
-        let penetration = self.last.as_ref().map_or(0.0, |s| s.penetration_m);
-        if penetration > self.settings.substep_penetration_m
-            && let Some((model, material, twist, previous)) = saved
-        {
+        self.model
+            .set_settings(solver_settings(&self.settings, 0.5f64.powi(depth as i32)));
+        let result = self.single_step(push, turn);
+        // Halved where the solve diverged (a rotation increment past π, a node thrown) or
+        // still penetrates the wall; a divergence at the deepest halving is reported.
+        let halve = match &result {
+            Ok(_) => {
+                self.last.as_ref().map_or(0.0, |s| s.penetration_m)
+                    > self.settings.substep_penetration_m
+            }
+            Err(e) => e.is_divergence(),
+        };
+        if halve && let Some((model, material, twist, previous)) = saved {
             self.model.restore(model);
             self.material = material;
             self.twist_rad = twist;
@@ -85,7 +94,7 @@ impl<W: Wall> Navigation<W> {
             self.advance(0.5 * push, 0.5 * turn, depth + 1)?;
             return self.advance(0.5 * push, 0.5 * turn, depth + 1);
         }
-        Ok(report)
+        result
     }
 
     /// One solve: slide, twist, detect, solve.
@@ -141,7 +150,8 @@ impl<W: Wall> Navigation<W> {
         // device's current shape by `push` (behind the entry along the entry axis), so the
         // material slides along its own path and nothing is compressed. A curved rest shape at
         // the tip (angled or J) is carried rigidly by the last straight node, which moves along
-        // its own axis: sliding material through a bend would strain it.
+        // its own axis (pushed) or back along the curve (pulled): sliding material through a
+        // bend would strain it.
         let positions = self.model.positions().to_vec();
         let rotations = self.model.rotations().to_vec();
         let last = self.material.len() - 1;
@@ -165,9 +175,24 @@ impl<W: Wall> Navigation<W> {
         for i in 1..curved_from {
             (new_positions[i], new_rotations[i]) = along(self.material[i] + push);
         }
-        let carried = rotations[curved_from] * Vector3::x() * push;
-        for p in &mut new_positions[curved_from..] {
-            *p += carried;
+        if push > 0.0 {
+            let carried = rotations[curved_from] * Vector3::x() * push;
+            for p in &mut new_positions[curved_from..] {
+                *p += carried;
+            }
+        } else {
+            // Pulled back, the curved part moves as a rigid body fixed to its first node's
+            // frame, which retraces the curve. (Carried back along that node's axis, a tip
+            // folded by a loop moved sideways while the wire behind it withdrew, the element
+            // between them stretched tenfold; translated back along the curve without
+            // turning with it, an angled tip swept into the wall of a tortuous carotid and
+            // hooked there, and a microwire held against a 40 N pull.)
+            let (at, frame) = along(self.material[curved_from] + push);
+            let turn = frame * rotations[curved_from].inverse();
+            for i in curved_from..=last {
+                new_positions[i] = at + turn * (positions[i] - positions[curved_from]);
+                new_rotations[i] = turn * rotations[i];
+            }
         }
         self.model.set_nodes(&new_positions, &new_rotations)?;
         self.material[0] -= push;

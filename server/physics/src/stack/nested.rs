@@ -114,6 +114,7 @@ impl<W: Wall> Stack<W> {
             if let Some(chain) = chain
                 && existed.get(i).copied().unwrap_or(false)
             {
+                chain.step_fraction = self.step_fraction;
                 chain.prepare(&targets[i..=i])?;
             }
         }

@@ -103,9 +103,8 @@ impl<W: Wall> Stack<W> {
         self.penetration(true)
     }
 
-    /// As [`Stack::max_penetration_m`] over the collision points the contacts resolve: a
-    /// catheter's rim with the radius of the instrument going on (the rims are not yet in the
-    /// contacts).
+    /// As [`Stack::max_penetration_m`] over each instrument's shaft alone: a catheter's rim
+    /// with the radius of the instrument going on.
     pub fn max_shaft_penetration_m(&self) -> f64 {
         self.penetration(false)
     }

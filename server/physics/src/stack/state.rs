@@ -7,11 +7,13 @@ use super::composite::{composite_spec, nominal_spacing};
 use super::instrument::{
     Instrument, InstrumentSpec, MAX_INSTRUMENTS, around, check_fit, inserted_range,
 };
-use crate::beam::{BeamModel, ContactStep, ElementSpec, SolverSettings, StepMode, ViscousDrag};
+use crate::beam::{BeamModel, ContactStep, ElementSpec};
 use crate::coupled::CoupledContact;
 use crate::device::Device;
 use crate::error::{PhysicsError, Result, require_finite, require_positive};
-use crate::navigation::{ClearanceCache, Command, Effort, Insertion, NavigationSettings, Twist};
+use crate::navigation::{
+    ClearanceCache, Command, Effort, Insertion, NavigationSettings, Twist, solver_settings,
+};
 use crate::wall::{FreeSpace, Wall};
 
 /// How a stack couples its instruments.
@@ -71,6 +73,8 @@ pub struct Stack<W: Wall> {
     pub(super) effort: Effort,
     /// Wall-distance bounds that spare collision points their probes.
     pub(super) clearance: ClearanceCache,
+    /// The share of a time step the next solve covers (½ⁿ in a step halved n times).
+    pub(super) step_fraction: f64,
     /// Whether the model carries tip loads (cleared when none is left).
     pub(super) tip_loaded: bool,
 }
@@ -235,7 +239,7 @@ impl<W: Wall> Stack<W> {
             &specs,
             entry_position,
             base_rotation,
-            solver_settings(&settings),
+            solver_settings(&settings, 1.0),
         )?;
         let nodes: Vec<Node> = sigma
             .iter()
@@ -278,6 +282,7 @@ impl<W: Wall> Stack<W> {
             tip_loaded: false,
             effort: Effort::FULL,
             clearance: ClearanceCache::default(),
+            step_fraction: 1.0,
         };
         if coupling == Coupling::Nested {
             stack.update_chains()?;
@@ -451,20 +456,4 @@ fn validate_settings(settings: &NavigationSettings) -> Result<()> {
         )?;
     }
     Ok(())
-}
-
-/// The beam solver settings of a navigated strand.
-pub(super) fn solver_settings(settings: &NavigationSettings) -> SolverSettings {
-    SolverSettings {
-        mode: StepMode::PAPER,
-        geometric_stiffness: true,
-        compute_flexibility: true,
-        drag: (settings.drag_n_s_per_m2 > 0.0).then_some(ViscousDrag {
-            per_length_n_s_per_m2: settings.drag_n_s_per_m2,
-            time_step_s: settings.time_step_s,
-        }),
-        max_step_increment: Some((settings.max_step_m, settings.max_step_rad)),
-        geometric_stiffness_in_compression: false,
-        max_substep_halvings: 0,
-    }
 }

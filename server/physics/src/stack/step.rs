@@ -82,8 +82,8 @@ impl<W: Wall> Stack<W> {
     }
 
     /// Moves every instrument to `targets` (inserted length m, twist rad) in one solve, or,
-    /// where that solve still penetrates the wall beyond the sub-step threshold, in two halves
-    /// (up to [`MAX_SUBSTEP_DEPTH`] times).
+    /// where that solve still penetrates the wall beyond the sub-step threshold or diverged, in
+    /// two halves (up to [`MAX_SUBSTEP_DEPTH`] times).
     fn advance(&mut self, targets: &[(f64, f64)], depth: usize) -> Result<StackReport> {
         let saved: Option<Saved> =
             (depth < self.effort.substep_depth(MAX_SUBSTEP_DEPTH)).then(|| Saved {
@@ -96,17 +96,24 @@ impl<W: Wall> Stack<W> {
                 chains: self.chains.clone(),
                 nested_last: self.nested_last.clone(),
             });
-        let report = match self.coupling {
-            Coupling::Merged => self.single_step(targets)?,
-            Coupling::Nested => self.nested_step(targets)?,
+        self.step_fraction = 0.5f64.powi(depth as i32);
+        let result = match self.coupling {
+            Coupling::Merged => self.single_step(targets),
+            Coupling::Nested => self.nested_step(targets),
         };
-        let penetration = match self.coupling {
-            Coupling::Merged => self.last.as_ref().map_or(0.0, |s| s.penetration_m),
-            Coupling::Nested => self.nested_last.penetration_m,
+        // Halved where the solve diverged (a rotation increment past π, a node thrown) or
+        // still penetrates the wall; a divergence at the deepest halving is reported.
+        let halve = match &result {
+            Ok(_) => {
+                let penetration = match self.coupling {
+                    Coupling::Merged => self.last.as_ref().map_or(0.0, |s| s.penetration_m),
+                    Coupling::Nested => self.nested_last.penetration_m,
+                };
+                penetration > self.settings.substep_penetration_m
+            }
+            Err(e) => e.is_divergence(),
         };
-        if penetration > self.settings.substep_penetration_m
-            && let Some(saved) = saved
-        {
+        if halve && let Some(saved) = saved {
             self.model.restore(saved.model);
             self.nodes = saved.nodes;
             self.specs = saved.specs;
@@ -124,7 +131,7 @@ impl<W: Wall> Stack<W> {
             self.advance(&half, depth + 1)?;
             return self.advance(targets, depth + 1);
         }
-        Ok(report)
+        result
     }
 
     /// The kinematic part of a step: moves the instruments to `targets` and the nodes with
@@ -144,7 +151,7 @@ impl<W: Wall> Stack<W> {
     /// One solve: kinematic update, detection, beam solve with contacts.
     fn single_step(&mut self, targets: &[(f64, f64)]) -> Result<StackReport> {
         self.prepare(targets)?;
-        let samples = self.sample_layout(false);
+        let samples = self.sample_layout(true);
         let wall = &self.wall;
         let margin = self.settings.contact_margin_m;
         let sigma: Vec<f64> = self.nodes.iter().map(|n| n.sigma).collect();
@@ -180,10 +187,10 @@ impl<W: Wall> Stack<W> {
     /// Collision points per element, with the radius and wall friction of the outermost
     /// instrument present. The node where an outer instrument ends (a catheter's tip, with
     /// the wire going on) is the next element's first point, with the inner instrument's
-    /// radius: `rims` gives it the outer one's, so that the catheter's rim is measured there.
-    /// The contacts use the layout without (with it the rim meets the wall, and the scripted
-    /// experts' runs change: the coaxial arch's strays 21 mm into the brachiocephalic, which
-    /// needs the autopilot retuned first); the penetration measured uses it.
+    /// radius: `rims` gives it the outer one's, so that the catheter's rim meets the wall
+    /// there. The contacts use it (since the twelfth session: before, the rims went 0.2–0.4
+    /// mm past the wall unseen); `rims` false gives the layout without, each instrument's
+    /// shaft alone.
     pub(super) fn sample_layout(&self, rims: bool) -> Vec<Sample> {
         let mut samples: Vec<Sample> = Vec::new();
         let elements = self.model.element_count();

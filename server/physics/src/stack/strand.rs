@@ -8,9 +8,10 @@ use nalgebra::{UnitQuaternion, Vector3};
 
 use super::composite::{composite_spec, nominal_spacing, same_spec};
 use super::instrument::leader;
-use super::state::{MIN_GAP_FRACTION, Node, SHARED_TIP_FRACTION, Stack, solver_settings};
+use super::state::{MIN_GAP_FRACTION, Node, SHARED_TIP_FRACTION, Stack};
 use crate::beam::{ElementSpec, hermite_point};
 use crate::error::{PhysicsError, Result};
+use crate::navigation::solver_settings;
 use crate::wall::Wall;
 
 impl<W: Wall> Stack<W> {
@@ -306,7 +307,8 @@ impl<W: Wall> Stack<W> {
         let rotations: Vec<UnitQuaternion<f64>> = self.nodes.iter().map(|n| n.rotation).collect();
         let plain: Vec<ElementSpec> = specs.iter().map(|s| s.0).collect();
         self.model.remesh(&plain, &keep, &positions, &rotations)?;
-        self.model.set_settings(solver_settings(&self.settings));
+        self.model
+            .set_settings(solver_settings(&self.settings, self.step_fraction));
         self.specs = specs;
         Ok(())
     }
