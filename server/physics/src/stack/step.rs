@@ -188,7 +188,7 @@ impl<W: Wall> Stack<W> {
     /// instrument present. The node where an outer instrument ends (a catheter's tip, with
     /// the wire going on) is the next element's first point, with the inner instrument's
     /// radius: `rims` gives it the outer one's, so that the catheter's rim meets the wall
-    /// there. The contacts use it (since the twelfth session: before, the rims went 0.2–0.4
+    /// there. The contacts use it (since the eleventh session: before, the rims went 0.2–0.4
     /// mm past the wall unseen); `rims` false gives the layout without, each instrument's
     /// shaft alone.
     pub(super) fn sample_layout(&self, rims: bool) -> Vec<Sample> {
