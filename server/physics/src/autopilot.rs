@@ -186,6 +186,13 @@ impl<'g> Autopilot<'g> {
         require_positive(|| "retreat_m".into(), settings.retreat_m)?;
         require_positive(|| "route_spacing_m".into(), settings.route_spacing_m)?;
         require_positive(|| "stall_slack_m".into(), settings.stall_slack_m)?;
+        if !(1..=RETRY_AIM_OFFSETS_RAD.len()).contains(&settings.aims) {
+            return Err(PhysicsError::OutOfRange {
+                what: "autopilot aims".into(),
+                range: "1 to 8",
+                value: settings.aims as f64,
+            });
+        }
         if !(0.0..path.length).contains(&start_along_m) {
             return Err(PhysicsError::OutOfRange {
                 what: "autopilot start along the path (m)".into(),
@@ -276,8 +283,7 @@ impl<'g> Autopilot<'g> {
             && wanted.norm() > 0.05
         {
             let error = bend.cross(&wanted).dot(&axis).atan2(bend.dot(&wanted));
-            let aims = self.settings.aims.clamp(1, RETRY_AIM_OFFSETS_RAD.len());
-            let offset = RETRY_AIM_OFFSETS_RAD[self.retries % aims];
+            let offset = RETRY_AIM_OFFSETS_RAD[self.retries % self.settings.aims];
             self.twist_target_rad = navigation.twist_rad() + error + offset;
         }
 
@@ -405,6 +411,27 @@ mod tests {
             }
         }
         peak
+    }
+
+    #[test]
+    fn aims_outside_one_to_eight_are_a_typed_error() {
+        let graph = y_bifurcation(3e-3, 2e-3, 20e-3, 15e-3, 0.5).unwrap();
+        let path = graph.path_to(&graph.landmarks["access"], "left").unwrap();
+        for aims in [0, 9] {
+            let settings = AutopilotSettings {
+                aims,
+                ..AutopilotSettings::default()
+            };
+            let error = Autopilot::new(&graph, path.clone(), 0.0, settings).unwrap_err();
+            assert!(error.to_string().contains("aims"), "{error}");
+        }
+        for aims in [1, 8] {
+            let settings = AutopilotSettings {
+                aims,
+                ..AutopilotSettings::default()
+            };
+            assert!(Autopilot::new(&graph, path.clone(), 0.0, settings).is_ok());
+        }
     }
 
     #[test]
