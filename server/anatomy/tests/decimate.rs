@@ -70,15 +70,22 @@ fn check(name: &str, mesh: TriangleMesh, tolerance: f64) -> TriangleMesh {
     small
 }
 
+/// The tolerance every decimation below is held to (m).
+const TOLERANCE: f64 = 0.05e-3;
+
+// One test per surface, so that the test harness runs them side by side.
+
 #[test]
-fn decimated_surfaces_stay_closed_and_within_tolerance() {
-    let settings = SurfaceSettings::default();
-    let tolerance = 0.05e-3;
+fn a_decimated_tube_stays_closed_and_on_its_analytic_wall() {
     let r = 2e-3;
     let tube = check(
         "tube",
-        lumen_surface(&straight_tube(r, 40e-3).unwrap(), &settings).unwrap(),
-        tolerance,
+        lumen_surface(
+            &straight_tube(r, 40e-3).unwrap(),
+            &SurfaceSettings::default(),
+        )
+        .unwrap(),
+        TOLERANCE,
     );
     // Away from the caps the tube's vertices stay on the analytic wall.
     let worst = tube
@@ -87,21 +94,37 @@ fn decimated_surfaces_stay_closed_and_within_tolerance() {
         .filter(|p| p.z > 2.0 * r && p.z < 40e-3 - 2.0 * r)
         .map(|p| (p.x.hypot(p.y) - r).abs())
         .fold(0.0, f64::max);
-    assert!(worst <= tolerance, "tube radius off by {worst} m");
+    assert!(worst <= TOLERANCE, "tube radius off by {worst} m");
+}
+
+#[test]
+fn a_decimated_bifurcation_stays_closed_and_within_tolerance() {
     check(
         "y bifurcation",
         lumen_surface(
             &y_bifurcation(3e-3, 2e-3, 20e-3, 20e-3, 0.5).unwrap(),
-            &settings,
+            &SurfaceSettings::default(),
         )
         .unwrap(),
-        tolerance,
+        TOLERANCE,
     );
+}
+
+#[test]
+fn a_decimated_torus_keeps_its_hole_and_stays_within_tolerance() {
     check(
         "torus",
-        lumen_surface(&torus_segment(15e-3, r, 2.0).unwrap(), &settings).unwrap(),
-        tolerance,
+        lumen_surface(
+            &torus_segment(15e-3, 2e-3, 2.0).unwrap(),
+            &SurfaceSettings::default(),
+        )
+        .unwrap(),
+        TOLERANCE,
     );
+}
+
+#[test]
+fn the_decimated_neuro_phantom_keeps_its_loops_and_stays_within_tolerance() {
     let phantom = neuro_phantom(&NeuroPhantomParams {
         arch: ArchType::II,
         ..Default::default()
@@ -115,7 +138,7 @@ fn decimated_surfaces_stay_closed_and_within_tolerance() {
     let small = check(
         "neuro phantom",
         lumen_surface(&phantom, &coarse).unwrap(),
-        tolerance,
+        TOLERANCE,
     );
     assert_eq!(small.topology().genus(), phantom.cycle_rank() as i64);
 }
