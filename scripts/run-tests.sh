@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs every test of the workspace as `cargo test --workspace --all-targets` would (lib, bins,
-# tests, benches in test mode) in two lanes at once, and prints each binary's output whole
+# tests, benches in test mode; the examples are left to clippy) in two lanes at once, and prints each binary's output whole
 # when it ends, then a table of the ten slowest binaries, so a regression is seen the day it
 # lands.
 #
@@ -45,7 +45,8 @@ echo "-- building every test binary and the binaries the end-to-end suites run"
 # One build of every target with the test profile: the binaries then share the test
 # binaries' dependency features (a separate `cargo build -p` would resolve features anew and
 # compile part of the tree twice).
-cargo build --locked --profile test --workspace --all-targets \
+# Not the examples: nothing here runs them, and `cargo clippy --all-targets` compiles them.
+cargo build --locked --profile test --workspace --lib --bins --tests --benches \
   --message-format=json-render-diagnostics >"$work/artifacts.json"
 # The suites in tests/ find the binaries just built (cathlab_tests::binary).
 export CATHLAB_TESTS_PREBUILT=1
