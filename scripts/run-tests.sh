@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Runs every test of the workspace as `cargo test --workspace --all-targets` would (lib, bins,
-# tests, benches in test mode; the examples are left to clippy) in two lanes at once, and prints each binary's output whole
-# when it ends, then a table of the ten slowest binaries, so a regression is seen the day it
-# lands.
+# tests, benches in test mode; the examples are left to clippy) in two lanes at once, and
+# prints each binary's output whole when it ends, then a table of the ten slowest binaries, so
+# a regression is seen the day it lands.
 #
 # - The timed lane, one binary at a time at normal priority: the binaries that start the
 #   server or a real-time session, or assert something about time (missed steps, real-time
@@ -15,9 +15,9 @@
 #
 # On the 2-core machine the compute lane alone took 260 s two at a time and 400 s one at a
 # time (each binary's test harness runs two threads, but most binaries end on one long test),
-# and the timed lane run after it another ~400 s; side by side they took 661 s from a fresh
-# clone, 76 s more than the CPU time of the whole (1,169 s) over two cores: the compute lane's
-# binaries often end on one single-threaded test, so it runs three at a time.
+# and the timed lane run after it another ~400 s; side by side, from a fresh clone, they take
+# 535-661 s, about the CPU time of the whole (970-1,180 s) over two cores. Two or three
+# compute binaries at a time made no difference (661 and 659 s).
 #
 #   scripts/run-tests.sh            (TEST_JOBS compute binaries at once, default 3)
 #   TEST_ONLY='^physics/' scripts/run-tests.sh   only the binaries whose name matches (grep -E)
@@ -38,6 +38,7 @@ longest="imaging/segment engine/cases engine/scenes physics/coaxial anatomy/deci
   imaging/surface_centerlines xray/frame(bench) engine/surface_scene xray/golden
   anatomy/surface engine/segmented_scene engine/report imaging/circle_of_willis
   engine/iliac(bench) imaging/segment(bench) anatomy/cathlab_anatomy(lib)"
+longest=" $(echo $longest) "
 
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
@@ -79,7 +80,7 @@ done
 for want in $longest; do
   awk -F'\t' -v n="$want" '$1 == n' "$work/list.tsv" >>"$work/compute.tsv"
 done
-awk -F'\t' -v t="$timed" -v l=" $(echo $longest) " \
+awk -F'\t' -v t="$timed" -v l="$longest" \
   'index(t, " " $1 " ") == 0 && index(l, " " $1 " ") == 0' "$work/list.tsv" >>"$work/compute.tsv"
 echo "-- $(wc -l <"$work/list.tsv") test binaries: $(wc -l <"$work/timed.tsv") in the timed lane one at a time," \
   "$(wc -l <"$work/compute.tsv") in the compute lane $jobs at a time (niced)"
@@ -157,7 +158,6 @@ started=$SECONDS
     run_one "$name" "$dir" "$exe"
   done <"$work/timed.tsv"
 ) &
-timed_lane=$!
 
 # The compute lane: $jobs binaries at a time (their process ids in `running`).
 running=()

@@ -4,13 +4,13 @@
 //! the decimated surface's vertices, edge midpoints and face centres to the original), and a
 //! tube still within the tolerance of its analytic radius.
 
-use cathlab_anatomy::Lumen;
 use cathlab_anatomy::decimate::decimate;
 use cathlab_anatomy::mesh::TriangleMesh;
 use cathlab_anatomy::phantom::{
     ArchType, NeuroPhantomParams, neuro_phantom, straight_tube, torus_segment, y_bifurcation,
 };
 use cathlab_anatomy::surface::{SurfaceSettings, lumen_surface};
+use cathlab_anatomy::{Lumen, VesselGraph};
 use nalgebra::Point3;
 
 /// Largest distance from the points of `a` (vertices, edge midpoints, face centres) to the
@@ -73,20 +73,21 @@ fn check(name: &str, mesh: TriangleMesh, tolerance: f64) -> TriangleMesh {
 /// The tolerance every decimation below is held to (m).
 const TOLERANCE: f64 = 0.05e-3;
 
+/// [`check`] on `graph`'s lumen surface at the default settings.
+fn check_default(name: &str, graph: &VesselGraph) -> TriangleMesh {
+    check(
+        name,
+        lumen_surface(graph, &SurfaceSettings::default()).unwrap(),
+        TOLERANCE,
+    )
+}
+
 // One test per surface, so that the test harness runs them side by side.
 
 #[test]
 fn a_decimated_tube_stays_closed_and_on_its_analytic_wall() {
     let r = 2e-3;
-    let tube = check(
-        "tube",
-        lumen_surface(
-            &straight_tube(r, 40e-3).unwrap(),
-            &SurfaceSettings::default(),
-        )
-        .unwrap(),
-        TOLERANCE,
-    );
+    let tube = check_default("tube", &straight_tube(r, 40e-3).unwrap());
     // Away from the caps the tube's vertices stay on the analytic wall.
     let worst = tube
         .vertices
@@ -99,28 +100,15 @@ fn a_decimated_tube_stays_closed_and_on_its_analytic_wall() {
 
 #[test]
 fn a_decimated_bifurcation_stays_closed_and_within_tolerance() {
-    check(
+    check_default(
         "y bifurcation",
-        lumen_surface(
-            &y_bifurcation(3e-3, 2e-3, 20e-3, 20e-3, 0.5).unwrap(),
-            &SurfaceSettings::default(),
-        )
-        .unwrap(),
-        TOLERANCE,
+        &y_bifurcation(3e-3, 2e-3, 20e-3, 20e-3, 0.5).unwrap(),
     );
 }
 
 #[test]
 fn a_decimated_torus_keeps_its_hole_and_stays_within_tolerance() {
-    check(
-        "torus",
-        lumen_surface(
-            &torus_segment(15e-3, 2e-3, 2.0).unwrap(),
-            &SurfaceSettings::default(),
-        )
-        .unwrap(),
-        TOLERANCE,
-    );
+    check_default("torus", &torus_segment(15e-3, 2e-3, 2.0).unwrap());
 }
 
 #[test]
