@@ -26,6 +26,6 @@ pub struct ContactStep {
     /// Their forces.
     pub response: ContactResponse,
     /// The deepest penetration the last detection saw in the solved configuration (m; 0 when
-    /// none, or when only one detection round ran).
+    /// the step had no contacts).
     pub penetration_m: f64,
 }

@@ -120,6 +120,11 @@ pub struct Effort {
     /// Scale of the refinement thresholds (≥ 1): elements bend and touch this much more
     /// before they split, and merge back sooner.
     pub refinement_scale: f64,
+    /// Least penetration (m) that halves a step: a step is halved only where it penetrates
+    /// past both this and the settings' `substep_penetration_m`. A level that does less per
+    /// step (fewer detection rounds and sweeps) leaves more steps a little past the fine
+    /// threshold; this keeps its halvings for those that go deep.
+    pub min_substep_penetration_m: f64,
 }
 
 impl Effort {
@@ -130,10 +135,18 @@ impl Effort {
         max_sweeps: usize::MAX,
         polish: true,
         refinement_scale: 1.0,
+        min_substep_penetration_m: 0.0,
     };
 
     /// Checks the effort's values.
     pub fn validate(&self) -> Result<()> {
+        if !(self.min_substep_penetration_m.is_finite() && self.min_substep_penetration_m >= 0.0) {
+            return Err(PhysicsError::OutOfRange {
+                what: "effort.min_substep_penetration_m".into(),
+                range: "[0, ∞)",
+                value: self.min_substep_penetration_m,
+            });
+        }
         if !(self.refinement_scale.is_finite() && self.refinement_scale >= 1.0) {
             return Err(PhysicsError::OutOfRange {
                 what: "effort.refinement_scale".into(),
@@ -167,6 +180,11 @@ impl Effort {
     /// The deepest step halving allowed, at most `ceiling`.
     pub fn substep_depth(&self, ceiling: usize) -> usize {
         self.max_substep_depth.min(ceiling)
+    }
+
+    /// The penetration (m) past which a step is halved, given the settings' own threshold.
+    pub fn substep_penetration(&self, base_m: f64) -> f64 {
+        base_m.max(self.min_substep_penetration_m)
     }
 }
 

@@ -82,7 +82,9 @@ impl<W: Wall> Navigation<W> {
         let halve = match &result {
             Ok(_) => {
                 self.last.as_ref().map_or(0.0, |s| s.penetration_m)
-                    > self.settings.substep_penetration_m
+                    > self
+                        .effort
+                        .substep_penetration(self.settings.substep_penetration_m)
             }
             Err(e) => e.is_divergence(),
         };

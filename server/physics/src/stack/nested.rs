@@ -167,7 +167,9 @@ impl<W: Wall> Stack<W> {
                 }
             }
             round += 1;
-            if rounds == 1 || contacts.is_empty() {
+            // With one round allowed the look below is still taken: its penetration decides a
+            // halving of the step (as in merged mode).
+            if contacts.is_empty() {
                 break (increments, (detected, response));
             }
             let mut next = self.detect_nested(&increments);

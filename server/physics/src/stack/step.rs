@@ -109,7 +109,10 @@ impl<W: Wall> Stack<W> {
                     Coupling::Merged => self.last.as_ref().map_or(0.0, |s| s.penetration_m),
                     Coupling::Nested => self.nested_last.penetration_m,
                 };
-                penetration > self.settings.substep_penetration_m
+                penetration
+                    > self
+                        .effort
+                        .substep_penetration(self.settings.substep_penetration_m)
             }
             Err(e) => e.is_divergence(),
         };

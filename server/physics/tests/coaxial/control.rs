@@ -193,6 +193,7 @@ fn a_stack_under_a_capped_effort_does_less_work() {
         max_sweeps: 5,
         polish: false,
         refinement_scale: 4.0,
+        min_substep_penetration_m: 0.0,
     };
     let (capped_work, _) = ring_run(Some(capped));
     let most_sweeps = |w: &[(usize, usize)]| w.iter().map(|x| x.0).max().unwrap();
@@ -219,6 +220,15 @@ fn a_stack_under_a_capped_effort_does_less_work() {
         ..Effort::FULL
     }) {
         Err(PhysicsError::OutOfRange { what, .. }) => assert_eq!(what, "effort.refinement_scale"),
+        other => panic!("{other:?}"),
+    }
+    match stack.set_effort(Effort {
+        min_substep_penetration_m: f64::NAN,
+        ..Effort::FULL
+    }) {
+        Err(PhysicsError::OutOfRange { what, .. }) => {
+            assert_eq!(what, "effort.min_substep_penetration_m")
+        }
         other => panic!("{other:?}"),
     }
 }
