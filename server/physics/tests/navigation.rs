@@ -496,3 +496,41 @@ fn bad_arch_to_cow_plans_give_clear_errors() {
     let err = run_arch_to_cow(anatomy, &plan).unwrap_err();
     assert!(err.to_string().contains("lookahead_m"), "{err}");
 }
+
+/// The overload governor's cheapest step (no halving, one detection round, 20 sweeps, no
+/// polish, coarse refinement) keeps the wire inside the wall only by projecting out what
+/// still penetrates: pushed into a dead end at 100 mm/s, the wire without the projection
+/// goes past the wall by more than the 0.05 mm every fidelity level must hold, and with it
+/// stays within the contact tolerance (0.01 mm) at every step.
+#[test]
+fn the_cheapest_step_projects_what_still_penetrates_out_of_the_wall() {
+    use cathlab_physics::Effort;
+    let cheapest = |project_penetration| Effort {
+        max_substep_depth: 0,
+        max_detection_rounds: 1,
+        max_sweeps: 20,
+        polish: false,
+        refinement_scale: 4.0,
+        min_substep_penetration_m: 0.0,
+        project_penetration,
+    };
+    let worst = |project| {
+        let mut nav = navigation(tube(0.04, 2e-3), 0.01);
+        nav.set_effort(cheapest(project)).unwrap();
+        nav.set_command(push(0.1)).unwrap();
+        let mut worst: f64 = 0.0;
+        for step in 0..1000 {
+            nav.step().unwrap_or_else(|e| panic!("step {step}: {e}"));
+            worst = worst.max(nav.max_penetration_m());
+        }
+        worst
+    };
+    let (without, with) = (worst(false), worst(true));
+    println!(
+        "dead end at 100 mm/s, the cheapest step: worst penetration {:.4} mm without the projection, {:.4} mm with it",
+        without * 1e3,
+        with * 1e3
+    );
+    assert!(without > PENETRATION, "{without}");
+    assert!(with <= 0.0105e-3, "{with}");
+}

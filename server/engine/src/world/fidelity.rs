@@ -1,15 +1,18 @@
 //! The overload governor's fidelity levels: what each allows a physics step (the solver's
 //! effort and a cap on the push speed).
 
-use cathlab_physics::{Effort, MAX_SUBSTEP_DEPTH};
+use cathlab_physics::Effort;
 
 /// The lowest fidelity the overload governor may set.
 pub const MAX_FIDELITY_LEVEL: u8 = 3;
 
-/// The penetration (m) past which the lower levels halve a step: with fewer detection rounds
-/// and sweeps, the full-fidelity threshold (0.02 mm) would halve most steps of a push held
-/// against the wall, and without halvings nodes went 0.08-0.31 mm past it. Under the 0.05 mm
-/// every level must hold (`cargo bench -p cathlab-engine --bench stress`).
+/// The penetration (m) past which level 1 halves a step (full fidelity: 0.02 mm): with
+/// fewer detection rounds the full threshold would halve most steps of a push held against the
+/// wall. Levels 2 and 3 do not halve at all (a halved step costs two or more solves, which
+/// is what an overloaded server cannot give: with halvings past this threshold there, the
+/// stroke scene under `cathlab-load` missed 658 steps of 5,000 with one session); they move
+/// what still penetrates out along the wall's normal instead. Below the 0.05 mm every level
+/// must hold (`cargo bench -p cathlab-engine --bench stress`).
 const DEEP_STEP_M: f64 = 0.035e-3;
 
 /// What a fidelity level allows a step: the physics' effort, a cap on the push speed (m/s),
@@ -28,29 +31,31 @@ pub fn fidelity_effort(level: u8) -> (Effort, Option<f64>, &'static str) {
         ),
         2 => (
             Effort {
-                max_substep_depth: MAX_SUBSTEP_DEPTH,
-                max_detection_rounds: 3,
+                max_substep_depth: 0,
+                max_detection_rounds: 2,
                 max_sweeps: 60,
                 polish: true,
                 refinement_scale: 2.0,
-                min_substep_penetration_m: DEEP_STEP_M,
+                min_substep_penetration_m: 0.0,
+                project_penetration: true,
             },
             None,
-            "sub-steps only past 0.035 mm, three detection rounds, 60 contact sweeps, \
-             refinement halved",
+            "no sub-steps, two detection rounds, 60 contact sweeps, refinement halved, \
+             penetration projected out",
         ),
         _ => (
             Effort {
-                max_substep_depth: MAX_SUBSTEP_DEPTH,
+                max_substep_depth: 0,
                 max_detection_rounds: 1,
                 max_sweeps: 20,
                 polish: false,
                 refinement_scale: 4.0,
-                min_substep_penetration_m: DEEP_STEP_M,
+                min_substep_penetration_m: 0.0,
+                project_penetration: true,
             },
             Some(0.03),
-            "sub-steps only past 0.035 mm, one detection round, 20 contact sweeps, \
-             refinement quartered, pushes slowed to 30 mm/s",
+            "no sub-steps, one detection round, 20 contact sweeps, refinement quartered, \
+             penetration projected out, pushes slowed to 30 mm/s",
         ),
     }
 }

@@ -72,6 +72,8 @@ impl BeamModel {
         let mut response;
         let mut round = 0;
         let mut penetration: f64 = 0.0;
+        // The contacts still penetrated after the last round, and how deep, to project out.
+        let mut projection: Option<(Vec<Contact>, Vec<f64>)> = None;
         loop {
             response = if contacts.is_empty() {
                 ContactResponse {
@@ -112,8 +114,12 @@ impl BeamModel {
                     + c.normal
                         .dot(&point_displacement(&increments, c.element, c.t)))
             };
-            penetration = next.iter().map(depth).fold(0.0, f64::max);
+            let depths: Vec<f64> = next.iter().map(depth).collect();
+            penetration = depths.iter().copied().fold(0.0, f64::max);
             if penetration <= settings.penetration_tolerance_m || round >= rounds {
+                if penetration > settings.penetration_tolerance_m && settings.project_penetration {
+                    projection = Some((next, depths));
+                }
                 break;
             }
             // Keep the earlier rounds' contacts too (a wall the contact forces pushed the device
@@ -138,6 +144,14 @@ impl BeamModel {
             });
             warm = Some(carry_forces(&next, &contacts, &response.local));
             contacts = next;
+        }
+        if let Some((left, depths)) = projection {
+            project_out(
+                &left,
+                &depths,
+                settings.penetration_tolerance_m,
+                &mut increments,
+            );
         }
         let (dx, dtheta) = self.apply_increments(&increments)?;
         Ok(ContactStep {
@@ -222,6 +236,38 @@ fn same_contact(a: &Contact, b: &Contact) -> bool {
 /// Whether two contacts are one plane: the same point with normals within about 0.25°.
 fn same_plane(a: &Contact, b: &Contact) -> bool {
     a.element == b.element && (a.t - b.t).abs() <= 1e-9 && a.normal.dot(&b.normal) > 0.99999
+}
+
+/// Moves each element with a contact deeper than `tolerance` (its `depths`, m) out along that
+/// contact's normal by its depth: both of its nodes' translations in `increments` (unknown
+/// nodes; node 0, the driven base, stays), each node by the largest push any of its
+/// elements' contacts asks along that normal beyond what it already got.
+fn project_out(
+    contacts: &[Contact],
+    depths: &[f64],
+    tolerance: f64,
+    increments: &mut [Vector6<f64>],
+) {
+    let mut pushes = vec![Vector3::<f64>::zeros(); increments.len()];
+    for (c, &d) in contacts.iter().zip(depths) {
+        if d <= tolerance {
+            continue;
+        }
+        for node in [c.element, c.element + 1] {
+            let Some(push) = node.checked_sub(1).and_then(|i| pushes.get_mut(i)) else {
+                continue;
+            };
+            let missing = d - push.dot(&c.normal);
+            if missing > 0.0 {
+                *push += c.normal * missing;
+            }
+        }
+    }
+    for (increment, push) in increments.iter_mut().zip(&pushes) {
+        increment[0] += push.x;
+        increment[1] += push.y;
+        increment[2] += push.z;
+    }
 }
 
 /// Forces of `old` contacts carried over to the same `new` ones (zero for the rest): the

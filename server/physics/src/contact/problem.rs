@@ -107,6 +107,12 @@ pub struct ContactSettings {
     /// solve (the tangential forces held): exact non-penetration for O(A·N + A³) work, A the
     /// active contacts.
     pub polish: bool,
+    /// Where a step's last detection round leaves the device past the wall by more than
+    /// `penetration_tolerance_m`, move each penetrating element out along its contact's normal
+    /// by its depth (positions only, no re-solve): the cheap way an overloaded step keeps the
+    /// device inside the vessel, its strain corrected by the next step's solve. Single
+    /// chains and merged stacks; the nested coupling (a reference mode) ignores it.
+    pub project_penetration: bool,
 }
 
 impl ContactSettings {
@@ -132,6 +138,7 @@ impl Default for ContactSettings {
             penetration_tolerance_m: 1e-6,
             acceleration_depth: 0,
             polish: false,
+            project_penetration: false,
         }
     }
 }

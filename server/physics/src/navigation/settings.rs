@@ -125,6 +125,9 @@ pub struct Effort {
     /// step (fewer detection rounds and sweeps) leaves more steps a little past the fine
     /// threshold; this keeps its halvings for those that go deep.
     pub min_substep_penetration_m: f64,
+    /// Whether a step's penetration left after its last detection round is projected out
+    /// ([`ContactSettings::project_penetration`]) instead of halving the step.
+    pub project_penetration: bool,
 }
 
 impl Effort {
@@ -136,6 +139,7 @@ impl Effort {
         polish: true,
         refinement_scale: 1.0,
         min_substep_penetration_m: 0.0,
+        project_penetration: false,
     };
 
     /// Checks the effort's values.
@@ -165,6 +169,7 @@ impl Effort {
             newton_iterations: base.newton_iterations.min(self.max_sweeps),
             detection_rounds: base.detection_rounds.min(self.max_detection_rounds).max(1),
             polish: base.polish && self.polish,
+            project_penetration: base.project_penetration || self.project_penetration,
             ..*base
         }
     }

@@ -194,6 +194,7 @@ fn a_stack_under_a_capped_effort_does_less_work() {
         polish: false,
         refinement_scale: 4.0,
         min_substep_penetration_m: 0.0,
+        project_penetration: false,
     };
     let (capped_work, _) = ring_run(Some(capped));
     let most_sweeps = |w: &[(usize, usize)]| w.iter().map(|x| x.0).max().unwrap();
