@@ -13,6 +13,8 @@ use std::path::Path;
 use std::time::Instant;
 
 use cathlab_engine::*;
+
+mod common;
 use cathlab_physics::autopilot::{Autopilot, AutopilotSettings};
 use cathlab_physics::scenarios::ArchToCowPlan;
 
@@ -114,21 +116,11 @@ fn main() {
     let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
     let disk = Path::new(env!("CARGO_TARGET_TMPDIR")).join("asset-cache");
     let cache = AssetCache::default().with_disk_cache(&disk);
-    let only: Option<Vec<String>> = std::env::var("AT_TARGET_SCENES")
-        .ok()
-        .map(|s| s.split(',').map(str::to_owned).collect());
-    let mut names: Vec<String> = std::fs::read_dir(&scenes)
-        .unwrap()
-        .filter_map(|e| {
-            let path = e.ok()?.path();
-            (path.extension()? == "toml").then(|| path.file_stem()?.to_str().map(str::to_owned))?
-        })
-        .filter(|n| match &only {
-            Some(o) => o.contains(n),
-            None => full || n == "arch_to_cow_lcca",
-        })
-        .collect();
-    names.sort();
+    let only = common::picked("AT_TARGET_SCENES");
+    let names = common::bundled_scenes(&scenes, |n| match &only {
+        Some(o) => o.iter().any(|x| x == n),
+        None => full || n == "arch_to_cow_lcca",
+    });
     let (mut still_steps, moving_steps) = if full { (2000, 1000) } else { (200, 200) };
     if let Some(steps) = env_steps("AT_TARGET_STILL_STEPS") {
         still_steps = steps;
@@ -139,13 +131,7 @@ fn main() {
     println!("|---|---|---|---|---|");
     let mut reached_all = true;
     for name in &names {
-        let text = std::fs::read_to_string(scenes.join(format!("{name}.toml"))).unwrap();
-        let mut spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
-        match std::env::var("AT_TARGET_SOLVER").as_deref() {
-            Ok("gauss_seidel") => spec.fidelity.contact_solver = scene::ContactSolver::GaussSeidel,
-            Ok("newton") => spec.fidelity.contact_solver = scene::ContactSolver::Newton,
-            _ => {}
-        }
+        let spec = common::scene_spec(&scenes, name, "AT_TARGET_SOLVER");
         let assets = cache.load(&spec, &scenes).unwrap();
         let mut world = World::new(assets.clone()).unwrap();
         let instruments = world.snapshot().instruments.len();

@@ -18,6 +18,8 @@ use cathlab_engine::stress::{Levels, StressReport, StressSettings, run};
 use cathlab_engine::world::MAX_FIDELITY_LEVEL;
 use cathlab_engine::*;
 
+mod common;
+
 /// The deepest any node of any instrument may go past the wall (m), at every fidelity level
 /// (issue 44's acceptance).
 const MAX_PENETRATION_M: f64 = 0.05e-3;
@@ -101,31 +103,17 @@ fn main() {
         4.0
     };
     let every_level = std::env::var_os("STRESS_LEVELS").is_some();
-    let only: Option<Vec<String>> = std::env::var("STRESS_SCENES")
-        .ok()
-        .map(|s| s.split(',').map(str::to_owned).collect());
-    let mut names: Vec<String> = std::fs::read_dir(&scenes)
-        .unwrap()
-        .filter_map(|e| {
-            let path = e.ok()?.path();
-            (path.extension()? == "toml").then(|| path.file_stem()?.to_str().map(str::to_owned))?
-        })
-        .filter(|n| only.as_ref().is_none_or(|o| o.contains(n)))
-        .collect();
-    names.sort();
+    let only = common::picked("STRESS_SCENES");
+    let names = common::bundled_scenes(&scenes, |n| {
+        only.as_ref().is_none_or(|o| o.iter().any(|x| x == n))
+    });
     println!(
         "| scene | fidelity | simulated s | divergences | errors | panics | p50 ms | p99 ms | max ms | % over 2 ms | deepest mm | hand N |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     let mut sound = true;
     for name in &names {
-        let text = std::fs::read_to_string(scenes.join(format!("{name}.toml"))).unwrap();
-        let mut spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
-        match std::env::var("STRESS_SOLVER").as_deref() {
-            Ok("gauss_seidel") => spec.fidelity.contact_solver = scene::ContactSolver::GaussSeidel,
-            Ok("newton") => spec.fidelity.contact_solver = scene::ContactSolver::Newton,
-            _ => {}
-        }
+        let spec = common::scene_spec(&scenes, name, "STRESS_SOLVER");
         let assets = cache.load(&spec, &scenes).unwrap();
         let reports: Vec<StressReport> = (0..seeds)
             .map(|seed| {
