@@ -6,9 +6,9 @@ use cathlab_physics::Effort;
 /// The lowest fidelity the overload governor may set.
 pub const MAX_FIDELITY_LEVEL: u8 = 3;
 
-/// The penetration (m) past which level 1 halves a step (full fidelity: 0.02 mm): with
-/// fewer detection rounds the full threshold would halve most steps of a push held against the
-/// wall. Levels 2 and 3 do not halve at all (a halved step costs two or more solves, which
+/// The penetration (m) past which level 1 halves a step, once (full fidelity: 0.02 mm, up to
+/// three times): with fewer detection rounds the full threshold would halve most steps of a
+/// push held against the wall, and each level must cost less than the one above it. Levels 2 and 3 do not halve at all (a halved step costs two or more solves, which
 /// is what an overloaded server cannot give: with halvings past this threshold there, the
 /// stroke scene under `cathlab-load` missed 658 steps of 5,000 with one session); they move
 /// what still penetrates out along the wall's normal instead. Below the 0.05 mm every level
@@ -22,12 +22,15 @@ pub fn fidelity_effort(level: u8) -> (Effort, Option<f64>, &'static str) {
         0 => (Effort::FULL, None, "the scene's fidelity"),
         1 => (
             Effort {
-                max_detection_rounds: 3,
+                max_substep_depth: 1,
+                max_detection_rounds: 2,
                 min_substep_penetration_m: DEEP_STEP_M,
+                project_penetration: true,
                 ..Effort::FULL
             },
             None,
-            "sub-steps only past 0.035 mm, three detection rounds",
+            "one sub-step halving, only past 0.035 mm, two detection rounds, penetration \
+             projected out",
         ),
         2 => (
             Effort {
