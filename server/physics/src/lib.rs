@@ -34,8 +34,7 @@ pub use contact::{Contact, ContactMethod, ContactResponse, ContactSettings};
 pub use device::{Device, RestArc, RestShape, Section, presets};
 pub use error::{DivergenceCheck, PhysicsError, Result};
 pub use navigation::{
-    Command, Effort, Insertion, MAX_SUBSTEP_DEPTH, Navigation, NavigationReport,
-    NavigationSettings, Refinement, Twist,
+    Command, Effort, Insertion, Navigation, NavigationReport, NavigationSettings, Refinement, Twist,
 };
 pub use section::{BeamProperties, CircularSection, Material};
 pub use stack::{Coupling, InstrumentSpec, InstrumentView, ProximalReaction, Stack, StackReport};

@@ -8,8 +8,9 @@ pub const MAX_FIDELITY_LEVEL: u8 = 3;
 
 /// The penetration (m) past which level 1 halves a step, once (full fidelity: 0.02 mm, up to
 /// three times): with fewer detection rounds the full threshold would halve most steps of a
-/// push held against the wall, and each level must cost less than the one above it. Levels 2 and 3 do not halve at all (a halved step costs two or more solves, which
-/// is what an overloaded server cannot give: with halvings past this threshold there, the
+/// push held against the wall, and each level must cost less than the one above it. Levels 2
+/// and 3 do not halve at all (a halved step costs two or more solves, which is what an
+/// overloaded server cannot give: with halvings past this threshold there, the
 /// stroke scene under `cathlab-load` missed 658 steps of 5,000 with one session); they move
 /// what still penetrates out along the wall's normal instead. Below the 0.05 mm every level
 /// must hold (`cargo bench -p cathlab-engine --bench stress`).

@@ -264,9 +264,8 @@ fn project_out(
         }
     }
     for (increment, push) in increments.iter_mut().zip(&pushes) {
-        increment[0] += push.x;
-        increment[1] += push.y;
-        increment[2] += push.z;
+        let mut translation = increment.fixed_rows_mut::<3>(0);
+        translation += push;
     }
 }
 
