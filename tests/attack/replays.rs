@@ -143,15 +143,26 @@ async fn stalled_frame_streams_stay_within_their_budget_and_are_cut() {
         ended += usize::from(matches!(end, Ok(Err(_)) | Ok(Ok(None))));
     }
     drop((stalled, connections));
-    tokio::time::sleep(std::time::Duration::from_secs(2)).await;
+    // The server learns that a connection went when its connection task next runs, and h2
+    // frees the frames queued on it then: on a loaded machine that takes a few seconds, so
+    // the live heap is watched for up to 10 s to come back.
+    let gone = std::time::Instant::now();
+    let mut heap_after;
+    loop {
+        tokio::time::sleep(std::time::Duration::from_millis(250)).await;
+        heap_after = server_metric(&server, "cathlab_heap_bytes").await;
+        if heap_after < heap_base + 8.0 * 1048576.0 || gone.elapsed().as_secs() >= 10 {
+            break;
+        }
+    }
+    let settled_s = gone.elapsed().as_secs_f64();
     let held_after = server_metric(&server, "cathlab_stream_buffer_bytes").await;
     let after = rss_bytes(pid);
-    let heap_after = server_metric(&server, "cathlab_heap_bytes").await;
     let missed = missed_steps(&mut client, &bystander).await - missed_before;
     // A fresh reader is served again.
     let frame = first_frame(&mut client, request, &watched.observer_token).await;
     println!(
-        "24 stalled raw16 2048x2048 frame streams, budget 128 MiB (32 MiB per address): RSS +{:.0} MiB at peak, budget held at peak {:.0} MiB; after the 4 s stall timeout {cut} connections cut ({ended} streams ended); with the clients gone {:.0} MiB held, live heap {:+.1} MiB, RSS {:+.0} MiB; the other session missed {missed} steps",
+        "24 stalled raw16 2048x2048 frame streams, budget 128 MiB (32 MiB per address): RSS +{:.0} MiB at peak, budget held at peak {:.0} MiB; after the 4 s stall timeout {cut} connections cut ({ended} streams ended); with the clients gone {:.0} MiB held, live heap {:+.1} MiB after {settled_s:.2} s, RSS {:+.0} MiB; the other session missed {missed} steps",
         (peak as f64 - base as f64) / 1048576.0,
         held_peak / 1048576.0,
         held_after / 1048576.0,
@@ -166,7 +177,9 @@ async fn stalled_frame_streams_stay_within_their_budget_and_are_cut() {
     assert!(cut >= 1.0 && ended >= 6, "{cut} {ended}");
     assert_eq!(held_after, 0.0);
     // Nothing the streams held is still live: the live heap (the server's counting
-    // allocator) is back within one 8 MiB frame of where it was.
+    // allocator) is back within one 8 MiB frame of where it was (once in CI +13.9 MiB at a
+    // fixed 2 s after the clients went: the frames h2 still queued on connections it had not
+    // yet seen close).
     assert!(
         heap_after < heap_base + 8.0 * 1048576.0,
         "{heap_after} vs {heap_base}"
