@@ -5,7 +5,7 @@
 
 use cathlab_physics::{
     BeamModel, Command, ContactStep, Device, Effort, InstrumentSpec, Navigation,
-    NavigationSettings, Refinement, Stack,
+    NavigationSettings, Refinement, Sleep, Stack,
 };
 use nalgebra::Vector3;
 
@@ -39,6 +39,7 @@ fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
         tip_element_m: q.tip_element_mm * 1e-3,
         shaft_element_m: q.shaft_element_mm * 1e-3,
         refinement: q.refine.then(Refinement::default),
+        sleep: q.sleep_at_rest.then(Sleep::default),
         ..NavigationSettings::default()
     };
     settings.contact.tolerance = q.contact_tolerance;
@@ -186,6 +187,24 @@ impl Strand {
             Strand::Stack(s) => s.set_effort(effort)?,
         }
         Ok(())
+    }
+
+    /// Sleep at rest on or off ([`Sleep`]'s defaults; a scene's `fidelity.sleep_at_rest`).
+    pub fn set_sleep(&mut self, on: bool) {
+        let sleep = on.then(Sleep::default);
+        match self {
+            Strand::Single(n) => n.set_sleep(sleep),
+            Strand::Stack(s) => s.set_sleep(sleep),
+        }
+    }
+
+    /// Whether the last steps found every instrument at rest with the hands still, so that
+    /// the next such steps are skipped.
+    pub fn asleep(&self) -> bool {
+        match self {
+            Strand::Single(n) => n.asleep(),
+            Strand::Stack(s) => s.asleep(),
+        }
     }
 
     /// One physics step.

@@ -4,9 +4,9 @@
 //! are updated every step from the previous solution; each step is one block-tridiagonal
 //! linear solve done in O(N) by substructure analysis, which also yields the flexibility
 //! blocks that contact response needs. Contacts with the vessel wall (Signorini with Coulomb
-//! friction) are solved by semismooth Newton on the Delassus matrix those blocks give (or
-//! Gauss–Seidel through them), and a navigation simulates only
-//! the inserted length under push, pull and twist. Plain synchronous, deterministic library:
+//! friction) are solved by projected Gauss–Seidel through those blocks with an active-set
+//! polish (or semismooth Newton on the Delassus matrix they give), and a navigation simulates
+//! only the inserted length under push, pull and twist, skipping its steps once at rest. Plain synchronous, deterministic library:
 //! SI units, f64.
 
 pub mod autopilot;
@@ -34,7 +34,8 @@ pub use contact::{Contact, ContactMethod, ContactResponse, ContactSettings};
 pub use device::{Device, RestArc, RestShape, Section, presets};
 pub use error::{DivergenceCheck, PhysicsError, Result};
 pub use navigation::{
-    Command, Effort, Insertion, Navigation, NavigationReport, NavigationSettings, Refinement, Twist,
+    Command, Effort, Insertion, Navigation, NavigationReport, NavigationSettings, Refinement,
+    Sleep, Twist,
 };
 pub use section::{BeamProperties, CircularSection, Material};
 pub use stack::{Coupling, InstrumentSpec, InstrumentView, ProximalReaction, Stack, StackReport};

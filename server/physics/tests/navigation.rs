@@ -534,3 +534,83 @@ fn the_cheapest_step_projects_what_still_penetrates_out_of_the_wall() {
     assert!(without > PENETRATION, "{without}");
     assert!(with <= 0.0105e-3, "{with}");
 }
+
+#[test]
+fn a_device_at_rest_sleeps_where_the_solved_steps_would_keep_it_and_wakes_when_pushed() {
+    use cathlab_physics::Sleep;
+    // 0.014" wire pushed into a dead end for 4 s (40 mm in, buckled against the cap 30 mm
+    // beyond where it started), then the hand holds.
+    let mut nav = navigation(tube(0.04, 2e-3), 0.01);
+    nav.set_command(push(0.01)).unwrap();
+    for step in 0..2000 {
+        nav.step().unwrap_or_else(|e| panic!("step {step}: {e}"));
+    }
+    nav.set_command(push(0.0)).unwrap();
+    let mut solved = nav.clone();
+    nav.set_sleep(Some(Sleep::default()));
+    // The reference solves every step; the sleeper stops solving once no node's mean
+    // position drifted 5 µm from the first half to the second of 100 steps in a row.
+    let mut fell_asleep = None;
+    let mut frozen = None;
+    let mut settled = Vec::new();
+    for step in 0..4000 {
+        solved.step().unwrap();
+        let report = nav.step().unwrap();
+        if report.asleep {
+            fell_asleep.get_or_insert(step);
+            let now = nav.model().positions().to_vec();
+            // Asleep, nothing moves at all.
+            assert_eq!(*frozen.get_or_insert_with(|| now.clone()), now, "{step}");
+        }
+        if step == 2999 {
+            settled = solved.model().positions().to_vec();
+        }
+    }
+    let fell_asleep = fell_asleep.expect("the wire came to rest");
+    let apart = nav
+        .model()
+        .positions()
+        .iter()
+        .zip(solved.model().positions())
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    // The solved run has come to its equilibrium (not creeping): the sleeper stopped short of
+    // it by what was left of the relaxation, within the drift a window allows (5 µm; a
+    // detector pixel is 200-400 µm).
+    let creep = settled
+        .iter()
+        .zip(solved.model().positions())
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    let (felt, felt_solved) = (nav.proximal_reaction(), solved.proximal_reaction());
+    println!(
+        "a wire buckled in a dead end, hands still: asleep after {fell_asleep} steps; after 8 s the sleeper's nodes {:.3} µm from the solved run's (which moved {:.1e} µm in its last 2 s), hand force {:.4} N against {:.4} N, deepest {:.4} mm",
+        apart * 1e6,
+        creep * 1e6,
+        felt.fixed_rows::<3>(0).norm(),
+        felt_solved.fixed_rows::<3>(0).norm(),
+        nav.max_penetration_m() * 1e3,
+    );
+    assert!(fell_asleep < 1000, "{fell_asleep}");
+    assert!(creep < 1e-9, "{creep}");
+    assert!(apart < Sleep::default().max_drift_m, "{apart}");
+    assert!(
+        (felt - felt_solved).fixed_rows::<3>(0).norm()
+            < 1e-3 * felt_solved.fixed_rows::<3>(0).norm().max(1e-3),
+        "{felt} {felt_solved}"
+    );
+    assert!(nav.max_penetration_m() <= PENETRATION);
+    // A push wakes it: the wire goes in, the step is solved.
+    let tip = nav.tip_position();
+    nav.set_command(push(0.01)).unwrap();
+    let report = nav.step().unwrap();
+    assert!(!report.asleep && report.sweeps > 0, "{report:?}");
+    assert!((nav.inserted_m() - solved.inserted_m() - 0.01 / 500.0).abs() < 1e-12);
+    assert!(nav.tip_position() != tip);
+    // Sleep off: every step is solved.
+    nav.set_command(push(0.0)).unwrap();
+    nav.set_sleep(None);
+    for _ in 0..200 {
+        assert!(!nav.step().unwrap().asleep);
+    }
+}

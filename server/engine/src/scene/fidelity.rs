@@ -29,6 +29,11 @@ pub struct FidelitySpec {
     /// Refine elements where the device bends or touches.
     #[serde(default = "yes")]
     pub refine: bool,
+    /// Skip the physics while every hand is still and the devices have come to rest
+    /// ([`cathlab_physics::Sleep`]'s defaults: 50 steps in which no node drifted 5 µm);
+    /// any command, load or exchange wakes them.
+    #[serde(default = "yes")]
+    pub sleep_at_rest: bool,
     /// Detector size (pixels, square).
     #[serde(default = "default_frame_px")]
     pub frame_px: u32,
@@ -92,6 +97,7 @@ impl Default for FidelitySpec {
             contact_tolerance: default_contact_tolerance(),
             contact_solver: ContactSolver::default(),
             refine: true,
+            sleep_at_rest: true,
             frame_px: default_frame_px(),
             contrast_cell_mm: default_cell_mm(),
             contrast_every_steps: default_contrast_every(),

@@ -213,6 +213,12 @@ impl World {
         &self.strand
     }
 
+    /// Sleep at rest on or off for the devices in hand (until one is put back at its start,
+    /// which takes the scene's `fidelity.sleep_at_rest`): for benchmarks that compare.
+    pub fn set_sleep(&mut self, on: bool) {
+        self.strand.set_sleep(on);
+    }
+
     /// Metrics so far.
     pub fn metrics(&self) -> &Metrics {
         &self.metrics

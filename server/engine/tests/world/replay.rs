@@ -255,3 +255,57 @@ fn the_governor_lowers_fidelity_under_load_and_raises_it_when_calm() {
     );
     assert!(raised[0].0 >= 2500);
 }
+
+/// Hands still, the default scene's wire comes to rest and sleeps: its state (the digest) no
+/// longer changes and steps skip the physics, until a command wakes it; a scene with
+/// `sleep_at_rest = false` solves every step.
+#[test]
+fn a_wire_at_rest_sleeps_until_a_hand_moves_and_a_scene_may_keep_it_awake() {
+    let a = assets(&default_text());
+    let mut world = World::new(a).unwrap();
+    let script = [
+        (0, Command::PushVelocity(0.03)),
+        (199, Command::PushVelocity(0.0)),
+    ];
+    drive(&mut world, &script, 200);
+    let mut asleep_at = None;
+    for step in 0..1500 {
+        world.step().unwrap();
+        if world.strand().asleep() {
+            asleep_at = Some(step);
+            break;
+        }
+    }
+    let asleep_at = asleep_at.expect("the wire came to rest within 3 s");
+    let digest = world.digest();
+    for _ in 0..100 {
+        world.step().unwrap();
+        assert!(world.strand().asleep());
+    }
+    // The physics did not move (the digest also holds the clock, so compare the strand).
+    let mut strand_now = Vec::new();
+    world
+        .strand()
+        .digest_into(|v| strand_now.extend_from_slice(v));
+    println!("default scene, hands still after 0.4 s of push: asleep after {asleep_at} steps");
+    world.apply(1 << 20, &Command::TwistRate(3.0)).unwrap();
+    world.step().unwrap();
+    assert!(!world.strand().asleep());
+    let mut strand_after = Vec::new();
+    world
+        .strand()
+        .digest_into(|v| strand_after.extend_from_slice(v));
+    assert_ne!(strand_now, strand_after, "the twist moved the wire");
+    assert_ne!(digest, world.digest());
+    // Kept awake by the scene.
+    let awake = assets(&default_text().replace(
+        "step_rate_hz = 500",
+        "step_rate_hz = 500\nsleep_at_rest = false",
+    ));
+    let mut world = World::new(awake).unwrap();
+    drive(&mut world, &script, 200);
+    for _ in 0..(asleep_at + 200) {
+        world.step().unwrap();
+        assert!(!world.strand().asleep());
+    }
+}

@@ -9,12 +9,13 @@
 //!
 //! The module is cut by concept: the settings and work caps (`settings.rs`), the operator's
 //! commands (`command.rs`), the [`Navigation`]'s data, construction and accessors
-//! (`state.rs`), the step (`step.rs`), and collision points with contact detection
+//! (`state.rs`), the step (`step.rs`), sleep at rest (`sleep.rs`), and collision points with contact detection
 //! (`detection.rs`, shared with coaxial stacks).
 
 mod command;
 mod detection;
 mod settings;
+mod sleep;
 mod state;
 mod step;
 
@@ -25,5 +26,8 @@ pub(crate) use detection::{
 pub(crate) use settings::solver_settings;
 pub(crate) use settings::spacing;
 pub use settings::{Effort, MAX_SUBSTEP_DEPTH, NavigationSettings, Refinement};
+pub use sleep::Sleep;
+pub(crate) use sleep::Stillness;
 pub use state::Navigation;
 pub use step::NavigationReport;
+pub(crate) use step::{STILL_M, STILL_RAD};

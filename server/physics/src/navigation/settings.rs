@@ -6,6 +6,8 @@ use crate::beam::{SolverSettings, StepMode, ViscousDrag};
 use crate::contact::ContactSettings;
 use crate::error::{PhysicsError, Result};
 
+use super::Sleep;
+
 /// Discretization, control limits and contact settings of a navigation.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NavigationSettings {
@@ -43,6 +45,9 @@ pub struct NavigationSettings {
     /// Local refinement where the device bends or touches the wall (`None`: the nominal
     /// spacing only).
     pub refinement: Option<Refinement>,
+    /// Steps skipped while the hands are still and the device has come to rest (`None`, the
+    /// default here: every step solved; the engine's scenes sleep).
+    pub sleep: Option<Sleep>,
 }
 
 /// Where the device gets nodes beyond its nominal spacing. Before each step, elements that
@@ -96,6 +101,7 @@ impl Default for NavigationSettings {
                 ..ContactSettings::default()
             },
             refinement: Some(Refinement::default()),
+            sleep: None,
         }
     }
 }

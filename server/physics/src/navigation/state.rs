@@ -7,6 +7,7 @@ use nalgebra::{UnitQuaternion, Vector3, Vector6};
 use super::command::{Command, Insertion, Twist};
 use super::detection::ClearanceCache;
 use super::settings::{Effort, NavigationSettings, solver_settings, spacing};
+use super::sleep::Stillness;
 use crate::beam::{BeamModel, ContactStep, ElementSpec};
 use crate::contact::ContactSettings;
 use crate::device::Device;
@@ -33,6 +34,8 @@ pub struct Navigation<W: Wall> {
     pub(super) effort: Effort,
     /// Wall-distance bounds that spare collision points their probes.
     pub(super) clearance: ClearanceCache,
+    /// How long the device has been at rest ([`NavigationSettings::sleep`]).
+    pub(super) stillness: Stillness,
 }
 
 impl<W: Wall> Navigation<W> {
@@ -132,12 +135,16 @@ impl<W: Wall> Navigation<W> {
             previous_contacts: Vec::new(),
             effort: Effort::FULL,
             clearance: ClearanceCache::default(),
+            stillness: Stillness::default(),
         })
     }
 
     /// Caps the work of the following steps (see [`Effort`]).
     pub fn set_effort(&mut self, effort: Effort) -> Result<()> {
         effort.validate()?;
+        if effort != self.effort {
+            self.stillness.wake();
+        }
         self.effort = effort;
         Ok(())
     }
@@ -166,8 +173,16 @@ impl<W: Wall> Navigation<W> {
         self.command
     }
 
+    /// Sleep at rest on (`Some`) or off (see [`NavigationSettings::sleep`]); counts the quiet
+    /// steps afresh.
+    pub fn set_sleep(&mut self, sleep: Option<crate::navigation::Sleep>) {
+        self.stillness.wake();
+        self.settings.sleep = sleep;
+    }
+
     /// Replaces the Gauss–Seidel settings (from the next step on).
     pub fn set_contact_settings(&mut self, contact: ContactSettings) {
+        self.stillness.wake();
         self.settings.contact = contact;
     }
 

@@ -30,7 +30,15 @@ pub struct NavigationReport {
     pub twist_rad: f64,
     /// Elements simulated.
     pub elements: usize,
+    /// Whether the step was skipped at rest ([`Navigation::asleep`]).
+    pub asleep: bool,
 }
+
+/// A push (m) or turn (rad) a step no larger than these leaves the hands still: what is left
+/// of a target command once reached (rounding).
+pub(crate) const STILL_M: f64 = 1e-12;
+/// See [`STILL_M`].
+pub(crate) const STILL_RAD: f64 = 1e-12;
 
 impl<W: Wall> Navigation<W> {
     /// Advances one time step.
@@ -54,10 +62,54 @@ impl<W: Wall> Navigation<W> {
             Twist::Target(a) => a - self.twist_rad,
         }
         .clamp(-max_turn, max_turn);
+        // 2. Asleep at rest: nothing to solve.
+        let sleep = self.settings.sleep;
+        let still = push.abs() <= STILL_M && turn.abs() <= STILL_RAD;
+        if still && self.stillness.asleep(sleep.as_ref()) {
+            self.time_s += dt;
+            return Ok(self.sleeping_report());
+        }
+        self.stillness.before_step(
+            sleep.as_ref(),
+            still,
+            self.model.positions(),
+            self.model.rotations(),
+        );
         self.refine()?;
         let report = self.advance(push, turn, 0)?;
+        self.stillness.after_step(
+            sleep.as_ref(),
+            self.model.positions(),
+            self.model.rotations(),
+        );
         self.time_s += dt;
         Ok(report)
+    }
+
+    /// Whether the last steps found the device at rest and the next ones, with the hands
+    /// still, are skipped ([`NavigationSettings::sleep`](super::NavigationSettings::sleep)).
+    pub fn asleep(&self) -> bool {
+        self.stillness.asleep(self.settings.sleep.as_ref())
+    }
+
+    /// What a step skipped at rest reports: the last step's contacts, no sweep.
+    fn sleeping_report(&self) -> NavigationReport {
+        let (contacts, active_contacts) = self.last.as_ref().map_or((0, 0), |s| {
+            (
+                s.contacts.len(),
+                s.response.local.iter().filter(|l| l.x > 0.0).count(),
+            )
+        });
+        NavigationReport {
+            contacts,
+            active_contacts,
+            sweeps: 0,
+            converged: true,
+            inserted_m: self.inserted_m(),
+            twist_rad: self.twist_rad,
+            elements: self.model.element_count(),
+            asleep: true,
+        }
     }
 
     /// Advances by `push` (m) and `turn` (rad); where the solved step still penetrates the wall
@@ -136,6 +188,7 @@ impl<W: Wall> Navigation<W> {
             inserted_m: self.inserted_m(),
             twist_rad: self.twist_rad,
             elements: self.model.element_count(),
+            asleep: false,
         };
         self.last = Some(step);
         Ok(report)

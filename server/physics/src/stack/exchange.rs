@@ -12,6 +12,7 @@ impl<W: Wall> Stack<W> {
     /// Adds `device` as the new innermost instrument, its tip at the hub of the one around it
     /// (to be pushed in), as an operator loads a microwire into a microcatheter.
     pub fn push_instrument(&mut self, device: Device) -> Result<()> {
+        self.stillness.wake();
         if self.instruments.len() >= MAX_INSTRUMENTS {
             return Err(PhysicsError::OutOfRange {
                 what: "number of instruments in a stack".into(),
@@ -46,6 +47,7 @@ impl<W: Wall> Stack<W> {
     /// Removes the innermost instrument (not the only one), which must be withdrawn to the hub
     /// of the one around it; returns its device.
     pub fn pop_instrument(&mut self) -> Result<Device> {
+        self.stillness.wake();
         let index = self.instruments.len() - 1;
         if index == 0 {
             return Err(PhysicsError::Stack(
@@ -106,6 +108,7 @@ impl<W: Wall> Stack<W> {
     /// wire: allowed only while it, and everything inside it, is withdrawn to the hub of the
     /// instrument around it. The new device starts there, untwisted.
     pub fn exchange(&mut self, index: usize, device: Device) -> Result<()> {
+        self.stillness.wake();
         self.check_exchange(index, &device)?;
         if let Some((k, beyond_m)) = self.still_inserted(index) {
             return Err(PhysicsError::Stack(format!(

@@ -73,6 +73,9 @@ impl<W: Wall> Stack<W> {
                 "tip loads are applied in merged coupling only".into(),
             ));
         }
+        if self.instruments[index].tip_load_n != axial_n {
+            self.stillness.wake();
+        }
         self.instruments[index].tip_load_n = axial_n;
         Ok(())
     }

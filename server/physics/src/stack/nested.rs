@@ -268,6 +268,7 @@ impl<W: Wall> Stack<W> {
                 .flatten()
                 .map(|c| c.model.element_count())
                 .sum(),
+            asleep: false,
         };
         self.nested_last = NestedStep {
             sigma: detected.iter().map(|d| d.sigma_first).collect(),

@@ -12,7 +12,8 @@ use crate::coupled::CoupledContact;
 use crate::device::Device;
 use crate::error::{PhysicsError, Result, require_finite, require_positive};
 use crate::navigation::{
-    ClearanceCache, Command, Effort, Insertion, NavigationSettings, Twist, solver_settings,
+    ClearanceCache, Command, Effort, Insertion, NavigationSettings, Stillness, Twist,
+    solver_settings,
 };
 use crate::wall::{FreeSpace, Wall};
 
@@ -77,6 +78,8 @@ pub struct Stack<W: Wall> {
     pub(super) step_fraction: f64,
     /// Whether the model carries tip loads (cleared when none is left).
     pub(super) tip_loaded: bool,
+    /// How long the stack has been at rest ([`NavigationSettings::sleep`]).
+    pub(super) stillness: Stillness,
 }
 
 /// Nested mode's record of the last step.
@@ -282,6 +285,7 @@ impl<W: Wall> Stack<W> {
             tip_loaded: false,
             effort: Effort::FULL,
             clearance: ClearanceCache::default(),
+            stillness: Stillness::default(),
             step_fraction: 1.0,
         };
         if coupling == Coupling::Nested {
@@ -294,8 +298,18 @@ impl<W: Wall> Stack<W> {
     /// polish and refinement, as for a single device ([`Effort`]).
     pub fn set_effort(&mut self, effort: Effort) -> Result<()> {
         effort.validate()?;
+        if effort != self.effort {
+            self.stillness.wake();
+        }
         self.effort = effort;
         Ok(())
+    }
+
+    /// Sleep at rest on (`Some`) or off (see [`NavigationSettings::sleep`]); counts the quiet
+    /// steps afresh.
+    pub fn set_sleep(&mut self, sleep: Option<crate::navigation::Sleep>) {
+        self.stillness.wake();
+        self.settings.sleep = sleep;
     }
 
     /// The work cap in force.

@@ -9,7 +9,8 @@ use super::state::{Coupling, NestedStep, Node, Stack};
 use crate::beam::{BeamSnapshot, ElementSpec};
 use crate::error::Result;
 use crate::navigation::{
-    Insertion, Sample, Twist, detect, material_of, push_element_samples, warm_start,
+    Insertion, STILL_M, STILL_RAD, Sample, Twist, detect, material_of, push_element_samples,
+    warm_start,
 };
 use crate::wall::{FreeSpace, Wall};
 
@@ -31,6 +32,8 @@ pub struct StackReport {
     pub inserted_m: Vec<f64>,
     /// Elements simulated.
     pub elements: usize,
+    /// Whether the step was skipped at rest ([`Stack::asleep`]).
+    pub asleep: bool,
 }
 
 /// Everything [`Stack::advance`] needs to undo a step.
@@ -76,9 +79,63 @@ impl<W: Wall> Stack<W> {
             .clamp(-max_turn, max_turn);
             targets.push((inserted, instrument.twist_rad + turn));
         }
+        // Asleep at rest (merged coupling only): nothing to solve.
+        let sleep = match self.coupling {
+            Coupling::Merged => self.settings.sleep,
+            Coupling::Nested => None,
+        };
+        let still = self.instruments.iter().zip(&targets).all(|(i, (l, a))| {
+            (l - i.inserted_m).abs() <= STILL_M && (a - i.twist_rad).abs() <= STILL_RAD
+        });
+        if still && self.stillness.asleep(sleep.as_ref()) {
+            self.time_s += dt;
+            return Ok(self.sleeping_report());
+        }
+        self.stillness.before_step(
+            sleep.as_ref(),
+            still,
+            self.model.positions(),
+            self.model.rotations(),
+        );
         let report = self.advance(&targets, 0)?;
+        self.stillness.after_step(
+            sleep.as_ref(),
+            self.model.positions(),
+            self.model.rotations(),
+        );
         self.time_s += dt;
         Ok(report)
+    }
+
+    /// Whether the last steps found the stack at rest and the next ones, with every hand
+    /// still, are skipped (merged coupling; see [`crate::Sleep`]).
+    pub fn asleep(&self) -> bool {
+        self.coupling == Coupling::Merged && self.stillness.asleep(self.settings.sleep.as_ref())
+    }
+
+    /// Something other than the hands changed the stack (a caller's edit through
+    /// [`Self::model_mut`]): the next steps are solved again even if it slept.
+    pub fn wake(&mut self) {
+        self.stillness.wake();
+    }
+
+    /// What a step skipped at rest reports: the last step's contacts, no sweep.
+    fn sleeping_report(&self) -> StackReport {
+        let (contacts, active_contacts) = self.last.as_ref().map_or((0, 0), |s| {
+            (
+                s.contacts.len(),
+                s.response.local.iter().filter(|l| l.x > 0.0).count(),
+            )
+        });
+        StackReport {
+            contacts,
+            active_contacts,
+            sweeps: 0,
+            converged: true,
+            inserted_m: self.instruments.iter().map(|i| i.inserted_m).collect(),
+            elements: self.model.element_count(),
+            asleep: true,
+        }
     }
 
     /// Moves every instrument to `targets` (inserted length m, twist rad) in one solve, or,
@@ -181,6 +238,7 @@ impl<W: Wall> Stack<W> {
             converged: step.response.converged,
             inserted_m: self.instruments.iter().map(|i| i.inserted_m).collect(),
             elements: self.model.element_count(),
+            asleep: false,
         };
         self.last = Some(step);
         self.sync_nodes();

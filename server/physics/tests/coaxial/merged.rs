@@ -200,7 +200,8 @@ fn a_stiff_wire_straightens_a_simmons_curve_which_returns_as_it_is_withdrawn() {
 
 /// A tip load (a clot resisting a crossing tip) reaches the hands: held still in free space,
 /// the hands push with the load (the sum of their axial forces, static balance of the strand), whether the
-/// loaded tip leads or lies inside the strand; none without it; bad loads are named.
+/// loaded tip leads or lies inside the strand; none without it; bad loads are named. The stack
+/// sleeps at rest, and a load put on or taken off wakes it.
 #[test]
 fn a_tip_load_reaches_the_hands_in_static_balance() {
     let (tube, wire) = straight_pair();
@@ -214,9 +215,11 @@ fn a_tip_load_reaches_the_hands_in_static_balance() {
     };
     for (loaded, name) in [(1, "the leading wire's tip"), (0, "the tube's tip, inside")] {
         let mut stack = free_stack(vec![(tube.clone(), 0.06), (wire.clone(), 0.1)]);
-        for _ in 0..50 {
+        stack.set_sleep(Some(cathlab_physics::Sleep::default()));
+        for _ in 0..300 {
             stack.step().unwrap();
         }
+        assert!(stack.asleep(), "{name}: at rest in free space");
         let free = hands(&mut stack);
         stack.set_tip_load(loaded, -load).unwrap();
         assert_eq!(stack.tip_load_n(loaded), Some(-load));
@@ -232,6 +235,7 @@ fn a_tip_load_reaches_the_hands_in_static_balance() {
         );
         // Taken off: the hands are free again.
         stack.set_tip_load(loaded, 0.0).unwrap();
+        assert!(!stack.asleep());
         for _ in 0..400 {
             stack.step().unwrap();
         }
