@@ -27,7 +27,7 @@ pub(crate) use settings::solver_settings;
 pub(crate) use settings::spacing;
 pub use settings::{Effort, MAX_SUBSTEP_DEPTH, NavigationSettings, Refinement};
 pub use sleep::Sleep;
-pub(crate) use sleep::Stillness;
+pub(crate) use sleep::{Stillness, contact_counts};
 pub use state::Navigation;
 pub use step::NavigationReport;
 pub(crate) use step::{STILL_M, STILL_RAD};

@@ -4,6 +4,8 @@
 
 use nalgebra::{UnitQuaternion, Vector3};
 
+use crate::beam::ContactStep;
+
 /// When a device at rest sleeps: after `window_steps` steps in a row with every hand still in
 /// which no node moved more than `max_step_m` in any one step, no node's mean position over
 /// the window's second half lies more than `max_drift_m` from its mean over the first half,
@@ -39,6 +41,16 @@ impl Default for Sleep {
             max_turn_rad: 5e-3,
         }
     }
+}
+
+/// The contacts detected and those pushing in `last`, the step a sleeping device repeats.
+pub(crate) fn contact_counts(last: Option<&ContactStep>) -> (usize, usize) {
+    last.map_or((0, 0), |s| {
+        (
+            s.contacts.len(),
+            s.response.local.iter().filter(|l| l.x > 0.0).count(),
+        )
+    })
 }
 
 /// A device's progress towards sleep: the steps of the current window, its nodes' frames at

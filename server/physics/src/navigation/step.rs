@@ -8,6 +8,7 @@ use nalgebra::{UnitQuaternion, Vector3};
 use super::command::{Insertion, Twist};
 use super::detection::{Sample, detect, material_of, push_element_samples, warm_start};
 use super::settings::{MAX_SUBSTEP_DEPTH, solver_settings, spacing};
+use super::sleep::contact_counts;
 use super::state::{Navigation, element_spec};
 use crate::beam::BeamModel;
 use crate::error::Result;
@@ -94,12 +95,7 @@ impl<W: Wall> Navigation<W> {
 
     /// What a step skipped at rest reports: the last step's contacts, no sweep.
     fn sleeping_report(&self) -> NavigationReport {
-        let (contacts, active_contacts) = self.last.as_ref().map_or((0, 0), |s| {
-            (
-                s.contacts.len(),
-                s.response.local.iter().filter(|l| l.x > 0.0).count(),
-            )
-        });
+        let (contacts, active_contacts) = contact_counts(self.last.as_ref());
         NavigationReport {
             contacts,
             active_contacts,

@@ -9,8 +9,8 @@ use super::state::{Coupling, NestedStep, Node, Stack};
 use crate::beam::{BeamSnapshot, ElementSpec};
 use crate::error::Result;
 use crate::navigation::{
-    Insertion, STILL_M, STILL_RAD, Sample, Twist, detect, material_of, push_element_samples,
-    warm_start,
+    Insertion, STILL_M, STILL_RAD, Sample, Twist, contact_counts, detect, material_of,
+    push_element_samples, warm_start,
 };
 use crate::wall::{FreeSpace, Wall};
 
@@ -121,12 +121,7 @@ impl<W: Wall> Stack<W> {
 
     /// What a step skipped at rest reports: the last step's contacts, no sweep.
     fn sleeping_report(&self) -> StackReport {
-        let (contacts, active_contacts) = self.last.as_ref().map_or((0, 0), |s| {
-            (
-                s.contacts.len(),
-                s.response.local.iter().filter(|l| l.x > 0.0).count(),
-            )
-        });
+        let (contacts, active_contacts) = contact_counts(self.last.as_ref());
         StackReport {
             contacts,
             active_contacts,
