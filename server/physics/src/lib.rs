@@ -6,8 +6,8 @@
 //! blocks that contact response needs. Contacts with the vessel wall (Signorini with Coulomb
 //! friction) are solved by projected Gauss–Seidel through those blocks with an active-set
 //! polish (or semismooth Newton on the Delassus matrix they give), and a navigation simulates
-//! only the inserted length under push, pull and twist, skipping its steps once at rest. Plain synchronous, deterministic library:
-//! SI units, f64.
+//! only the inserted length under push, pull and twist, skipping its steps once at rest.
+//! Plain synchronous, deterministic library: SI units, f64.
 
 pub mod autopilot;
 pub mod beam;

@@ -30,7 +30,8 @@ pub struct FidelitySpec {
     #[serde(default = "yes")]
     pub refine: bool,
     /// Skip the physics while every hand is still and the devices have come to rest
-    /// ([`cathlab_physics::Sleep`]'s defaults: 50 steps in which no node drifted 5 µm);
+    /// ([`cathlab_physics::Sleep`]'s defaults: a 100-step window over which no node's mean
+    /// position drifted 5 µm);
     /// any command, load or exchange wakes them.
     #[serde(default = "yes")]
     pub sleep_at_rest: bool,

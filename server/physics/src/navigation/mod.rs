@@ -9,8 +9,8 @@
 //!
 //! The module is cut by concept: the settings and work caps (`settings.rs`), the operator's
 //! commands (`command.rs`), the [`Navigation`]'s data, construction and accessors
-//! (`state.rs`), the step (`step.rs`), sleep at rest (`sleep.rs`), and collision points with contact detection
-//! (`detection.rs`, shared with coaxial stacks).
+//! (`state.rs`), the step (`step.rs`), sleep at rest (`sleep.rs`), and collision points with
+//! contact detection (`detection.rs`, shared with coaxial stacks).
 
 mod command;
 mod detection;

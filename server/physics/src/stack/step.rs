@@ -80,10 +80,7 @@ impl<W: Wall> Stack<W> {
             targets.push((inserted, instrument.twist_rad + turn));
         }
         // Asleep at rest (merged coupling only): nothing to solve.
-        let sleep = match self.coupling {
-            Coupling::Merged => self.settings.sleep,
-            Coupling::Nested => None,
-        };
+        let sleep = self.sleep();
         let still = self.instruments.iter().zip(&targets).all(|(i, (l, a))| {
             (l - i.inserted_m).abs() <= STILL_M && (a - i.twist_rad).abs() <= STILL_RAD
         });
@@ -110,7 +107,16 @@ impl<W: Wall> Stack<W> {
     /// Whether the last steps found the stack at rest and the next ones, with every hand
     /// still, are skipped (merged coupling; see [`crate::Sleep`]).
     pub fn asleep(&self) -> bool {
-        self.coupling == Coupling::Merged && self.stillness.asleep(self.settings.sleep.as_ref())
+        self.stillness.asleep(self.sleep().as_ref())
+    }
+
+    /// When the stack may sleep: the settings' rule in merged coupling, never nested (its
+    /// state spans one chain per instrument).
+    fn sleep(&self) -> Option<crate::navigation::Sleep> {
+        match self.coupling {
+            Coupling::Merged => self.settings.sleep,
+            Coupling::Nested => None,
+        }
     }
 
     /// Something other than the hands changed the stack (a caller's edit through
