@@ -238,9 +238,9 @@ async fn a_diverging_session_is_reset_and_reported_while_others_go_on() {
         // rest curvature instead of its mid-point value.)
         .replace("bend_deg = 90.0", "bend_deg = 180.0")
         .replace("bend_length_mm = 30.0", "bend_length_mm = 10.0")
-        // A hand that pushes through anything (the 10 N default holds the push back
-        // before the hook breaks the coarse elements).
-        + "\n[limits]\npush_force_n = 10000.0\nunsupported_mm = 5.0\n";
+        // A hand that pushes and twists through anything (the 10 N and 0.1 N·m defaults
+        // hold the push and the twist back before the hook breaks the coarse elements).
+        + "\n[limits]\npush_force_n = 10000.0\nunsupported_mm = 5.0\ntwist_torque_nm = 10.0\n";
     let fragile = client
         .create_session(authed(
             pb::CreateSessionRequest {

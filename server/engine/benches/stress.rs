@@ -3,9 +3,9 @@
 //! (no governor), `STRESS_SEEDS` seeds (default 3) of `STRESS_SECONDS` simulated seconds each
 //! (default 1,200: an hour per scene), then one run with the governor's level switched at
 //! random; prints a table (divergences, errors, step p50/p99/max, steps over 2 ms, deepest
-//! penetration, largest hand force) and fails on any divergence, error or panic, a node more
-//! than 0.05 mm past the wall, or a hand that felt more than its strength (the scene's push
-//! limit, within 2 %).
+//! penetration, largest hand force and torque) and fails on any divergence, error or panic, a
+//! node more than 0.05 mm past the wall, or a hand that felt more than its strength (the
+//! scene's push limit, within 2 %; its twist limit, within 25 %).
 //! `STRESS_SCENES` (comma-separated names) picks scenes; `STRESS_SOLVER=newton` or
 //! `gauss_seidel` runs them with that contact solve instead of their own. Without `--bench` (as in
 //! `cargo test`) it runs the smoke: every scene, one seed, 4 simulated seconds, and one
@@ -54,13 +54,18 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
         .iter()
         .map(|r| r.worst_hand_force_n)
         .fold(0.0, f64::max);
+    let torque = reports
+        .iter()
+        .map(|r| r.worst_hand_torque_nm)
+        .fold(0.0, f64::max);
     println!(
-        "| {scene} | {label} | {simulated:.0} | {divergences} | {errors} | {panics} | {:.3} | {:.3} | {:.2} | {:.2} | {:.3} | {force:.1} |",
+        "| {scene} | {label} | {simulated:.0} | {divergences} | {errors} | {panics} | {:.3} | {:.3} | {:.2} | {:.2} | {:.3} | {force:.1} | {:.0} |",
         all.quantile_s(0.5) * 1e3,
         all.quantile_s(0.99) * 1e3,
         all.quantile_s(1.0) * 1e3,
         100.0 * all.over_budget() as f64 / all.step_s.len().max(1) as f64,
         penetration * 1e3,
+        torque * 1e3,
     );
     for (i, r) in reports.iter().enumerate() {
         if let Some(failure) = &r.first_failure {
@@ -68,8 +73,11 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
         }
         if !r.hands_within_limits() {
             println!(
-                "    run {i}: a hand felt {:.3} N, past its {:.0} N",
-                r.worst_hand_force_n, r.hand_limit_n
+                "    run {i}: a hand felt {:.3} N and {:.1} mN·m, past its {:.0} N or {:.0} mN·m",
+                r.worst_hand_force_n,
+                r.worst_hand_torque_nm * 1e3,
+                r.hand_limit_n,
+                r.hand_torque_limit_nm * 1e3
             );
         }
     }
@@ -108,9 +116,9 @@ fn main() {
         only.as_ref().is_none_or(|o| o.iter().any(|x| x == n))
     });
     println!(
-        "| scene | fidelity | simulated s | divergences | errors | panics | p50 ms | p99 ms | max ms | % over 2 ms | deepest mm | hand N |"
+        "| scene | fidelity | simulated s | divergences | errors | panics | p50 ms | p99 ms | max ms | % over 2 ms | deepest mm | hand N | hand mN·m |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let mut sound = true;
     for name in &names {
         let spec = common::scene_spec(&scenes, name, "STRESS_SOLVER");

@@ -84,6 +84,9 @@ pub struct InstrumentMetrics {
     pub moving_time_s: f64,
     /// Largest axial force its hand felt either way (N).
     pub peak_axial_force_n: f64,
+    /// Largest torque its hand felt either way (N·m).
+    #[serde(default)]
+    pub peak_torque_nm: f64,
 }
 
 impl Metrics {

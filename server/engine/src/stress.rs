@@ -12,6 +12,10 @@ use crate::world::{Command, Drive, MAX_FIDELITY_LEVEL, World};
 /// A step's time budget at 500 Hz (s).
 pub const STEP_BUDGET_S: f64 = 2e-3;
 
+/// How far past its torque strength a hand's torque may rise (a share of it): the twist is
+/// held from the step after the one that reaches it, with no retake, so one step's rise.
+pub const TORQUE_OVERSHOOT: f64 = 0.25;
+
 /// How the operator's fidelity is set.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Levels {
@@ -75,6 +79,10 @@ pub struct StressReport {
     pub worst_hand_force_n: f64,
     /// The hands' strength in the scene (N): the most any may push or pull with.
     pub hand_limit_n: f64,
+    /// The largest torque any hand felt (N·m).
+    pub worst_hand_torque_nm: f64,
+    /// The hands' torque strength in the scene (N·m): the most any may twist with.
+    pub hand_torque_limit_nm: f64,
 }
 
 impl StressReport {
@@ -97,9 +105,11 @@ impl StressReport {
     }
 
     /// Whether no hand felt more than its strength (within the step's
-    /// [`crate::world::FORCE_OVERSHOOT`]).
+    /// [`crate::world::FORCE_OVERSHOOT`]) and no hand twisted past its torque strength by
+    /// more than [`TORQUE_OVERSHOOT`].
     pub fn hands_within_limits(&self) -> bool {
         self.worst_hand_force_n <= self.hand_limit_n * (1.0 + crate::world::FORCE_OVERSHOOT) + 1e-9
+            && self.worst_hand_torque_nm <= self.hand_torque_limit_nm * (1.0 + TORQUE_OVERSHOOT)
     }
 }
 
@@ -244,6 +254,11 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
         .map(|m| m.peak_axial_force_n.abs())
         .fold(0.0, f64::max);
     report.hand_limit_n = world.assets().spec.limits.push_force_n;
+    report.worst_hand_torque_nm = metrics.instruments[..metrics.instrument_count as usize]
+        .iter()
+        .map(|m| m.peak_torque_nm.abs())
+        .fold(0.0, f64::max);
+    report.hand_torque_limit_nm = world.assets().spec.limits.twist_torque_nm;
     report.step_s.sort_by(f64::total_cmp);
     report
 }

@@ -6,7 +6,8 @@
 //! radius m]`, with `WIRE035=1` for the 0.035" guidewire (else the 0.014" microwire) and
 //! `TWIST=rad/s` for a twist while pushing. Untwisted, the 0.035" wire's push rises to 75 N
 //! (no hand limit here) and relaxes to ~1.2 N held; twisted at 6 rad/s it reaches 0.65 N·m
-//! and 800 N within 4 s and 27 kN by 9 s: nothing bounds the twist a hand puts in.
+//! and 800 N within 4 s and 27 kN by 9 s: nothing here bounds the twist a hand puts in (the
+//! engine's hands hold it at their torque strength, the scene's `limits.twist_torque_nm`).
 
 use cathlab_physics::navigation::{Command, Insertion, Navigation, NavigationSettings, Twist};
 use cathlab_physics::presets;

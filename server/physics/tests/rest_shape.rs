@@ -223,3 +223,61 @@ fn splitting_an_arc_places_the_new_node_on_the_arc_and_keeps_it_at_rest() {
     assert!(model.split_element(9, half, half).is_err());
     assert!(model.merge_elements(7, spec).is_err());
 }
+
+#[test]
+fn pulling_out_joins_the_base_elements_without_compressing_them() {
+    // A straight 0.035" wire laid on an arc of 20 mm radius (bent, so each chord is shorter
+    // than its element): elements of 2.5, 5, 5 and 5 mm from the entry.
+    let props = presets::guidewire_035().sections[0].beam_properties();
+    let lengths = [2.5e-3, 5e-3, 5e-3, 5e-3];
+    let specs: Vec<ElementSpec> = lengths
+        .iter()
+        .map(|&l| ElementSpec::planar(props, l, 0.0))
+        .collect();
+    let mut model = BeamModel::new(
+        &specs,
+        Vector3::zeros(),
+        UnitQuaternion::identity(),
+        SolverSettings::default(),
+    )
+    .unwrap();
+    let radius = 0.02;
+    let mut s = 0.0;
+    let mut positions = vec![Vector3::zeros()];
+    let mut rotations = vec![UnitQuaternion::identity()];
+    for &l in &lengths {
+        s += l;
+        let angle = s / radius;
+        positions.push(Vector3::new(
+            radius * angle.sin(),
+            radius * (1.0 - angle.cos()),
+            0.0,
+        ));
+        rotations.push(UnitQuaternion::from_axis_angle(&Vector3::z_axis(), angle));
+    }
+    model.set_nodes(&positions, &rotations).unwrap();
+    let chord = |p: &[Vector3<f64>], e: usize| (p[e + 1] - p[e]).norm();
+    let before = model.positions().to_vec();
+    let stretch_before = (chord(&before, 0) + chord(&before, 1)) / (lengths[0] + lengths[1]) - 1.0;
+    let as_they_lay = (before[2] - before[0]).norm() / (lengths[0] + lengths[1]) - 1.0;
+    model
+        .remove_node_after_base(ElementSpec::planar(props, lengths[0] + lengths[1], 0.0))
+        .unwrap();
+    let after = model.positions().to_vec();
+    let stretch_after = chord(&after, 0) / (lengths[0] + lengths[1]) - 1.0;
+    println!(
+        "the two base elements' stretch {stretch_before:.3e}; joined {stretch_after:.3e} \
+         (joined as they lay: {as_they_lay:.3e}, {:.1} N more compression)",
+        (stretch_before - as_they_lay) * props.axial_stiffness_n
+    );
+    // The joined element is stretched as the two were together, not squeezed by its chord
+    // cutting the bend; the nodes beyond keep their elements' chords.
+    assert!((stretch_after - stretch_before).abs() < 1e-12);
+    assert!(
+        stretch_before - as_they_lay > 1e-5,
+        "the test bends the wire"
+    );
+    for e in 1..after.len() - 1 {
+        assert!((chord(&after, e) - chord(&before, e + 1)).abs() < 1e-15);
+    }
+}

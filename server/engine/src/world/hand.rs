@@ -1,6 +1,7 @@
-//! One instrument's hand: its device's look and push limits (the hand's strength, the Euler
-//! load outside the sheath, the device's length), what held its push back and what it feels;
-//! and an exchange waiting for its instrument to be withdrawn.
+//! One instrument's hand: its device's look, its push limits (the hand's strength, the Euler
+//! load outside the sheath, the device's length) and twist limit (the hand's torque), what
+//! held its push or twist back and what it feels; and an exchange waiting for its instrument
+//! to be withdrawn.
 
 use cathlab_xray::DeviceAppearance;
 use serde::{Deserialize, Serialize};
@@ -38,6 +39,8 @@ pub struct DeviceLimits {
     pub pull_force_n: f64,
     /// The most that can be inserted (m): the device's length less what stays outside.
     pub max_inserted_m: f64,
+    /// The most torque the proximal end is twisted with (N·m): the hand's strength.
+    pub torque_nm: f64,
 }
 
 impl DeviceLimits {
@@ -62,6 +65,7 @@ impl DeviceLimits {
             buckling: buckling < limits.push_force_n,
             pull_force_n: limits.push_force_n,
             max_inserted_m: device.length_m() - limits.outside_mm * 1e-3 - along_route_m,
+            torque_nm: limits.twist_torque_nm,
         }
     }
 }
@@ -86,11 +90,19 @@ pub(super) struct Hand {
     /// has been free for `LIMIT_REARM_S`).
     pub(super) limit_armed: bool,
     pub(super) push_free_since_s: f64,
+    /// Whether the hand's twist is held back (its torque at its strength), whether the next
+    /// such hold is reported and since when the twist has been free (s), as for the push.
+    pub(super) twist_held: bool,
+    pub(super) twist_limit_armed: bool,
+    pub(super) twist_free_since_s: f64,
     pub(super) reaction: HandReaction,
     /// How fast its force rose with its own instrument's advance in the last step the force
     /// guard watched (N/m; `None` before one, or where it fell): the share of a move that keeps
     /// the hand at its limit is predicted from it, so a push held at the limit steps once.
     pub(super) stiffness_n_per_m: Option<f64>,
+    /// The force (N) at which it last gave way (None: it did not in the last step): a give
+    /// that left the force larger is not repeated.
+    pub(super) gave_at_n: Option<f64>,
 }
 
 impl Hand {
@@ -107,8 +119,12 @@ impl Hand {
             push_limit: PushLimit::None,
             limit_armed: true,
             push_free_since_s: 0.0,
+            twist_held: false,
+            twist_limit_armed: true,
+            twist_free_since_s: 0.0,
             reaction: HandReaction::default(),
             stiffness_n_per_m: None,
+            gave_at_n: None,
         }
     }
 }

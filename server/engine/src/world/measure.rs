@@ -87,6 +87,9 @@ impl World {
             figures.peak_axial_force_n = figures
                 .peak_axial_force_n
                 .max(self.hands[i].reaction.axial_force_n.abs());
+            figures.peak_torque_nm = figures
+                .peak_torque_nm
+                .max(self.hands[i].reaction.torque_nm.abs());
             if !comparable {
                 continue;
             }

@@ -1,10 +1,10 @@
 //! The physics stage of a step: each instrument's operator command held back where a limit
 //! stops its push (the hand's force, the device's buckling load or length, the governor's
-//! speed cap), the strand stepped, and a diverged step (an error, a non-finite tip, a tip
+//! speed cap) or its twist (the hand's torque), the strand stepped, and a diverged step (an error, a non-finite tip, a tip
 //! or any node of any instrument through the wall) reset to the device's start, reported and
 //! counted.
 
-use cathlab_physics::Insertion;
+use cathlab_physics::{Insertion, Twist};
 use nalgebra::Point3;
 
 use super::World;
@@ -28,6 +28,9 @@ const GIVE_UNDERSHOOT: f64 = FORCE_OVERSHOOT / 2.0;
 
 /// The most a hand held past its strength gives way in one step (m).
 const MAX_GIVE_M: f64 = 0.5e-3;
+
+/// The most a hand twisted past its strength gives its twist back in one step (rad).
+const MAX_GIVE_RAD: f64 = 0.05;
 
 impl World {
     /// Steps the strand with every hand's command within its limits (the operators' commands
@@ -290,10 +293,23 @@ impl World {
         let stiffness = hand
             .stiffness_n_per_m
             .map_or(axial_stiffness, |k| k.min(axial_stiffness));
-        let give = |excess: f64| (excess.max(0.0) / stiffness).min(MAX_GIVE_M);
+        // A give that made the force worse (pulling a coiled wire back out of a dead end can
+        // load the hand more, not less) is not repeated: the hand holds where it is.
+        let relieving = hand
+            .gave_at_n
+            .is_none_or(|before| force.abs() <= before.abs());
+        let give = |excess: f64| {
+            if relieving {
+                (excess.max(0.0) / stiffness).min(MAX_GIVE_M)
+            } else {
+                0.0
+            }
+        };
         let aim = 1.0 - GIVE_UNDERSHOOT;
         let (limit, insertion) = if pulled_too_hard {
-            let to = inserted + give(-force - aim * limits.pull_force_n);
+            // Never in past its hub: there the hub, not the hand, meets the pull.
+            let to = (inserted + give(-force - aim * limits.pull_force_n))
+                .min(limits.max_inserted_m.max(inserted));
             (PushLimit::Force, Some(Insertion::Target(to)))
         } else if advance == 0.0 && pushed_too_hard {
             let to = inserted - give(force - aim * limits.force_n);
@@ -317,6 +333,8 @@ impl World {
         };
         let now = self.metrics.procedure_time_s;
         let hand = &mut self.hands[index];
+        hand.gave_at_n =
+            (limit == PushLimit::Force && (pulled_too_hard || pushed_too_hard)).then_some(force);
         let mut report = None;
         if limit == PushLimit::None {
             if hand.push_limit != PushLimit::None {
@@ -356,10 +374,71 @@ impl World {
             };
             self.event(EventKind::Limit, message);
         }
-        insertion.map(|insertion| cathlab_physics::Command {
-            insertion,
-            twist: operator.twist,
+        let twist = self.limited_twist(index, operator.twist, dt);
+        (insertion.is_some() || twist.is_some()).then(|| cathlab_physics::Command {
+            insertion: insertion.unwrap_or(operator.insertion),
+            twist: twist.unwrap_or(operator.twist),
         })
+    }
+
+    /// The twist this step runs instead of the operator's for instrument `index` when the
+    /// hand's torque holds it back (None: the operator's), as the force holds a push: a twist
+    /// that would load a hand whose last torque is at its strength is held, and a hand past it
+    /// gives the excess back over the inserted length's torsional stiffness G·J/L (at most
+    /// [`MAX_GIVE_RAD`] a step), aiming [`GIVE_UNDERSHOOT`] under it, so the torque a twist
+    /// stores in a device whose tip cannot turn is bounded (and with it the axial load its
+    /// writhing puts on the hand). A twist the other way, unloading, runs as commanded.
+    /// Reports each new hold once.
+    fn limited_twist(&mut self, index: usize, operator: Twist, dt: f64) -> Option<Twist> {
+        let twisted = self.strand.twist_rad(index);
+        let turn = match operator {
+            Twist::Rate(w) => w * dt,
+            Twist::Target(angle) => angle - twisted,
+        };
+        let hand = &self.hands[index];
+        let torque = hand.reaction.torque_nm;
+        let limit = hand.limits.torque_nm;
+        // The reaction's sign is the twist's that loads it (the device resists).
+        let loading = turn * torque > 0.0 || turn == 0.0;
+        let held = loading && torque.abs() >= limit;
+        let twist = held.then(|| {
+            let torsional_stiffness = self
+                .strand
+                .device(index)
+                .and_then(|d| d.sections.first())
+                .map_or(f64::INFINITY, |s| {
+                    s.beam_properties().torsional_stiffness_nm2
+                })
+                / self.strand.inserted_m(index).max(1e-3);
+            let excess = torque.abs() - (1.0 - GIVE_UNDERSHOOT) * limit;
+            let give = (excess.max(0.0) / torsional_stiffness).min(MAX_GIVE_RAD);
+            Twist::Target(twisted - torque.signum() * give)
+        });
+        let now = self.metrics.procedure_time_s;
+        let hand = &mut self.hands[index];
+        let report = if !held {
+            if hand.twist_held {
+                hand.twist_free_since_s = now;
+            }
+            if now - hand.twist_free_since_s >= LIMIT_REARM_S {
+                hand.twist_limit_armed = true;
+            }
+            false
+        } else {
+            std::mem::replace(&mut hand.twist_limit_armed, false)
+        };
+        hand.twist_held = held;
+        if report {
+            self.event(
+                EventKind::Limit,
+                format!(
+                    "twist held at {:.0} mN·m: the hand's limit is {:.0} mN·m",
+                    torque.abs() * 1e3,
+                    limit * 1e3
+                ),
+            );
+        }
+        twist
     }
 
     /// Back to the scene's start with device `index` of a one-device scene (a stack scene: its

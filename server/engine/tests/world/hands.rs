@@ -358,3 +358,56 @@ fn an_exchange_withdraws_the_wire_through_the_catheter_then_replaces_it_and_a_pu
         wire.inserted_m
     );
 }
+
+/// The largest torque (N·m) the hand felt, the twist it ended at (rad) and the twist holds
+/// reported, for the default wire pushed 250 mm into the arch and then twisted at two turns a
+/// second for 3 s while pushed on, under a hand twisting with at most `torque_nm`.
+fn twisted_hard(torque_nm: f64) -> (f64, f64, usize) {
+    let text = default_text() + &format!("\n[limits]\ntwist_torque_nm = {torque_nm}\n");
+    let mut world = World::new(assets(&text)).unwrap();
+    world.apply(1, &Command::PushVelocity(0.1)).unwrap();
+    for _ in 0..1250 {
+        world.step().unwrap();
+    }
+    world
+        .apply(2, &Command::TwistRate(4.0 * std::f64::consts::PI))
+        .unwrap();
+    world.apply(3, &Command::PushVelocity(0.02)).unwrap();
+    world.take_events();
+    let mut largest: f64 = 0.0;
+    let mut holds = 0;
+    for _ in 0..1500 {
+        world.step().unwrap();
+        largest = largest.max(world.snapshot().axial_reaction().1.abs());
+        holds += world
+            .take_events()
+            .iter()
+            .filter(|e| e.kind == EventKind::Limit && e.message.starts_with("twist held"))
+            .count();
+    }
+    (largest, world.snapshot().twist_rad, holds)
+}
+
+#[test]
+fn a_twist_is_held_at_the_hands_torque() {
+    let (free, free_twist, free_holds) = twisted_hard(10.0);
+    println!(
+        "free: largest torque {:.3} mN·m, twist {free_twist:.1} rad",
+        free * 1e3
+    );
+    assert_eq!(free_holds, 0);
+    let limit = free / 4.0;
+    let (held, held_twist, holds) = twisted_hard(limit);
+    println!(
+        "limit {:.3} mN·m: largest {:.3} mN·m, twist {held_twist:.1} rad, {holds} hold(s) reported",
+        limit * 1e3,
+        held * 1e3
+    );
+    // One step's rise past the limit at most, then held and given back.
+    assert!(held <= 1.25 * limit, "{held} against {limit}");
+    assert!(holds >= 1);
+    assert!(
+        held_twist < free_twist - 1.0,
+        "{held_twist} vs {free_twist}"
+    );
+}

@@ -252,6 +252,10 @@ fn a_bad_guidance_or_limits_table_is_named() {
         ("\n[guidance]\ntarget_marker = \"yes\"\n", "guidance"),
         ("\n[guidance]\nhints = true\n", "guidance"),
         ("\n[limits]\npush_force_n = -1.0\n", "limits.push_force_n"),
+        (
+            "\n[limits]\ntwist_torque_nm = 0.0\n",
+            "limits.twist_torque_nm",
+        ),
         ("\n[limits]\noutside_mm = 1e9\n", "limits.outside_mm"),
     ] {
         let error = SceneSpec::parse(&(default_text() + extra), SceneFormat::Toml)
