@@ -123,7 +123,11 @@ impl World {
                 let hand = &self.hands[i];
                 let last = hand.reaction.axial_force_n;
                 let within = last < hand.limits.force_n && -last < hand.limits.pull_force_n;
-                (inserted, advance, advance != 0.0 && within)
+                // A hand past its limit moving against the force it feels (pulling while the
+                // device pushes it out, as a coil pulled out of a dead end does here) is not
+                // giving way: its move is scaled too, and held where it loads the hand further.
+                let against = advance * last < 0.0;
+                (inserted, advance, advance != 0.0 && (within || against))
             })
             .collect();
         // Per hand: its limits as signed forces (push, pull) and its last reaction (N).
