@@ -3,11 +3,13 @@
 //! holds. Prints the hand's axial force (N, positive when the wire pushes back) and torque
 //! about the entry axis (N·m) every second of the push, then the force every half second of
 //! the hold. `cargo run --release -p cathlab-physics --example coil_tension -- [push s] [tube
-//! radius m]`, with `WIRE035=1` for the 0.035" guidewire (else the 0.014" microwire) and
-//! `TWIST=rad/s` for a twist while pushing. Untwisted, the 0.035" wire's push rises to 75 N
-//! (no hand limit here) and relaxes to ~1.2 N held; twisted at 6 rad/s it reaches 0.65 N·m
-//! and 800 N within 4 s and 27 kN by 9 s: nothing here bounds the twist a hand puts in (the
-//! engine's hands hold it at their torque strength, the scene's `limits.twist_torque_nm`).
+//! radius m]`, with `WIRE035=1` for the 0.035" guidewire (else the 0.014" microwire),
+//! `TWIST=rad/s` for a twist while pushing, `PUSH_LIMIT=N` for a hand that holds its push at
+//! N, and `PULL_TO=N` to pull back until the wire pulls on the hand with N before the hold.
+//! Untwisted, the 0.035" wire's push rises to 75 N (no hand limit here) and relaxes to
+//! ~1.2 N held; twisted at 6 rad/s it reaches 0.65 N·m and 800 N within 4 s and 27 kN by
+//! 9 s: nothing here bounds the twist a hand puts in (the engine's hands hold it at their
+//! torque strength, the scene's `limits.twist_torque_nm`).
 
 use cathlab_physics::navigation::{Command, Insertion, Navigation, NavigationSettings, Twist};
 use cathlab_physics::presets;
@@ -49,8 +51,16 @@ fn main() {
         insertion: Insertion::Velocity(v),
         twist: Twist::Rate(w),
     };
-    nav.set_command(command(0.05, twist)).expect("a command");
+    let env = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<f64>().ok());
+    // `PUSH_LIMIT=N`: the push held while the wire pushes back with N or more, as a hand.
+    let push_limit = env("PUSH_LIMIT").unwrap_or(f64::INFINITY);
     for step in 0..(push_s * 500.0) as usize {
+        let speed = if nav.proximal_reaction()[0] >= push_limit {
+            0.0
+        } else {
+            0.05
+        };
+        nav.set_command(command(speed, twist)).expect("a command");
         nav.step().expect("a step");
         if step % 500 == 0 {
             let r = nav.proximal_reaction();
@@ -63,6 +73,21 @@ fn main() {
                 nav.model().element_count(),
             );
         }
+    }
+    // `PULL_TO=N`: then pulled back at 20 mm/s until the wire pulls on the hand with N.
+    if let Some(tension) = env("PULL_TO") {
+        nav.set_command(command(-0.02, 0.0)).expect("a command");
+        let mut steps = 0;
+        while nav.proximal_reaction()[0] > -tension && steps < 25_000 {
+            nav.step().expect("a step");
+            steps += 1;
+        }
+        println!(
+            "pulled {:.1} s to {:.0} mm inserted: axial {:.3} N",
+            steps as f64 / 500.0,
+            nav.inserted_m() * 1e3,
+            nav.proximal_reaction()[0]
+        );
     }
     nav.set_command(command(0.0, 0.0)).expect("a command");
     for step in 0..5000 {
