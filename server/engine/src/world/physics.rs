@@ -32,6 +32,15 @@ const MAX_GIVE_M: f64 = 0.5e-3;
 /// The most a hand twisted past its strength gives its twist back in one step (rad).
 const MAX_GIVE_RAD: f64 = 0.05;
 
+/// How far `insertion` moves an instrument inserted `inserted_m` (m) in a step of `dt` (s):
+/// its speed over the step, or the way to its target (m).
+fn advance_m(insertion: Insertion, inserted_m: f64, dt: f64) -> f64 {
+    match insertion {
+        Insertion::Velocity(v) => v * dt,
+        Insertion::Target(x) => x - inserted_m,
+    }
+}
+
 impl World {
     /// Steps the strand with every hand's command within its limits (the operators' commands
     /// are put back after the step); a diverged step puts the device back at its start,
@@ -116,10 +125,7 @@ impl World {
             .enumerate()
             .map(|(i, insertion)| {
                 let inserted = self.strand.inserted_m(i);
-                let advance = match insertion {
-                    Insertion::Velocity(v) => v * dt,
-                    Insertion::Target(x) => x - inserted,
-                };
+                let advance = advance_m(*insertion, inserted, dt);
                 let hand = &self.hands[i];
                 let last = hand.reaction.axial_force_n;
                 let within = last < hand.limits.force_n && -last < hand.limits.pull_force_n;
@@ -272,10 +278,7 @@ impl World {
         dt: f64,
     ) -> Option<cathlab_physics::Command> {
         let inserted = self.strand.inserted_m(index);
-        let advance = match operator.insertion {
-            Insertion::Velocity(v) => v * dt,
-            Insertion::Target(x) => x - inserted,
-        };
+        let advance = advance_m(operator.insertion, inserted, dt);
         let hand = &self.hands[index];
         let force = hand.reaction.axial_force_n;
         let limits = hand.limits;
