@@ -7,6 +7,7 @@
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::time::Instant;
 
+use crate::metrics::InstrumentMetrics;
 use crate::world::{Command, Drive, MAX_FIDELITY_LEVEL, World};
 
 /// A step's time budget at 500 Hz (s).
@@ -249,16 +250,18 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
     let metrics = world.metrics();
     // The world measures every node of every instrument after each step it keeps.
     report.worst_penetration_m = metrics.deepest_penetration_m;
-    report.worst_hand_force_n = metrics.instruments[..metrics.instrument_count as usize]
-        .iter()
-        .map(|m| m.peak_axial_force_n.abs())
-        .fold(0.0, f64::max);
-    report.hand_limit_n = world.assets().spec.limits.push_force_n;
-    report.worst_hand_torque_nm = metrics.instruments[..metrics.instrument_count as usize]
-        .iter()
-        .map(|m| m.peak_torque_nm.abs())
-        .fold(0.0, f64::max);
-    report.hand_torque_limit_nm = world.assets().spec.limits.twist_torque_nm;
+    // The largest of a figure any instrument's hand felt, either way.
+    let worst = |figure: fn(&InstrumentMetrics) -> f64| {
+        metrics.instruments[..metrics.instrument_count as usize]
+            .iter()
+            .map(|m| figure(m).abs())
+            .fold(0.0, f64::max)
+    };
+    report.worst_hand_force_n = worst(|m| m.peak_axial_force_n);
+    report.worst_hand_torque_nm = worst(|m| m.peak_torque_nm);
+    let limits = &world.assets().spec.limits;
+    report.hand_limit_n = limits.push_force_n;
+    report.hand_torque_limit_nm = limits.twist_torque_nm;
     report.step_s.sort_by(f64::total_cmp);
     report
 }

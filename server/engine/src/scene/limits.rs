@@ -1,6 +1,6 @@
-//! The scene's `[limits]`: what the trainee's hand meets (the force it pushes with, the torque it twists with, the
-//! length left unsupported outside the sheath, the length that stays outside), and its
-//! checks.
+//! The scene's `[limits]`: what the trainee's hand meets (the force it pushes with, the
+//! torque it twists with, the length left unsupported outside the sheath, the length that
+//! stays outside), and its checks.
 
 use serde::{Deserialize, Serialize};
 

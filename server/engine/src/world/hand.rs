@@ -86,15 +86,12 @@ pub(super) struct Hand {
     pub(super) look: DeviceAppearance,
     pub(super) limits: DeviceLimits,
     pub(super) push_limit: PushLimit,
-    /// Whether the next time a limit holds the push back is reported (re-armed after the push
-    /// has been free for `LIMIT_REARM_S`).
-    pub(super) limit_armed: bool,
-    pub(super) push_free_since_s: f64,
-    /// Whether the hand's twist is held back (its torque at its strength), whether the next
-    /// such hold is reported and since when the twist has been free (s), as for the push.
+    /// When a hold of the push is reported.
+    pub(super) push_reports: HoldReports,
+    /// Whether the hand's twist is held back (its torque at its strength).
     pub(super) twist_held: bool,
-    pub(super) twist_limit_armed: bool,
-    pub(super) twist_free_since_s: f64,
+    /// When a hold of the twist is reported.
+    pub(super) twist_reports: HoldReports,
     pub(super) reaction: HandReaction,
     /// How fast its force rose with its own instrument's advance in the last step the force
     /// guard watched (N/m; `None` before one, or where it fell): the share of a move that keeps
@@ -117,11 +114,9 @@ impl Hand {
             look,
             limits: DeviceLimits::of(device, &spec.limits, spec.start.along_route_mm * 1e-3),
             push_limit: PushLimit::None,
-            limit_armed: true,
-            push_free_since_s: 0.0,
+            push_reports: HoldReports::default(),
             twist_held: false,
-            twist_limit_armed: true,
-            twist_free_since_s: 0.0,
+            twist_reports: HoldReports::default(),
             reaction: HandReaction::default(),
             stiffness_n_per_m: None,
             gave_at_n: None,
@@ -146,5 +141,42 @@ pub(super) fn start_hands(assets: &SceneAssets, active: usize) -> Vec<Hand> {
         .collect()
 }
 
-/// How long a push must go unhindered before the next limit it meets is reported again (s).
-pub(super) const LIMIT_REARM_S: f64 = 0.5;
+/// How long a push or twist must go unhindered before the next limit it meets is reported
+/// again (s).
+const LIMIT_REARM_S: f64 = 0.5;
+
+/// When a limit's hold of a push or a twist is reported: once per hold, and again only after
+/// the hand has been free of it for [`LIMIT_REARM_S`].
+#[derive(Debug, Clone, Copy)]
+pub(super) struct HoldReports {
+    /// Whether the next hold is reported.
+    armed: bool,
+    /// When the hand was last freed of a hold (s, procedure time).
+    free_since_s: f64,
+}
+
+impl Default for HoldReports {
+    fn default() -> Self {
+        Self {
+            armed: true,
+            free_since_s: 0.0,
+        }
+    }
+}
+
+impl HoldReports {
+    /// This step's hold (`held`, after `was_held` the step before) at procedure time `now_s`:
+    /// whether to report it.
+    pub(super) fn update(&mut self, was_held: bool, held: bool, now_s: f64) -> bool {
+        if held {
+            return std::mem::replace(&mut self.armed, false);
+        }
+        if was_held {
+            self.free_since_s = now_s;
+        }
+        if now_s - self.free_since_s >= LIMIT_REARM_S {
+            self.armed = true;
+        }
+        false
+    }
+}

@@ -1,15 +1,15 @@
 //! The physics stage of a step: each instrument's operator command held back where a limit
 //! stops its push (the hand's force, the device's buckling load or length, the governor's
-//! speed cap) or its twist (the hand's torque), the strand stepped, and a diverged step (an error, a non-finite tip, a tip
-//! or any node of any instrument through the wall) reset to the device's start, reported and
-//! counted.
+//! speed cap) or its twist (the hand's torque), the strand stepped, and a diverged step (an
+//! error, a non-finite tip, a tip or any node of any instrument through the wall) reset to the
+//! device's start, reported and counted.
 
 use cathlab_physics::{Insertion, Twist};
 use nalgebra::Point3;
 
 use super::World;
 use super::fidelity::fidelity_effort;
-use super::hand::{FORCE_OVERSHOOT, LIMIT_REARM_S, PushLimit, start_hands};
+use super::hand::{FORCE_OVERSHOOT, PushLimit, start_hands};
 use super::tips::{MAX_ESCAPE_M, tracked_tip};
 use crate::error::Result;
 use crate::metrics::EventKind;
@@ -291,12 +291,7 @@ impl World {
         // over its stiffness (the one learnt in the last guarded step, where softer than the
         // inserted length's axial stiffness), aiming [`GIVE_UNDERSHOOT`] under the limit so
         // that the others' moves in the same step do not take it past.
-        let axial_stiffness = self
-            .strand
-            .device(index)
-            .and_then(|d| d.sections.first())
-            .map_or(f64::INFINITY, |s| s.beam_properties().axial_stiffness_n)
-            / inserted.max(1e-3);
+        let axial_stiffness = self.proximal_stiffness(index, |p| p.axial_stiffness_n);
         let stiffness = hand
             .stiffness_n_per_m
             .map_or(axial_stiffness, |k| k.min(axial_stiffness));
@@ -342,18 +337,14 @@ impl World {
         let hand = &mut self.hands[index];
         hand.gave_at_n =
             (limit == PushLimit::Force && (pulled_too_hard || pushed_too_hard)).then_some(force);
-        let mut report = None;
-        if limit == PushLimit::None {
-            if hand.push_limit != PushLimit::None {
-                hand.push_free_since_s = now;
-            }
-            if now - hand.push_free_since_s >= LIMIT_REARM_S {
-                hand.limit_armed = true;
-            }
-        } else if hand.limit_armed {
-            hand.limit_armed = false;
-            report = Some(limit);
-        }
+        let report = hand
+            .push_reports
+            .update(
+                hand.push_limit != PushLimit::None,
+                limit != PushLimit::None,
+                now,
+            )
+            .then_some(limit);
         hand.push_limit = limit;
         if let Some(limit) = report {
             let name = self
@@ -409,31 +400,14 @@ impl World {
         let loading = turn * torque > 0.0 || turn == 0.0;
         let held = loading && torque.abs() >= limit;
         let twist = held.then(|| {
-            let torsional_stiffness = self
-                .strand
-                .device(index)
-                .and_then(|d| d.sections.first())
-                .map_or(f64::INFINITY, |s| {
-                    s.beam_properties().torsional_stiffness_nm2
-                })
-                / self.strand.inserted_m(index).max(1e-3);
+            let torsional_stiffness = self.proximal_stiffness(index, |p| p.torsional_stiffness_nm2);
             let excess = torque.abs() - (1.0 - GIVE_UNDERSHOOT) * limit;
             let give = (excess.max(0.0) / torsional_stiffness).min(MAX_GIVE_RAD);
             Twist::Target(twisted - torque.signum() * give)
         });
         let now = self.metrics.procedure_time_s;
         let hand = &mut self.hands[index];
-        let report = if !held {
-            if hand.twist_held {
-                hand.twist_free_since_s = now;
-            }
-            if now - hand.twist_free_since_s >= LIMIT_REARM_S {
-                hand.twist_limit_armed = true;
-            }
-            false
-        } else {
-            std::mem::replace(&mut hand.twist_limit_armed, false)
-        };
+        let report = hand.twist_reports.update(hand.twist_held, held, now);
         hand.twist_held = held;
         if report {
             self.event(
@@ -446,6 +420,21 @@ impl World {
             );
         }
         twist
+    }
+
+    /// Instrument `index`'s stiffness at its hand over the length inserted: `modulus` of its
+    /// proximal section (E·A in N, or G·J in N·m²) over that length (at least 1 mm), so N/m
+    /// or N·m/rad; infinite for an instrument with no section.
+    fn proximal_stiffness(
+        &self,
+        index: usize,
+        modulus: impl Fn(&cathlab_physics::BeamProperties) -> f64,
+    ) -> f64 {
+        self.strand
+            .device(index)
+            .and_then(|d| d.sections.first())
+            .map_or(f64::INFINITY, |s| modulus(&s.beam_properties()))
+            / self.strand.inserted_m(index).max(1e-3)
     }
 
     /// Back to the scene's start with device `index` of a one-device scene (a stack scene: its
