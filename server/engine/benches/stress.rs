@@ -3,7 +3,8 @@
 //! (no governor), `STRESS_SEEDS` seeds (default 3) of `STRESS_SECONDS` simulated seconds each
 //! (default 1,200: an hour per scene), then one run with the governor's level switched at
 //! random; prints a table (divergences, errors, step p50/p99/max, steps over 2 ms, deepest
-//! penetration, largest hand force and torque) and fails on any divergence, error or panic, a
+//! penetration, largest hand force and torque, largest force in any element of the device:
+//! reported, not yet a failure) and fails on any divergence, error or panic, a
 //! node more than 0.05 mm past the wall, or a hand that felt more than its strength (the
 //! scene's push limit, within 2 %; its twist limit, within 25 %).
 //! `STRESS_SCENES` (comma-separated names) picks scenes; `STRESS_SOLVER=newton` or
@@ -58,8 +59,12 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
         .iter()
         .map(|r| r.worst_hand_torque_nm)
         .fold(0.0, f64::max);
+    let element = reports
+        .iter()
+        .map(|r| r.worst_element_force_n)
+        .fold(0.0, f64::max);
     println!(
-        "| {scene} | {label} | {simulated:.0} | {divergences} | {errors} | {panics} | {:.3} | {:.3} | {:.2} | {:.2} | {:.3} | {force:.1} | {:.0} |",
+        "| {scene} | {label} | {simulated:.0} | {divergences} | {errors} | {panics} | {:.3} | {:.3} | {:.2} | {:.2} | {:.3} | {force:.1} | {:.0} | {element:.1} |",
         all.quantile_s(0.5) * 1e3,
         all.quantile_s(0.99) * 1e3,
         all.quantile_s(1.0) * 1e3,
@@ -116,9 +121,9 @@ fn main() {
         only.as_ref().is_none_or(|o| o.iter().any(|x| x == n))
     });
     println!(
-        "| scene | fidelity | simulated s | divergences | errors | panics | p50 ms | p99 ms | max ms | % over 2 ms | deepest mm | hand N | hand mN·m |"
+        "| scene | fidelity | simulated s | divergences | errors | panics | p50 ms | p99 ms | max ms | % over 2 ms | deepest mm | hand N | hand mN·m | element N |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let mut sound = true;
     for name in &names {
         let spec = common::scene_spec(&scenes, name, "STRESS_SOLVER");

@@ -39,6 +39,12 @@ pub struct Metrics {
     /// (m): each instrument's own outer radius past the lumen surface.
     #[serde(default)]
     pub deepest_penetration_m: f64,
+    /// The largest axial force any element of the strand's beam model carried after a step
+    /// that was kept (N, either way; a nested stack's outermost chain): a sanity bound on the
+    /// model's own state, which a wire pushed and pulled within the hands' strength keeps
+    /// near that strength.
+    #[serde(default)]
+    pub peak_element_force_n: f64,
     /// Sum of total wall force over contact steps (N), for the mean.
     pub wall_force_sum_n: f64,
     /// Steps with wall contact.

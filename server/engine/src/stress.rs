@@ -84,6 +84,9 @@ pub struct StressReport {
     pub worst_hand_torque_nm: f64,
     /// The hands' torque strength in the scene (N·m): the most any may twist with.
     pub hand_torque_limit_nm: f64,
+    /// The largest axial force any element of the device carried (N): see
+    /// [`Metrics::peak_element_force_n`](crate::metrics::Metrics::peak_element_force_n).
+    pub worst_element_force_n: f64,
 }
 
 impl StressReport {
@@ -250,6 +253,7 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
     let metrics = world.metrics();
     // The world measures every node of every instrument after each step it keeps.
     report.worst_penetration_m = metrics.deepest_penetration_m;
+    report.worst_element_force_n = metrics.peak_element_force_n;
     // The largest of a figure any instrument's hand felt, either way.
     let worst = |figure: fn(&InstrumentMetrics) -> f64| {
         metrics.instruments[..metrics.instrument_count as usize]

@@ -85,6 +85,10 @@ impl World {
                     } else {
                         self.metrics.deepest_penetration_m =
                             self.metrics.deepest_penetration_m.max(depth);
+                        self.metrics.peak_element_force_n = self
+                            .metrics
+                            .peak_element_force_n
+                            .max(self.strand.model().max_axial_force_n());
                         None
                     }
                 }

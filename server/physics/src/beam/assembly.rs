@@ -108,6 +108,23 @@ impl BeamModel {
             .sum()
     }
 
+    /// The largest axial force any element carries (N, either way): E·A/ℓ₀ times its chord's
+    /// change from the rest chord, as the element computes it. A wire's own axial force stays
+    /// near what the hands and the wall put into it; far more is a numerical fault, such as
+    /// elements crushed by motions the step did not correct.
+    pub fn max_axial_force_n(&self) -> f64 {
+        self.elements
+            .iter()
+            .zip(self.positions.windows(2))
+            .map(|(element, ends)| {
+                let chord = (ends[1] - ends[0]).norm();
+                (element.props.axial_stiffness_n / element.rest_length_m
+                    * (chord - element.rest_length_m))
+                    .abs()
+            })
+            .fold(0.0, f64::max)
+    }
+
     /// Reaction wrench at the base (force N, moment N·m, world frame): what the operator's
     /// hand must apply to hold the device where it is.
     pub fn base_reaction(&mut self) -> Vector6<f64> {
@@ -129,17 +146,22 @@ mod tests {
     use crate::section::BeamProperties;
     use nalgebra::{UnitQuaternion, Vector3};
 
-    #[test]
-    fn curved_rest_shape_is_stress_free() {
-        // Regression: the acos errors above left forces of ~1e-4·EI/l² in a J tip at rest.
-        let props = BeamProperties::new(
-            &crate::section::CircularSection::solid(0.4e-3),
+    /// A solid round section of `radius_m` in a material of Young's modulus `e_pa`.
+    fn solid(radius_m: f64, e_pa: f64) -> BeamProperties {
+        BeamProperties::new(
+            &crate::section::CircularSection::solid(radius_m),
             &crate::section::Material {
-                young_modulus_pa: 2e9,
+                young_modulus_pa: e_pa,
                 poisson_ratio: 0.33,
                 density_kg_m3: 6450.0,
             },
-        );
+        )
+    }
+
+    #[test]
+    fn curved_rest_shape_is_stress_free() {
+        // Regression: the acos errors above left forces of ~1e-4·EI/l² in a J tip at rest.
+        let props = solid(0.4e-3, 2e9);
         let specs: Vec<ElementSpec> = (0..40)
             .map(|i| ElementSpec::planar(props, 1e-3, if i >= 20 { 1.0 / 3e-3 } else { 0.0 }))
             .collect();
@@ -157,5 +179,26 @@ mod tests {
             .map(|r| r.abs().max())
             .fold(0.0, f64::max);
         assert!(worst < 1e-12 * scale, "{worst} vs {scale}");
+    }
+
+    #[test]
+    fn the_largest_element_force_is_hookes_law_on_the_most_strained_element() {
+        // Ten 1 mm elements along x; node 4 moved 2 µm towards the base: element 3 is
+        // shortened by 2 µm and element 4 lengthened by as much, E·A·2·10⁻³ either way, and
+        // the base reaction (node 0's internal force) sees none of it.
+        let props = solid(0.2e-3, 60e9);
+        let mut model = BeamModel::straight(props, 0.01, 10, SolverSettings::default()).unwrap();
+        assert_eq!(model.max_axial_force_n(), 0.0);
+        let mut positions = model.positions().to_vec();
+        positions[4].x -= 2e-6;
+        let rotations = model.rotations().to_vec();
+        model.set_nodes(&positions, &rotations).unwrap();
+        let expected = props.axial_stiffness_n * 2e-3;
+        let found = model.max_axial_force_n();
+        assert!(
+            (found - expected).abs() < 1e-9 * expected,
+            "{found} vs {expected}"
+        );
+        assert!(model.base_reaction().fixed_rows::<3>(0).norm() < 1e-9 * expected);
     }
 }

@@ -39,7 +39,7 @@ impl ElementSpec {
 /// Rest data and constant matrices of one element.
 #[derive(Debug, Clone)]
 pub(super) struct Element {
-    props: BeamProperties,
+    pub(super) props: BeamProperties,
     pub(super) rest_length_m: f64,
     pub(super) offsets: [UnitQuaternion<f64>; 2],
     bending: BendingCoefficients,
