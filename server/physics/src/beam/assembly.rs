@@ -108,20 +108,15 @@ impl BeamModel {
             .sum()
     }
 
-    /// The largest axial force any element carries (N, either way): E·A/ℓ₀ times its chord's
-    /// change from the rest chord, as the element computes it. A wire's own axial force stays
+    /// The largest axial force any element carries (N, either way), as the element computes
+    /// it from its chord. A wire's own axial force stays
     /// near what the hands and the wall put into it; far more is a numerical fault, such as
     /// elements crushed by motions the step did not correct.
     pub fn max_axial_force_n(&self) -> f64 {
         self.elements
             .iter()
             .zip(self.positions.windows(2))
-            .map(|(element, ends)| {
-                let chord = (ends[1] - ends[0]).norm();
-                (element.props.axial_stiffness_n / element.rest_length_m
-                    * (chord - element.rest_length_m))
-                    .abs()
-            })
+            .map(|(element, ends)| element.axial_force_n((ends[1] - ends[0]).norm()).abs())
             .fold(0.0, f64::max)
     }
 

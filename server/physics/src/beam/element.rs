@@ -39,7 +39,7 @@ impl ElementSpec {
 /// Rest data and constant matrices of one element.
 #[derive(Debug, Clone)]
 pub(super) struct Element {
-    pub(super) props: BeamProperties,
+    props: BeamProperties,
     pub(super) rest_length_m: f64,
     pub(super) offsets: [UnitQuaternion<f64>; 2],
     bending: BendingCoefficients,
@@ -141,6 +141,12 @@ impl Element {
         ))
     }
 
+    /// The axial force (N, tension positive) at chord length `chord_m` (m): E·A/ℓ₀ times the
+    /// chord's change from the rest chord.
+    pub(super) fn axial_force_n(&self, chord_m: f64) -> f64 {
+        self.props.axial_stiffness_n / self.rest_length_m * (chord_m - self.rest_length_m)
+    }
+
     pub(super) fn new(
         props: BeamProperties,
         rest_length_m: f64,
@@ -182,7 +188,7 @@ pub(super) fn element_forces(
     let l0 = element.rest_length_m;
     let b = &element.bending;
     let [t1, t2] = state.theta;
-    let axial = p.axial_stiffness_n / l0 * (state.chord_m - l0);
+    let axial = element.axial_force_n(state.chord_m);
     let torsion = p.torsional_stiffness_nm2 / l0 * (t1.x - t2.x);
     let m1y = b.k_tt_near * t1.y + b.k_tt_far * t2.y;
     let m2y = b.k_tt_far * t1.y + b.k_tt_near * t2.y;
