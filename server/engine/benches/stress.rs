@@ -3,10 +3,11 @@
 //! (no governor), `STRESS_SEEDS` seeds (default 3) of `STRESS_SECONDS` simulated seconds each
 //! (default 1,200: an hour per scene), then one run with the governor's level switched at
 //! random; prints a table (divergences, errors, step p50/p99/max, steps over 2 ms, deepest
-//! penetration, largest hand force and torque, largest force in any element of the device:
-//! reported, not yet a failure) and fails on any divergence, error or panic, a
-//! node more than 0.05 mm past the wall, or a hand that felt more than its strength (the
-//! scene's push limit, within 2 %; its twist limit, within 25 %).
+//! penetration, largest hand force and torque, largest force in any element of the device)
+//! and fails on any divergence, error or panic, a node more than 0.05 mm past the wall, a
+//! hand that felt more than its strength (the scene's push limit, within 2 %; its twist
+//! limit, within 25 %), or an element that carried more than 100 times that strength
+//! ([`cathlab_engine::stress::ELEMENT_FORCE_BOUND`]: crushed elements).
 //! `STRESS_SCENES` (comma-separated names) picks scenes; `STRESS_SOLVER=newton` or
 //! `gauss_seidel` runs them with that contact solve instead of their own. Without `--bench` (as in
 //! `cargo test`) it runs the smoke: every scene, one seed, 4 simulated seconds, and one
@@ -86,6 +87,16 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
             );
         }
     }
+    for (i, r) in reports.iter().enumerate() {
+        if !r.elements_within_bound() {
+            println!(
+                "    run {i}: an element carried {:.0} N, past {:.0} times the hands' {:.0} N",
+                r.worst_element_force_n,
+                cathlab_engine::stress::ELEMENT_FORCE_BOUND,
+                r.hand_limit_n
+            );
+        }
+    }
     if penetration > MAX_PENETRATION_M {
         println!(
             "    a node went {:.3} mm past the wall, past the {:.2} mm allowed",
@@ -98,6 +109,7 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
         && errors == 0
         && panics == 0
         && reports.iter().all(|r| r.hands_within_limits())
+        && reports.iter().all(|r| r.elements_within_bound())
 }
 
 fn main() {

@@ -40,6 +40,9 @@ fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
         shaft_element_m: q.shaft_element_mm * 1e-3,
         refinement: q.refine.then(Refinement::default),
         sleep: q.sleep_at_rest.then(Sleep::default),
+        max_axial_force_n: Some(
+            assets.spec.limits.push_force_n * (1.0 + crate::scene::FORCE_OVERSHOOT),
+        ),
         ..NavigationSettings::default()
     };
     settings.contact.tolerance = q.contact_tolerance;

@@ -7,6 +7,10 @@ use serde::{Deserialize, Serialize};
 use super::field::range;
 use crate::error::Result;
 
+/// How far past its limit a hand's force may end a step before the step is taken again (a
+/// share of the limit; see the world's force guard, `World::step_within_force_limits`).
+pub const FORCE_OVERSHOOT: f64 = 0.02;
+
 /// The physical limits of a push. The force limit of a device is the smaller of the
 /// operator's and the Euler buckling load of its proximal shaft over the unsupported length
 /// between the hand and the sheath's valve (clamped at both ends): about 1.9 N for a 0.014"

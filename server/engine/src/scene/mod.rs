@@ -38,7 +38,7 @@ pub use fidelity::{ContactSolver, FidelitySpec};
 pub use flow::{ClotSpec, CollateralSpec, FlowSpec};
 pub use fluoroscopy::FluoroscopySpec;
 pub use guidance::GuidanceSpec;
-pub use limits::LimitsSpec;
+pub use limits::{FORCE_OVERSHOOT, LimitsSpec};
 pub use spares::{MAX_SPARES, SpareSpec};
 pub use spec::{SceneFormat, SceneSpec};
 pub use stack::{MAX_STACK, StackEntry};

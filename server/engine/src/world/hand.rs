@@ -24,10 +24,6 @@ pub enum PushLimit {
     Length,
 }
 
-/// How far past its limit a hand's force may end a step before the step is taken again (a
-/// share of the limit; see `World::step_within_force_limits`).
-pub const FORCE_OVERSHOOT: f64 = 0.02;
-
 /// The push limits of one device in a scene.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DeviceLimits {

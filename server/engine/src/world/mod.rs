@@ -47,9 +47,10 @@ mod snapshot;
 mod thrombectomy;
 mod tips;
 
+pub use crate::scene::FORCE_OVERSHOOT;
 pub use command::{Command, Drive, RETRIEVE_SPEED_M_S};
 pub use fidelity::{MAX_FIDELITY_LEVEL, fidelity_effort};
-pub use hand::{DeviceLimits, FORCE_OVERSHOOT, PushLimit};
+pub use hand::{DeviceLimits, PushLimit};
 pub use hemo::LINKED_INJECTION_DELAY_S;
 pub use snapshot::{Imaging, InstrumentState, Mode, Snapshot, WallContact};
 pub use tips::MAX_ESCAPE_M;

@@ -9,10 +9,11 @@ use nalgebra::Point3;
 
 use super::World;
 use super::fidelity::fidelity_effort;
-use super::hand::{FORCE_OVERSHOOT, PushLimit, start_hands};
+use super::hand::{PushLimit, start_hands};
 use super::tips::{MAX_ESCAPE_M, tracked_tip};
 use crate::error::Result;
 use crate::metrics::EventKind;
+use crate::scene::FORCE_OVERSHOOT;
 use crate::strand::{HandReaction, Strand};
 
 /// While any hand's last reaction is at least this share of its limit, a step that moves an

@@ -177,6 +177,51 @@ impl BeamModel {
         Ok(())
     }
 
+    /// Relieves every element whose axial force (N, either way) exceeds `limit_n` of the
+    /// excess: the loads that undo the excess alone (pulling a stretched element's nodes
+    /// together, pushing a crushed one's apart) solved through the tangent, drag included,
+    /// and applied. Returns the largest excess (N; 0 when none, and nothing moves). Nothing
+    /// moves on error.
+    ///
+    /// What it is for: a navigated device's slide places nodes on the polyline of its last
+    /// shape, which cuts the corners of a bent wire (up to 8 % of an element's length in one
+    /// pulled step through a coil); the step's correction of that strain is scaled down with
+    /// the rest of the free motion where the step cap holds a springback the wall will cancel,
+    /// so the strain can outgrow the correction and crush elements to a tenth of their length
+    /// (kilonewtons in a wire a hand pushes with 10 N, felt at the hand). No load within the
+    /// hands' strength puts more than that strength into a single device's elements (along a
+    /// device the axial force changes only by friction and drag), so what exceeds it is the
+    /// predictor's error, relieved before the next step is solved.
+    pub fn relieve_axial_excess(&mut self, limit_n: f64) -> Result<f64> {
+        let mut loads = vec![Vector6::zeros(); self.node_count() - 1];
+        let mut worst: f64 = 0.0;
+        for (e, element) in self.elements.iter().enumerate() {
+            let chord = self.positions[e + 1] - self.positions[e];
+            let length = chord.norm();
+            let force = element.axial_force_n(length);
+            let excess = force - force.clamp(-limit_n, limit_n);
+            if excess == 0.0 || length == 0.0 {
+                continue;
+            }
+            worst = worst.max(excess.abs());
+            let pull = chord * (excess / length);
+            if e > 0 {
+                let mut near = loads[e - 1].fixed_rows_mut::<3>(0);
+                near += pull;
+            }
+            let mut far = loads[e].fixed_rows_mut::<3>(0);
+            far -= pull;
+        }
+        if worst == 0.0 {
+            return Ok(0.0);
+        }
+        self.assemble();
+        self.substructure.factor(&self.stiffness)?;
+        self.substructure.solve_in_place(&mut loads);
+        self.apply_increments(&loads)?;
+        Ok(worst)
+    }
+
     /// Applies increments (one per unknown node) after the divergence checks; returns the
     /// largest translation (m) and rotation (rad) increment.
     pub(super) fn apply_increments(&mut self, increments: &[Vector6<f64>]) -> Result<(f64, f64)> {

@@ -48,6 +48,11 @@ pub struct NavigationSettings {
     /// Steps skipped while the hands are still and the device has come to rest (`None`, the
     /// default here: every step solved; the engine's scenes sleep).
     pub sleep: Option<Sleep>,
+    /// The most axial force any element may carry (N, either way; `None`, the default: no
+    /// bound). Before each solve, an element past it is relieved of the excess
+    /// ([`crate::beam::BeamModel::relieve_axial_excess`]): set it to the hands' strength,
+    /// which is the most the loads on a device can put into it.
+    pub max_axial_force_n: Option<f64>,
 }
 
 /// Where the device gets nodes beyond its nominal spacing. Before each step, elements that
@@ -102,6 +107,7 @@ impl Default for NavigationSettings {
             },
             refinement: Some(Refinement::default()),
             sleep: None,
+            max_axial_force_n: None,
         }
     }
 }

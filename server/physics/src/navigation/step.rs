@@ -154,6 +154,9 @@ impl<W: Wall> Navigation<W> {
         let twist = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), self.twist_rad);
         self.model
             .place_base(self.entry_position, self.entry_rotation * twist)?;
+        if let Some(limit) = self.settings.max_axial_force_n {
+            self.model.relieve_axial_excess(limit)?;
+        }
         // 2–4. Detection at the predicted configuration, beam solve with contacts.
         let samples = self.sample_layout();
         let wall = &self.wall;
