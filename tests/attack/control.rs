@@ -219,16 +219,21 @@ async fn a_full_speed_push_meets_the_device_limits_in_real_time() {
     );
     // The rate held: no step was missed.
     assert_eq!(missed, 0);
-    // The push met the hand's 10 N and was held there (within a step's rise), and said so.
+    // The hand never pushed past its 10 N (within a step's rise). Where the push met it, it
+    // was held there and said so; where it did not, the wire went on in (blocked at its tip,
+    // it buckles and loops in the aorta below the limit: before its elements were relieved of
+    // the strain the slide leaves, in the seventeenth session, that strain reached the hand
+    // and held the push at 10 N within seconds).
     assert_eq!(last.push_force_limit_n, 10.0);
-    assert!(
-        held > 0 && max_force < 2.0 * last.push_force_limit_n,
-        "{max_force}"
-    );
-    assert!(
-        said.iter().any(|e| e.starts_with("limit push held")),
-        "{said:?}"
-    );
+    assert!(max_force < 1.1 * last.push_force_limit_n, "{max_force}");
+    if held > 0 {
+        assert!(
+            said.iter().any(|e| e.starts_with("limit push held")),
+            "{said:?}"
+        );
+    } else {
+        assert!(last.inserted_mm > start.inserted_mm + 100.0, "{last:?}");
+    }
     // What kept the rate was reported, not hidden.
     if lowest_fidelity > 0 {
         assert!(said.iter().any(|e| e.starts_with("overload")), "{said:?}");

@@ -93,9 +93,10 @@ pub(super) struct Hand {
     /// guard watched (N/m; `None` before one, or where it fell): the share of a move that keeps
     /// the hand at its limit is predicted from it, so a push held at the limit steps once.
     pub(super) stiffness_n_per_m: Option<f64>,
-    /// The force (N) at which it last gave way (None: it did not in the last step): a give
-    /// that left the force larger is not repeated.
-    pub(super) gave_at_n: Option<f64>,
+    /// The force (N) at which its force limit last acted, and whether it gave way then or
+    /// held (None: the limit did not act in the last step): a give that left the force larger
+    /// is not repeated, a hold that did not lower it is not either.
+    pub(super) gave_at_n: Option<(f64, bool)>,
 }
 
 impl Hand {

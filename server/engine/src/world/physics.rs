@@ -42,6 +42,23 @@ fn advance_m(insertion: Insertion, inserted_m: f64, dt: f64) -> f64 {
     }
 }
 
+/// Whether a hand past its strength, feeling `force` (N), gives way this step, after its
+/// limit acted last step at `last` (the force then, N, and whether it gave way or held; None:
+/// it did not act). A give that made the force worse (pulling a coiled wire back out of a dead
+/// end can load the hand more, not less) is not repeated: the hand holds where it is. A hold
+/// that does not bring the force down (the device settling, another instrument pushing) gives
+/// way again: before, the hold was renewed while the force crept past the limit step after
+/// step.
+fn gives_way(last: Option<(f64, bool)>, force: f64) -> bool {
+    last.is_none_or(|(before, gave)| {
+        if gave {
+            force.abs() <= before.abs()
+        } else {
+            force.abs() >= before.abs()
+        }
+    })
+}
+
 impl World {
     /// Steps the strand with every hand's command within its limits (the operators' commands
     /// are put back after the step); a diverged step puts the device back at its start,
@@ -300,11 +317,7 @@ impl World {
         let stiffness = hand
             .stiffness_n_per_m
             .map_or(axial_stiffness, |k| k.min(axial_stiffness));
-        // A give that made the force worse (pulling a coiled wire back out of a dead end can
-        // load the hand more, not less) is not repeated: the hand holds where it is.
-        let relieving = hand
-            .gave_at_n
-            .is_none_or(|before| force.abs() <= before.abs());
+        let relieving = gives_way(hand.gave_at_n, force);
         let give = |excess: f64| {
             if relieving {
                 (excess.max(0.0) / stiffness).min(MAX_GIVE_M)
@@ -340,8 +353,8 @@ impl World {
         };
         let now = self.metrics.procedure_time_s;
         let hand = &mut self.hands[index];
-        hand.gave_at_n =
-            (limit == PushLimit::Force && (pulled_too_hard || pushed_too_hard)).then_some(force);
+        hand.gave_at_n = (limit == PushLimit::Force && (pulled_too_hard || pushed_too_hard))
+            .then_some((force, relieving));
         let report = hand
             .push_reports
             .update(
@@ -459,5 +472,27 @@ impl World {
             self.update_injection()?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::gives_way;
+
+    #[test]
+    fn a_hold_that_does_not_lower_the_force_gives_way_and_a_give_that_raised_it_holds() {
+        // The limit did not act last step: give way.
+        assert!(gives_way(None, 10.5));
+        // A give that lowered the force (or left it) is repeated; one that raised it is not.
+        assert!(gives_way(Some((10.5, true)), 10.3));
+        assert!(!gives_way(Some((10.17, true)), 10.40));
+        // Regression: a hold the force crept past (10.40 → 10.48 N, the stroke scene's guide
+        // pushed at its limit) was renewed every step; it now gives way. A hold that lowers
+        // the force holds on.
+        assert!(gives_way(Some((10.40, false)), 10.48));
+        assert!(!gives_way(Some((10.48, false)), 10.41));
+        // Pulls alike (negative forces, by magnitude).
+        assert!(!gives_way(Some((-10.1, true)), -10.3));
+        assert!(gives_way(Some((-10.3, false)), -10.3));
     }
 }
