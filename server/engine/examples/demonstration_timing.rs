@@ -4,7 +4,8 @@
 //! where the instruments are, and the world's events, until the target is reached (and one window more, hands still).
 //! With a speed after the scene (mm/s), the innermost instrument is pushed at that speed
 //! instead, as `cathlab-load` pushes it, for 40 windows, each window also printing the hands'
-//! forces: how a step's cost grows with the device's length in the vessels.
+//! forces: how a step's cost grows with the device's length in the vessels. `LEVEL_AT_WINDOW=N`
+//! drops the governor's fidelity to its lowest level from window N on.
 //!
 //! `cargo run --release -p cathlab-engine --example demonstration_timing -- scenes/stroke_m1_from_access.toml`
 //! `cargo run --release -p cathlab-engine --example demonstration_timing -- scenes/stroke_m1_thrombectomy.toml 15`
@@ -12,6 +13,7 @@
 use std::path::Path;
 use std::time::Instant;
 
+use cathlab_engine::world::MAX_FIDELITY_LEVEL;
 use cathlab_engine::{AssetCache, Command, SceneFormat, SceneSpec, World};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -33,6 +35,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut after = 0;
     let windows = if push_mm_s.is_some() { 40 } else { 100 };
     for window in 0..windows {
+        if let Ok(at) = std::env::var("LEVEL_AT_WINDOW")
+            && window == at.parse::<usize>()?
+        {
+            world.apply(0, &Command::Fidelity(MAX_FIDELITY_LEVEL))?;
+        }
         let mut ms: Vec<f64> = (0..1000)
             .map(|_| {
                 let t = Instant::now();

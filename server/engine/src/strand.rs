@@ -31,6 +31,17 @@ pub struct HandReaction {
     pub torque_nm: f64,
 }
 
+/// The most axial force an element of a device may carry, in hands' strengths
+/// (`NavigationSettings::max_axial_force_n` is this times the scene's push limit). A device's
+/// own loads put no more than one strength into it; what passes is the slide's strain, which
+/// the physics relieves. At one strength (plus the hands' 2 % overshoot) the strain that held
+/// a push blocked at its tip is gone, and the wire, free to buckle, loops a metre into the
+/// aorta within 20 s of a full-speed push, where a step takes 2 ms even at the governor's
+/// lowest level on one core (the attack suite's full-speed push then missed 75 steps); at
+/// two it relieves the crushing (the hands within their strength at every level in the 30 s
+/// aorta runs) and the push is still held early. Cheaper long loops are the way to one.
+const ELEMENT_FORCE_STRENGTHS: f64 = 2.0;
+
 /// The navigation settings of a scene's fidelity.
 fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
     let q = &assets.spec.fidelity;
@@ -40,9 +51,7 @@ fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
         shaft_element_m: q.shaft_element_mm * 1e-3,
         refinement: q.refine.then(Refinement::default),
         sleep: q.sleep_at_rest.then(Sleep::default),
-        max_axial_force_n: Some(
-            assets.spec.limits.push_force_n * (1.0 + crate::scene::FORCE_OVERSHOOT),
-        ),
+        max_axial_force_n: Some(ELEMENT_FORCE_STRENGTHS * assets.spec.limits.push_force_n),
         ..NavigationSettings::default()
     };
     settings.contact.tolerance = q.contact_tolerance;

@@ -59,9 +59,9 @@ impl StressSettings {
 
 /// The most axial force an element may carry in a run, as a multiple of the hands' strength.
 /// Within a device the axial force changes only by friction and drag, so the hands' strength
-/// bounds it; the engine relieves whatever passes it before each step
+/// bounds it; the engine relieves whatever passes twice it before each step
 /// (`NavigationSettings::max_axial_force_n`), and what one step's slide leaves before the next
-/// relief is some 10–30 times the strength in the smoke (coaxial stacks, not relieved yet,
+/// relief is up to some 17 times the strength in the smoke (coaxial stacks, not relieved yet,
 /// up to 43). The fault this catches is elements crushed step after step, which reached
 /// 3,400 times it (34 kN) in a 30 s run before the relief.
 pub const ELEMENT_FORCE_BOUND: f64 = 100.0;

@@ -50,8 +50,8 @@ pub struct NavigationSettings {
     pub sleep: Option<Sleep>,
     /// The most axial force any element may carry (N, either way; `None`, the default: no
     /// bound). Before each solve, an element past it is relieved of the excess
-    /// ([`crate::beam::BeamModel::relieve_axial_excess`]): set it to the hands' strength,
-    /// which is the most the loads on a device can put into it.
+    /// ([`crate::beam::BeamModel::relieve_axial_excess`]): the hands' strength is the most
+    /// the loads on a device put into it (the engine allows twice that: see its strand).
     pub max_axial_force_n: Option<f64>,
 }
 
