@@ -96,7 +96,7 @@ pub(super) struct Hand {
     /// The force (N) at which its force limit last acted, and whether it gave way then or
     /// held (None: the limit did not act in the last step): a give that left the force larger
     /// is not repeated, a hold that did not lower it is not either.
-    pub(super) gave_at_n: Option<(f64, bool)>,
+    pub(super) limit_acted_at: Option<(f64, bool)>,
 }
 
 impl Hand {
@@ -116,7 +116,7 @@ impl Hand {
             twist_reports: HoldReports::default(),
             reaction: HandReaction::default(),
             stiffness_n_per_m: None,
-            gave_at_n: None,
+            limit_acted_at: None,
         }
     }
 }

@@ -47,7 +47,6 @@ mod snapshot;
 mod thrombectomy;
 mod tips;
 
-pub use crate::scene::FORCE_OVERSHOOT;
 pub use command::{Command, Drive, RETRIEVE_SPEED_M_S};
 pub use fidelity::{MAX_FIDELITY_LEVEL, fidelity_effort};
 pub use hand::{DeviceLimits, PushLimit};

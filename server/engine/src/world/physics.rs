@@ -317,7 +317,7 @@ impl World {
         let stiffness = hand
             .stiffness_n_per_m
             .map_or(axial_stiffness, |k| k.min(axial_stiffness));
-        let relieving = gives_way(hand.gave_at_n, force);
+        let relieving = gives_way(hand.limit_acted_at, force);
         let give = |excess: f64| {
             if relieving {
                 (excess.max(0.0) / stiffness).min(MAX_GIVE_M)
@@ -353,7 +353,7 @@ impl World {
         };
         let now = self.metrics.procedure_time_s;
         let hand = &mut self.hands[index];
-        hand.gave_at_n = (limit == PushLimit::Force && (pulled_too_hard || pushed_too_hard))
+        hand.limit_acted_at = (limit == PushLimit::Force && (pulled_too_hard || pushed_too_hard))
             .then_some((force, relieving));
         let report = hand
             .push_reports
