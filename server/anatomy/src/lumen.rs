@@ -554,11 +554,11 @@ impl MeshWall {
                         (bj * BLOCK + j) as f64 + 0.5,
                         (bk * BLOCK + k) as f64 + 0.5,
                     ) * cell;
-                let exact = self.query_bvh(&center);
-                let d = exact.signed_distance.abs();
+                let signed = self.signed_distance_bvh(&center);
+                let d = signed.abs();
                 // A lower bound on the wall distance anywhere in the cell, rounded down.
                 entry.far_bound = (((d - half_diagonal).max(0.0) * (1.0 - 1e-6)) as f32)
-                    * if exact.inside() { -1.0 } else { 1.0 };
+                    * if signed < 0.0 { -1.0 } else { 1.0 };
                 if d > band {
                     continue;
                 }
@@ -744,6 +744,19 @@ impl MeshWall {
             closest_wall_point: closest,
             outward_normal: self.smooth_normal(triangle, point, &closest),
             triangle,
+        }
+    }
+
+    /// Signed distance (m, negative inside) from `point` to the wall through parry's BVH:
+    /// [`Self::query_bvh`] without the smoothed normal, which most of a query's time goes to
+    /// near the wall and which the grid's build, asking at every cell, does not use.
+    fn signed_distance_bvh(&self, point: &Point3<f64>) -> f64 {
+        let projection = self.trimesh.project_local_point(to_glam(point), false);
+        let distance = (point - to_point(projection.point)).norm();
+        if projection.is_inside {
+            -distance
+        } else {
+            distance
         }
     }
 

@@ -82,7 +82,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         for e in world.take_events() {
             println!("    {:.2} s {:?}: {}", e.time_s, e.kind, e.message);
         }
-        if world.metrics().target_reached_at_s.is_some() {
+        if push_mm_s.is_none() && world.metrics().target_reached_at_s.is_some() {
             after += 1;
             if after == 2 {
                 break;

@@ -45,6 +45,11 @@ pub struct Metrics {
     /// near that strength.
     #[serde(default)]
     pub peak_element_force_n: f64,
+    /// Solves the hands' force guard took again because a step left a hand past its limit
+    /// (a step costs one solve more for each): a push held at its limit should cost none
+    /// most steps, its first try scaled by the stiffness the hand learnt.
+    #[serde(default)]
+    pub force_retakes: u64,
     /// Sum of total wall force over contact steps (N), for the mean.
     pub wall_force_sum_n: f64,
     /// Steps with wall contact.

@@ -20,8 +20,13 @@ use crate::strand::{HandReaction, Strand};
 /// instrument is guarded ([`World::step_within_force_limits`]).
 const FORCE_GUARD_FRACTION: f64 = 0.25;
 
-/// The least advance of an instrument (m) from which its hand's stiffness is learnt.
+/// The least difference between two tries' advances of an instrument (m) from which its
+/// hand's stiffness is learnt.
 const MIN_LEARNING_MOVE_M: f64 = 1e-7;
+
+/// The share of its limit below which a guarded step taken once leaves a hand's learnt
+/// stiffness forgotten (`World::forget_slack_stiffness`).
+const STIFFNESS_KEPT_FRACTION: f64 = 0.9;
 
 /// How far under its limit a hand that gives way aims (a fraction of the limit): half the
 /// overshoot a step may leave.
@@ -223,14 +228,18 @@ impl World {
         // The hands' reactions after the step taken last (computed once a step).
         let mut reactions = self.strand.reactions().1;
         let share = allowed(&reactions);
-        if share < 1.0 {
+        if share >= 1.0 {
+            self.forget_slack_stiffness(&hands, &reactions);
+        } else {
             // The moves as the physics took them (clamped to the device's speed and range).
             let taken: Vec<f64> = before_moves
                 .iter()
                 .enumerate()
                 .map(|(i, &(inserted, _, _))| self.strand.inserted_m(i) - inserted)
                 .collect();
+            let first = reactions.clone();
             for share in [share, 0.0] {
+                self.metrics.force_retakes += 1;
                 self.strand = before.clone();
                 self.scale_moves(&before_moves, |i, _| share * taken[i])?;
                 self.strand.step()?;
@@ -239,8 +248,8 @@ impl World {
                     break;
                 }
             }
+            self.learn_hand_stiffness(&before_moves, (&taken, &first), &reactions);
         }
-        self.learn_hand_stiffness(&before_moves, &reactions);
         Ok(())
     }
 
@@ -262,27 +271,44 @@ impl World {
         Ok(())
     }
 
-    /// After a step the force guard watched (`reactions`: the hands' after it): each hand's
-    /// force change over its instrument's advance (N/m; forgotten where the force did not rise with the advance, kept where the
-    /// instrument hardly moved).
+    /// After a step the force guard took again: each hand's stiffness (N/m) as the secant
+    /// between the two tries from the same start, the overshooting one (`first`: its moves,
+    /// m, and the reactions they led to) and the one kept (`reactions`). Learnt where the
+    /// force rose with the move, forgotten where it did not, kept where the two moves hardly
+    /// differ. A secant, not the force's change from the last step over one move: while a
+    /// push is held against a dead end the force also drifts step to step as the device
+    /// settles (about 0.08 N down a step on the aorta's looped wire), which made the
+    /// one-move estimate tiny or negative, the next first try overshoot, and every held step
+    /// cost two or three solves.
     fn learn_hand_stiffness(
         &mut self,
         before_moves: &[(f64, f64, bool)],
+        first: (&[f64], &[HandReaction]),
         reactions: &[HandReaction],
     ) {
-        for (i, ((hand, r), &(inserted, _, _))) in self
-            .hands
-            .iter_mut()
-            .zip(reactions)
-            .zip(before_moves)
-            .enumerate()
-        {
-            let moved = self.strand.inserted_m(i) - inserted;
-            if moved.abs() < MIN_LEARNING_MOVE_M {
+        let (first_moves, first_reactions) = first;
+        for (i, (hand, &(inserted, _, _))) in self.hands.iter_mut().zip(before_moves).enumerate() {
+            let kept_move = self.strand.inserted_m(i) - inserted;
+            let apart = first_moves[i] - kept_move;
+            if apart.abs() < MIN_LEARNING_MOVE_M {
                 continue;
             }
-            let k = (r.axial_force_n - hand.reaction.axial_force_n) / moved;
+            let k = (first_reactions[i].axial_force_n - reactions[i].axial_force_n) / apart;
             hand.stiffness_n_per_m = (k.is_finite() && k > 0.0).then_some(k);
+        }
+    }
+
+    /// After a guarded step taken once: a hand it left below [`STIFFNESS_KEPT_FRACTION`] of
+    /// its limit forgets its stiffness (`hands`: each one's signed limits, push and pull, N;
+    /// `reactions`: after the step), so its next first try takes its whole move: the learnt
+    /// stiffness (from a dead end, say) scaled it down more than the force needed.
+    fn forget_slack_stiffness(&mut self, hands: &[(f64, f64, f64)], reactions: &[HandReaction]) {
+        for ((hand, &(push, pull, _)), r) in self.hands.iter_mut().zip(hands).zip(reactions) {
+            let now = r.axial_force_n;
+            let limit = if now >= 0.0 { push } else { pull };
+            if now / limit < STIFFNESS_KEPT_FRACTION {
+                hand.stiffness_n_per_m = None;
+            }
         }
     }
 

@@ -411,3 +411,38 @@ fn a_twist_is_held_at_the_hands_torque() {
         "{held_twist} vs {free_twist}"
     );
 }
+
+/// A push held at its hand's limit is stepped once a step, not taken again: a wire pushed
+/// at full speed into the LCCA's dead end (the attack suite's push, at the governor's lowest
+/// level as a loaded server runs it). Regression: the hand's stiffness was learnt from the
+/// force's change since the last step over the step's small move, which the force's drift as
+/// the device settles made tiny or negative, so the next first try overshot and every held
+/// step cost two or three solves (the attack test's CI run missed 150 steps).
+#[test]
+fn a_push_held_at_its_limit_is_stepped_once() {
+    let mut world = World::new(assets(&default_text())).unwrap();
+    world.apply(1, &Command::PushVelocity(0.5)).unwrap();
+    let (mut held, mut retakes) = (0u64, 0u64);
+    for step in 0..6000 {
+        if step == 1500 {
+            world.apply(2, &Command::Fidelity(3)).unwrap();
+        }
+        let before = world.metrics().force_retakes;
+        world.step().unwrap();
+        let snapshot = world.snapshot();
+        if step >= 2000
+            && snapshot.instruments[0].axial_force_n >= 0.95 * snapshot.push_force_limit_n
+        {
+            held += 1;
+            retakes += world.metrics().force_retakes - before;
+        }
+    }
+    let snapshot = world.snapshot();
+    println!(
+        "at its limit in {held} of the last 4000 steps, {retakes} retakes; inserted {:.0} mm, hand {:.2} N",
+        snapshot.inserted_m * 1e3,
+        snapshot.instruments[0].axial_force_n
+    );
+    assert!(held > 1000, "{held}");
+    assert!(retakes * 5 < held, "{retakes} retakes in {held} held steps");
+}
