@@ -103,6 +103,16 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
             penetration * 1e3,
             MAX_PENETRATION_M * 1e3
         );
+        for (i, r) in reports.iter().enumerate() {
+            if let Some((at_s, level)) = r.deepest_at
+                && r.worst_penetration_m > MAX_PENETRATION_M
+            {
+                println!(
+                    "    run {i}: {:.3} mm at {at_s:.3} s, fidelity level {level}",
+                    r.worst_penetration_m * 1e3
+                );
+            }
+        }
     }
     divergences == 0
         && penetration <= MAX_PENETRATION_M

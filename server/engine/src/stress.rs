@@ -85,6 +85,9 @@ pub struct StressReport {
     pub step_s: Vec<f64>,
     /// The deepest penetration of any instrument's surface after any step (m).
     pub worst_penetration_m: f64,
+    /// When the deepest penetration was reached: simulated time (s) and the governor's
+    /// fidelity level of that step (None: nothing penetrated).
+    pub deepest_at: Option<(f64, u8)>,
     /// The largest axial force any hand felt (N).
     pub worst_hand_force_n: f64,
     /// The hands' strength in the scene (N): the most any may push or pull with.
@@ -255,6 +258,11 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
                 break;
             }
         }
+        let deepest = world.metrics().deepest_penetration_m;
+        if deepest > report.worst_penetration_m {
+            report.worst_penetration_m = deepest;
+            report.deepest_at = Some((now, world.fidelity_level()));
+        }
         for event in world.take_events() {
             if event.kind == crate::metrics::EventKind::Divergence {
                 report
@@ -266,8 +274,8 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
     report.divergences = world.metrics().divergence_resets - divergences_before;
     report.simulated_s = report.steps as f64 * dt;
     let metrics = world.metrics();
-    // The world measures every node of every instrument after each step it keeps.
-    report.worst_penetration_m = metrics.deepest_penetration_m;
+    // The world measures every node of every instrument after each step it keeps (and
+    // `report.worst_penetration_m` followed it step by step).
     report.worst_element_force_n = metrics.peak_element_force_n;
     // The largest of a figure any instrument's hand felt, either way.
     let worst = |figure: fn(&InstrumentMetrics) -> f64| {

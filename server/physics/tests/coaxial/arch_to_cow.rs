@@ -124,7 +124,10 @@ const HAND_LIMIT_N: f64 = 10.0;
 /// scripted prolapse). Before the contacts' normals followed the wall distance's gradient
 /// where the surface's interpolated normals stray from it (up to 120° there), the folds went
 /// 0.20–0.24 mm past the wall; before a pulled-back angled tip turned with the curve it
-/// retraces, it hooked and the pull-back jammed.
+/// retraces, it hooked and the pull-back jammed. The wire's elements are relieved past two
+/// hands' strength as the engine relieves them (`NavigationSettings::max_axial_force_n`):
+/// without, once the eighteenth session's Newton Phong projection changed the path, the
+/// slide's corner-cutting crushed them to 360–635 N and the pull felt 86 N of it.
 #[test]
 fn a_microwire_blocked_at_the_anterior_genu_loops_and_pulls_back_out() {
     use cathlab_physics::{Command, Insertion, Navigation, NavigationSettings, Twist};
@@ -146,7 +149,11 @@ fn a_microwire_blocked_at_the_anterior_genu_loops_and_pulls_back_out() {
     let start = genu - 50;
     let entry = route[start].0.coords;
     let direction = (route[start + 10].0 - route[start].0).normalize();
-    let settings = NavigationSettings::default();
+    // The engine's bound on the elements' axial force: two hands' strength.
+    let settings = NavigationSettings {
+        max_axial_force_n: Some(2.0 * HAND_LIMIT_N),
+        ..NavigationSettings::default()
+    };
     let mut nav = Navigation::new(
         presets::micro_guidewire_014(),
         &anatomy.lumen,
@@ -171,6 +178,7 @@ fn a_microwire_blocked_at_the_anterior_genu_loops_and_pulls_back_out() {
         worst_penetration_m: f64,
         furthest: usize,
         max_force_n: f64,
+        max_element_force_n: f64,
         held_steps: usize,
     }
     // The hand moves at `velocity` (m/s) until the wire is inserted `goal` (m) or `seconds`
@@ -202,6 +210,8 @@ fn a_microwire_blocked_at_the_anterior_genu_loops_and_pulls_back_out() {
                 nav.step()
                     .unwrap_or_else(|e| panic!("step {step} at {velocity} m/s: {e}"));
                 run.worst_penetration_m = run.worst_penetration_m.max(nav.max_penetration_m());
+                run.max_element_force_n =
+                    run.max_element_force_n.max(nav.model().max_axial_force_n());
                 run.furthest = run.furthest.max(along(&nav.tip_position()));
             }
             run
@@ -231,7 +241,7 @@ fn a_microwire_blocked_at_the_anterior_genu_loops_and_pulls_back_out() {
     // The loop: the wire turns a whole turn or more beyond the route's own turns.
     let coiled = turning(&positions) - turning(&route_points);
     println!(
-        "genu {genu} mm along the route of {} ({:.0}° over 6 mm); pushed to {:.1} mm inserted: tip {pushed_tip} mm along (furthest {}), {:.0} mm of slack, the wire turning {coiled:.1} rad beyond the route's turns, deepest {:.4} mm, hand up to {:.2} N (held {} steps)",
+        "genu {genu} mm along the route of {} ({:.0}° over 6 mm); pushed to {:.1} mm inserted: tip {pushed_tip} mm along (furthest {}), {:.0} mm of slack, the wire turning {coiled:.1} rad beyond the route's turns, deepest {:.4} mm, hand up to {:.2} N (held {} steps), elements up to {:.1} N",
         route.len(),
         turn(genu).to_degrees(),
         nav.inserted_m() * 1e3,
@@ -240,6 +250,7 @@ fn a_microwire_blocked_at_the_anterior_genu_loops_and_pulls_back_out() {
         pushed.worst_penetration_m * 1e3,
         pushed.max_force_n,
         pushed.held_steps,
+        pushed.max_element_force_n,
     );
     assert!(
         nav.inserted_m() >= 0.1,
@@ -255,13 +266,14 @@ fn a_microwire_blocked_at_the_anterior_genu_loops_and_pulls_back_out() {
     let worst_penetration = pushed.worst_penetration_m.max(pulled.worst_penetration_m);
     let back = (nav.tip_position() - start_tip).norm();
     println!(
-        "pulled back: inserted {:.1} mm, tip {:.1} mm from where it started ({} along), deepest {:.4} mm, hand up to {:.2} N (held {} steps)",
+        "pulled back: inserted {:.1} mm, tip {:.1} mm from where it started ({} along), deepest {:.4} mm, hand up to {:.2} N (held {} steps), elements up to {:.1} N",
         nav.inserted_m() * 1e3,
         back * 1e3,
         along(&nav.tip_position()),
         worst_penetration * 1e3,
         pulled.max_force_n,
         pulled.held_steps,
+        pulled.max_element_force_n,
     );
     assert!((nav.inserted_m() - 0.01).abs() < 1e-3);
     assert!(back < 0.005, "the tip came back to {:.1} mm", back * 1e3);
@@ -269,4 +281,9 @@ fn a_microwire_blocked_at_the_anterior_genu_loops_and_pulls_back_out() {
     // This hand reacts a step late, and one step's pull on a taut wire adds up to 14 N here
     // (the engine's force guard retakes such a step instead).
     assert!(pushed.max_force_n.max(pulled.max_force_n) <= 2.5 * HAND_LIMIT_N);
+    let element = pushed.max_element_force_n.max(pulled.max_element_force_n);
+    assert!(
+        element <= 2.5 * HAND_LIMIT_N,
+        "elements carried {element:.0} N"
+    );
 }
