@@ -222,92 +222,9 @@ impl Flexibility {
 
 /// Inverts a 6×6 block: Cholesky when symmetric positive definite, LU otherwise.
 fn invert_block(m: &Matrix6<f64>) -> Option<Matrix6<f64>> {
-    let inv = match spd_inverse(m) {
-        Some(inv) => inv,
+    let inv = match m.cholesky() {
+        Some(c) => c.inverse(),
         None => m.try_inverse()?,
     };
     inv.iter().all(|v| v.is_finite()).then_some(inv)
-}
-
-/// The inverse of a symmetric positive definite 6×6 block from its lower triangle, by its
-/// Cholesky factor L written out: A⁻¹ = L⁻ᵀ L⁻¹ (nalgebra's `Cholesky::inverse` solves
-/// against the identity column by column, and was 8–10 % of a step of a long wire looped
-/// against the wall). None where a pivot is not positive.
-fn spd_inverse(m: &Matrix6<f64>) -> Option<Matrix6<f64>> {
-    let mut l = [[0.0f64; 6]; 6];
-    for j in 0..6 {
-        let pivot = m[(j, j)] - l[j][..j].iter().map(|x| x * x).sum::<f64>();
-        if pivot.is_nan() || pivot <= 0.0 {
-            return None;
-        }
-        let d = pivot.sqrt();
-        l[j][j] = d;
-        for i in j + 1..6 {
-            let s = m[(i, j)]
-                - l[i][..j]
-                    .iter()
-                    .zip(&l[j][..j])
-                    .map(|(a, b)| a * b)
-                    .sum::<f64>();
-            l[i][j] = s / d;
-        }
-    }
-    // L⁻¹, lower triangular, column by column.
-    let mut inv_l = [[0.0f64; 6]; 6];
-    for j in 0..6 {
-        inv_l[j][j] = 1.0 / l[j][j];
-        for i in j + 1..6 {
-            let mut s = 0.0;
-            for k in j..i {
-                s -= l[i][k] * inv_l[k][j];
-            }
-            inv_l[i][j] = s / l[i][i];
-        }
-    }
-    // (A⁻¹)(r, c) = Σ_k L⁻¹(k, r) L⁻¹(k, c) over k ≥ max(r, c).
-    let mut inv = Matrix6::zeros();
-    for r in 0..6 {
-        for c in 0..=r {
-            let s: f64 = (r..6).map(|k| inv_l[k][r] * inv_l[k][c]).sum();
-            inv[(r, c)] = s;
-            inv[(c, r)] = s;
-        }
-    }
-    Some(inv)
-}
-
-#[cfg(test)]
-mod tests {
-    use nalgebra::Matrix6;
-    use proptest::prelude::*;
-
-    use super::spd_inverse;
-
-    proptest! {
-        /// The written-out inverse is nalgebra's Cholesky inverse, on random symmetric
-        /// positive definite blocks scaled over twelve orders of magnitude (a beam's axial
-        /// against its bending stiffness), and refuses what nalgebra's factor refuses.
-        #[test]
-        fn spd_inverse_is_the_cholesky_inverse(
-            entries in proptest::collection::vec(-1.0f64..1.0, 36),
-            shift in 1e-3f64..2.0,
-            exponent in -6.0f64..6.0,
-            indefinite in any::<bool>(),
-        ) {
-            let b = Matrix6::from_iterator(entries);
-            let scale = 10f64.powf(exponent);
-            let mut a = (b * b.transpose() + Matrix6::identity() * shift) * scale;
-            if indefinite {
-                a[(3, 3)] = -a[(3, 3)];
-            }
-            let reference = a.cholesky().map(|c| c.inverse());
-            let fast = spd_inverse(&a);
-            prop_assert_eq!(fast.is_some(), reference.is_some());
-            if let (Some(fast), Some(reference)) = (fast, reference) {
-                let error = (fast - reference).norm() / reference.norm();
-                prop_assert!(error < 1e-10, "relative error {}", error);
-                prop_assert!((fast * a - Matrix6::identity()).norm() < 1e-8);
-            }
-        }
-    }
 }
