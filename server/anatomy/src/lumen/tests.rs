@@ -12,7 +12,8 @@ use crate::surface::{SurfaceSettings, lumen_surface};
 impl MeshWall {
     /// The fixed-point Phong projection `smooth_normal` replaced (a step to where the line
     /// along the normal meets the triangle's plane), up to 200 steps: the normal, and whether
-    /// the steps met their tolerance.
+    /// the steps met their tolerance. It shares only `phong_at` (the barycentric coordinates
+    /// and the interpolated normal) with the Newton iteration under test.
     fn fixed_point_normal(
         &self,
         triangle: u32,
@@ -23,19 +24,9 @@ impl MeshWall {
         let mut x = *closest;
         let mut normal = self.face_normals[tri];
         for _ in 0..200 {
-            let t = self.mesh.triangles[tri];
-            let [a, b, c] = self.corners[tri];
-            let face = self.face_normals[tri];
-            let (v0, v1, v2) = (b - a, c - a, x - a);
-            let (d00, d01, d11) = (v0.dot(&v0), v0.dot(&v1), v1.dot(&v1));
-            let denom = d00 * d11 - d01 * d01;
-            if denom <= 0.0 || face == Vector3::zeros() {
+            let Some((bary, interpolated)) = self.phong_at(tri, &x) else {
                 return (normal, false);
-            }
-            let (d20, d21) = (v2.dot(&v0), v2.dot(&v1));
-            let v = (d11 * d20 - d01 * d21) / denom;
-            let w = (d00 * d21 - d01 * d20) / denom;
-            let bary = [1.0 - v - w, v, w];
+            };
             // Outside this triangle: step across the edge facing the most negative weight.
             let (worst, most_negative) =
                 bary.iter().enumerate().fold(
@@ -51,13 +42,11 @@ impl MeshWall {
                 tri = next as usize;
                 continue;
             }
-            let interpolated = self.normals[t[0] as usize] * bary[0]
-                + self.normals[t[1] as usize] * bary[1]
-                + self.normals[t[2] as usize] * bary[2];
             let Some(n) = interpolated.try_normalize(0.0) else {
                 return (normal, false);
             };
             normal = n;
+            let (a, face) = (self.corners[tri][0], self.face_normals[tri]);
             let along = n.dot(&face);
             if along.abs() < 0.5 {
                 return (normal, false);
