@@ -13,6 +13,10 @@
 //! `cargo test`) it runs the smoke: every scene, one seed, 4 simulated seconds, and one
 //! switched-level run of the default scene, and runs at each of the governor's levels held
 //! throughout on the default scene and its coaxial stack (every scene with `--bench`).
+//! `STRESS_LANES` (comma-separated: `full`, `switched`, `levels`) keeps only those lanes and
+//! `STRESS_FIRST_SEED` (default 1) numbers the full lane's seeds from there, so that an hour
+//! can be run as separate processes, one seed each. `STRESS_TRACE=MS` prints each step of
+//! the full lane slower than MS milliseconds (the strand's size and its last solve).
 
 use std::path::Path;
 
@@ -138,6 +142,12 @@ fn main() {
         4.0
     };
     let every_level = std::env::var_os("STRESS_LEVELS").is_some();
+    let lanes = common::picked("STRESS_LANES");
+    let lane = |l: &str| lanes.as_ref().is_none_or(|o| o.iter().any(|x| x == l));
+    let first_seed = env_number("STRESS_FIRST_SEED", 1.0) as u64;
+    let trace_ms = std::env::var("STRESS_TRACE")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok());
     let only = common::picked("STRESS_SCENES");
     let names = common::bundled_scenes(&scenes, |n| {
         only.as_ref().is_none_or(|o| o.iter().any(|x| x == n))
@@ -150,14 +160,35 @@ fn main() {
     for name in &names {
         let spec = common::scene_spec(&scenes, name, "STRESS_SOLVER");
         let assets = cache.load(&spec, &scenes).unwrap();
-        let reports: Vec<StressReport> = (0..seeds)
-            .map(|seed| {
-                let mut world = World::new(assets.clone()).unwrap();
-                run(&mut world, &StressSettings::new(seed + 1, seconds))
-            })
-            .collect();
-        sound &= row(name, "full", &reports);
-        if full || name == "arch_to_cow_lcca" {
+        if lane("full") {
+            let reports: Vec<StressReport> = (0..seeds)
+                .map(|seed| {
+                    let mut world = World::new(assets.clone()).unwrap();
+                    let settings = StressSettings {
+                        slow_step_s: trace_ms.map(|ms| ms * 1e-3),
+                        ..StressSettings::new(first_seed + seed, seconds)
+                    };
+                    let report = run(&mut world, &settings);
+                    for s in &report.slow_steps {
+                        let (contacts, pushing, sweeps, rounds) = s.contacts;
+                        let inserted: Vec<String> =
+                            s.inserted_m.iter().map(|m| format!("{:.0}", m * 1e3)).collect();
+                        println!(
+                            "    seed {}: {:.3} s, {:.1} ms, level {}, inserted {} mm, {} nodes, {contacts} contacts, {pushing} pushing, {sweeps} sweeps, {rounds} rounds",
+                            first_seed + seed,
+                            s.at_s,
+                            s.step_s * 1e3,
+                            s.level,
+                            inserted.join("/"),
+                            s.nodes
+                        );
+                    }
+                    report
+                })
+                .collect();
+            sound &= row(name, "full", &reports);
+        }
+        if lane("switched") && (full || name == "arch_to_cow_lcca") {
             let mut world = World::new(assets.clone()).unwrap();
             let settings = StressSettings {
                 levels: Levels::Switched,
@@ -169,7 +200,12 @@ fn main() {
         // path (its seed), so that the rows compare the levels: the smoke on a single wire
         // and a coaxial stack (at level 3 a stack's shaft once passed the wall by
         // millimetres); `STRESS_LEVELS=1` for every scene picked.
-        if full || every_level || name == "arch_to_cow_lcca" || name == "arch_to_cow_lcca_coaxial" {
+        if lane("levels")
+            && (full
+                || every_level
+                || name == "arch_to_cow_lcca"
+                || name == "arch_to_cow_lcca_coaxial")
+        {
             for level in 0..=MAX_FIDELITY_LEVEL {
                 let mut world = World::new(assets.clone()).unwrap();
                 let settings = StressSettings {

@@ -41,6 +41,29 @@ pub struct StressSettings {
     pub max_push_m_s: f64,
     /// Fastest twist (rad/s).
     pub max_twist_rad_s: f64,
+    /// Steps slower than this (s) are described in [`StressReport::slow_steps`] (at most
+    /// [`SLOW_STEPS_KEPT`]); `None` keeps none.
+    pub slow_step_s: Option<f64>,
+}
+
+/// The most slow steps a report describes.
+pub const SLOW_STEPS_KEPT: usize = 2000;
+
+/// What the strand looked like after a slow step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SlowStep {
+    /// Simulated time (s).
+    pub at_s: f64,
+    /// Wall time of the step (s).
+    pub step_s: f64,
+    /// The governor's fidelity level.
+    pub level: u8,
+    /// Each instrument's inserted length (m), outermost first.
+    pub inserted_m: Vec<f64>,
+    /// Nodes of the strand's beam model.
+    pub nodes: usize,
+    /// Contacts of the last solve, those pushing, its sweeps and detection rounds.
+    pub contacts: (usize, usize, usize, usize),
 }
 
 impl StressSettings {
@@ -53,6 +76,7 @@ impl StressSettings {
             levels: Levels::Full,
             max_push_m_s: 0.15,
             max_twist_rad_s: 4.0 * std::f64::consts::PI,
+            slow_step_s: None,
         }
     }
 }
@@ -60,10 +84,11 @@ impl StressSettings {
 /// The most axial force an element may carry in a run, as a multiple of the hands' strength.
 /// Within a device the axial force changes only by friction and drag, so the hands' strength
 /// bounds it; the engine relieves whatever passes twice it before each step
-/// (`NavigationSettings::max_axial_force_n`), and what one step's slide leaves before the next
-/// relief is up to some 17 times the strength in the smoke (coaxial stacks, not relieved yet,
-/// up to 43). The fault this catches is elements crushed step after step, which reached
-/// 3,400 times it (34 kN) in a 30 s run before the relief.
+/// (`NavigationSettings::max_axial_force_n`; a coaxial stack's merged element twice the
+/// strength of each hand whose instrument it holds), and what one step's slide leaves before
+/// the next relief is up to some 17 times the strength in the smoke. The fault this catches
+/// is elements crushed step after step, which reached 3,400 times it (34 kN) in a 30 s run
+/// before the relief (and 3,200 times in a coaxial stack's before the stacks had it).
 pub const ELEMENT_FORCE_BOUND: f64 = 100.0;
 
 /// What a run found.
@@ -99,6 +124,8 @@ pub struct StressReport {
     /// The largest axial force any element of the device carried (N): see
     /// [`Metrics::peak_element_force_n`](crate::metrics::Metrics::peak_element_force_n).
     pub worst_element_force_n: f64,
+    /// The steps slower than [`StressSettings::slow_step_s`], in order.
+    pub slow_steps: Vec<SlowStep>,
 }
 
 impl StressReport {
@@ -205,6 +232,27 @@ fn choose(dice: &mut Dice, settings: &StressSettings, hands: usize) -> (u32, Dri
     )
 }
 
+/// What the strand looked like after a step of `took` seconds at `now`.
+fn slow_step(world: &World, now: f64, took: f64) -> SlowStep {
+    let strand = world.strand();
+    let contacts = strand.last_contacts().map_or((0, 0, 0, 0), |c| {
+        (
+            c.contacts.len(),
+            c.response.local.iter().filter(|l| l.x > 0.0).count(),
+            c.response.iterations,
+            c.report.iterations,
+        )
+    });
+    SlowStep {
+        at_s: now,
+        step_s: took,
+        level: world.fidelity_level(),
+        inserted_m: (0..strand.len()).map(|i| strand.inserted_m(i)).collect(),
+        nodes: strand.model().positions().len(),
+        contacts,
+    }
+}
+
 /// Drives `world` with the random operator of `settings` and reports what happened.
 pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
     let mut dice = Dice(settings.seed);
@@ -245,7 +293,14 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
         }
         let start = Instant::now();
         let outcome = catch_unwind(AssertUnwindSafe(|| world.step()));
-        report.step_s.push(start.elapsed().as_secs_f64());
+        let took = start.elapsed().as_secs_f64();
+        report.step_s.push(took);
+        if settings.slow_step_s.is_some_and(|s| took > s)
+            && report.slow_steps.len() < SLOW_STEPS_KEPT
+            && outcome.is_ok()
+        {
+            report.slow_steps.push(slow_step(world, now, took));
+        }
         report.steps += 1;
         match outcome {
             Ok(Ok(())) => {}

@@ -193,9 +193,17 @@ impl BeamModel {
     /// device the axial force changes only by friction and drag), so what exceeds it is the
     /// predictor's error, relieved before the next step is solved.
     pub fn relieve_axial_excess(&mut self, limit_n: f64) -> Result<f64> {
+        self.relieve_axial_excess_by(|_| limit_n)
+    }
+
+    /// [`Self::relieve_axial_excess`] with each element's own bound (N), `limit_n(e)` for
+    /// element `e`: a coaxial stack's merged element carries each instrument's force, so its
+    /// bound is the strength of the hands on the instruments it holds.
+    pub fn relieve_axial_excess_by(&mut self, limit_n: impl Fn(usize) -> f64) -> Result<f64> {
         let mut loads = vec![Vector6::zeros(); self.node_count() - 1];
         let mut worst: f64 = 0.0;
         for (e, element) in self.elements.iter().enumerate() {
+            let limit_n = limit_n(e);
             let chord = self.positions[e + 1] - self.positions[e];
             let length = chord.norm();
             let force = element.axial_force_n(length);

@@ -36,6 +36,8 @@ mod pose;
 mod state;
 mod step;
 mod strand;
+#[cfg(test)]
+mod tests;
 
 pub use instrument::{InstrumentSpec, MAX_INSTRUMENTS, check_fit, inserted_range};
 pub use loads::ProximalReaction;

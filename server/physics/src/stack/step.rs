@@ -206,7 +206,19 @@ impl<W: Wall> Stack<W> {
         let twist =
             UnitQuaternion::from_axis_angle(&Vector3::x_axis(), self.instruments[0].twist_rad);
         self.model
-            .place_base(self.entry_position, self.entry_rotation * twist)
+            .place_base(self.entry_position, self.entry_rotation * twist)?;
+        // A merged element carries the force of every instrument it holds, each within its
+        // hand's strength: the bound is the single device's times their number.
+        if let Some(limit) = self.settings.max_axial_force_n {
+            let nodes = &self.nodes;
+            let instruments = &self.instruments;
+            self.model.relieve_axial_excess_by(|e| {
+                let mid = 0.5 * (nodes[e].sigma + nodes[e + 1].sigma);
+                let held = instruments.iter().filter(|i| i.inserted_m > mid).count();
+                limit * held.max(1) as f64
+            })?;
+        }
+        Ok(())
     }
 
     /// One solve: kinematic update, detection, beam solve with contacts.
