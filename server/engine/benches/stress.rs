@@ -81,6 +81,12 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
         if let Some(failure) = &r.first_failure {
             println!("    run {i}: {failure}");
         }
+        if let Some((at_s, hand, force, torque)) = r.limit_passed_at {
+            println!(
+                "    run {i}: instrument {hand} past its strength at {at_s:.3} s: {force:.2} N, {:.1} mN·m",
+                torque * 1e3
+            );
+        }
         if !r.hands_within_limits() {
             println!(
                 "    run {i}: a hand felt {:.3} N and {:.1} mN·m, past its {:.0} N or {:.0} mN·m",

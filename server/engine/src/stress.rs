@@ -126,6 +126,9 @@ pub struct StressReport {
     pub worst_element_force_n: f64,
     /// The steps slower than [`StressSettings::slow_step_s`], in order.
     pub slow_steps: Vec<SlowStep>,
+    /// When a hand first felt more than its strength: simulated time (s), the instrument
+    /// (outermost first), its force (N) and torque (N·m) then; None while none did.
+    pub limit_passed_at: Option<(f64, usize, f64, f64)>,
 }
 
 impl StressReport {
@@ -312,6 +315,23 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
                 report.panicked = true;
                 break;
             }
+        }
+        if report.limit_passed_at.is_none() {
+            let limits = &world.assets().spec.limits;
+            let (force_n, torque_nm) = (
+                limits.push_force_n * (1.0 + crate::scene::FORCE_OVERSHOOT),
+                limits.twist_torque_nm * (1.0 + TORQUE_OVERSHOOT),
+            );
+            let metrics = world.metrics();
+            report.limit_passed_at = metrics.instruments[..metrics.instrument_count as usize]
+                .iter()
+                .position(|m| {
+                    m.peak_axial_force_n.abs() > force_n || m.peak_torque_nm.abs() > torque_nm
+                })
+                .map(|i| {
+                    let m = &metrics.instruments[i];
+                    (now, i, m.peak_axial_force_n, m.peak_torque_nm)
+                });
         }
         let deepest = world.metrics().deepest_penetration_m;
         if deepest > report.worst_penetration_m {
