@@ -175,6 +175,14 @@ fn main() {
                         ..StressSettings::new(first_seed + seed, seconds)
                     };
                     let report = run(&mut world, &settings);
+                    if trace_ms.is_some() {
+                        println!(
+                            "    seed {}: {} steps, {} taken again by the force guard",
+                            first_seed + seed,
+                            report.steps,
+                            report.force_retakes
+                        );
+                    }
                     for s in &report.slow_steps {
                         let (contacts, pushing, sweeps, rounds) = s.contacts;
                         let inserted: Vec<String> =

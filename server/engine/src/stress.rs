@@ -129,6 +129,8 @@ pub struct StressReport {
     /// When a hand first felt more than its strength: simulated time (s), the instrument
     /// (outermost first), its force (N) and torque (N·m) then; None while none did.
     pub limit_passed_at: Option<(f64, usize, f64, f64)>,
+    /// Steps the hands' force guard took again ([`Metrics::force_retakes`](crate::metrics::Metrics::force_retakes)).
+    pub force_retakes: u64,
 }
 
 impl StressReport {
@@ -352,6 +354,7 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
     // The world measures every node of every instrument after each step it keeps (and
     // `report.worst_penetration_m` followed it step by step).
     report.worst_element_force_n = metrics.peak_element_force_n;
+    report.force_retakes = metrics.force_retakes;
     // The largest of a figure any instrument's hand felt, either way.
     let worst = |figure: fn(&InstrumentMetrics) -> f64| {
         metrics.instruments[..metrics.instrument_count as usize]

@@ -20,6 +20,13 @@ use crate::strand::{HandReaction, Strand};
 /// instrument is guarded ([`World::step_within_force_limits`]).
 const FORCE_GUARD_FRACTION: f64 = 0.25;
 
+/// How far past its torque strength a step may leave a hand that was within it (a fraction
+/// of the limit) before the force guard takes the step again: a push can load a hand's
+/// torque as well as its force (a curved catheter's tip meeting a wall turns the shaft about
+/// the entry axis by the contact's lever arm: 51 → 153 mN·m in one step of the stroke
+/// scene's guide).
+const TORQUE_OVERSHOOT: f64 = 0.1;
+
 /// The least difference between two tries' advances of an instrument (m) from which its
 /// hand's stiffness is learnt.
 const MIN_LEARNING_MOVE_M: f64 = 1e-7;
@@ -142,8 +149,12 @@ impl World {
     /// moves may not load it further (in a merged stack the guide's hand feels the
     /// microcatheter pushed). The first try already takes the share each hand's stiffness
     /// learnt in the last guarded step allows, so a push held at its limit is stepped once, not
-    /// twice. What the held step leaves is accepted: other forces (a twist, a settling shape)
-    /// may still load a hand. `moves` are the insertions this step runs.
+    /// twice. Torques are guarded alike: a step that leaves a hand within its torque limit
+    /// more than [`TORQUE_OVERSHOOT`] past it is taken again with the moves and the twists
+    /// scaled by the share the torque allows (a push loads the torque too, through the lever
+    /// arm of a curved device's contacts). What the held step leaves is accepted: other
+    /// forces (a settling shape) may still load a hand. `moves` are the insertions this step
+    /// runs.
     fn step_within_force_limits(&mut self, moves: &[Insertion], dt: f64) -> Result<()> {
         // Per instrument: inserted before (m), its move this step (m) and whether the move is
         // scaled in a retake (it moves, and its hand is within its limit: not giving way).
@@ -163,6 +174,20 @@ impl World {
                 (inserted, advance, advance != 0.0 && (within || against))
             })
             .collect();
+        // Per instrument: twisted before (rad) and its twist this step (rad), scaled in a
+        // retake where its hand is within its torque limit (not giving its twist back).
+        let before_twists: Vec<(f64, f64)> = (0..moves.len())
+            .map(|i| {
+                let twisted = self.strand.twist_rad(i);
+                let turn = match self.strand.command(i).twist {
+                    Twist::Rate(w) => w * dt,
+                    Twist::Target(angle) => angle - twisted,
+                };
+                let hand = &self.hands[i];
+                let within = hand.reaction.torque_nm.abs() < hand.limits.torque_nm;
+                (twisted, if within { turn } else { 0.0 })
+            })
+            .collect();
         // Per hand: its limits as signed forces (push, pull) and its last reaction (N).
         let hands: Vec<(f64, f64, f64)> = self
             .hands
@@ -175,11 +200,21 @@ impl World {
                 )
             })
             .collect();
-        let moving = before_moves.iter().any(|&(_, _, scaled)| scaled);
-        let near = hands.iter().any(|&(push, pull, last)| {
+        // Per hand: its torque limit and its last torque's size (N·m).
+        let torques: Vec<(f64, f64)> = self
+            .hands
+            .iter()
+            .map(|h| (h.limits.torque_nm, h.reaction.torque_nm.abs()))
+            .collect();
+        let pushing = before_moves.iter().any(|&(_, _, scaled)| scaled);
+        let twisting = before_twists.iter().any(|&(_, turn)| turn != 0.0);
+        let near_force = hands.iter().any(|&(push, pull, last)| {
             last / push >= FORCE_GUARD_FRACTION || last / pull >= FORCE_GUARD_FRACTION
         });
-        if !(moving && near) {
+        let near_torque = torques
+            .iter()
+            .any(|&(limit, last)| last / limit >= FORCE_GUARD_FRACTION);
+        if !((pushing && (near_force || near_torque)) || (twisting && near_torque)) {
             return Ok(self.strand.step()?);
         }
         let before = self.strand.clone();
@@ -199,13 +234,16 @@ impl World {
             })
             .fold(1.0, f64::min);
         if predicted < 1.0 {
-            self.scale_moves(&before_moves, |_, advance| predicted * advance)?;
+            self.scale_moves(&before_moves, |_, advance| predicted * advance, None)?;
         }
         self.strand.step()?;
         // The share of this step's loading moves that keeps every hand that was within its
         // limit there (1: all).
-        let allowed = |reactions: &[HandReaction]| -> f64 {
-            hands
+        // The shares of this step's loading moves that keep every hand that was within its
+        // limits there (1: all): the pushes' by the forces and the torques, the twists' by
+        // the torques alone.
+        let allowed = |reactions: &[HandReaction]| -> (f64, f64) {
+            let force = hands
                 .iter()
                 .zip(reactions)
                 .map(|(&(push, pull, last), r)| {
@@ -223,12 +261,27 @@ impl World {
                         0.0
                     }
                 })
-                .fold(1.0, f64::min)
+                .fold(1.0, f64::min);
+            let torque = torques
+                .iter()
+                .zip(reactions)
+                .map(|(&(limit, last), r)| {
+                    let now = r.torque_nm.abs();
+                    // A hand already past it gives its twist back (`limited_twist`) and is
+                    // not held here.
+                    if now <= limit * (1.0 + TORQUE_OVERSHOOT) || last >= limit {
+                        1.0
+                    } else {
+                        ((limit - last) / (now - last)).clamp(0.0, 1.0)
+                    }
+                })
+                .fold(1.0, f64::min);
+            (force.min(torque), torque)
         };
         // The hands' reactions after the step taken last (computed once a step).
         let mut reactions = self.strand.reactions().1;
-        let share = allowed(&reactions);
-        if share >= 1.0 {
+        let (push_share, twist_share) = allowed(&reactions);
+        if push_share >= 1.0 && twist_share >= 1.0 {
             self.forget_slack_stiffness(&hands, &reactions);
         } else {
             // The moves as the physics took them (clamped to the device's speed and range).
@@ -238,13 +291,22 @@ impl World {
                 .map(|(i, &(inserted, _, _))| self.strand.inserted_m(i) - inserted)
                 .collect();
             let first = reactions.clone();
-            for share in [share, 0.0] {
+            // Then, if still too far, without the moves whose share was short.
+            let held = |share: f64| if share < 1.0 { 0.0 } else { 1.0 };
+            for (push, twist) in [
+                (push_share, twist_share),
+                (held(push_share), held(twist_share)),
+            ] {
                 self.metrics.force_retakes += 1;
                 self.strand = before.clone();
-                self.scale_moves(&before_moves, |i, _| share * taken[i])?;
+                let twists = (twist < 1.0).then_some((&before_twists[..], twist));
+                self.scale_moves(&before_moves, |i, _| push * taken[i], twists)?;
                 self.strand.step()?;
                 reactions = self.strand.reactions().1;
-                if share == 0.0 || allowed(&reactions) >= 1.0 {
+                let (p, t) = allowed(&reactions);
+                // Done when within, or when this try held every move that was short.
+                let whole = |share: f64| share == 0.0 || share >= 1.0;
+                if (p >= 1.0 && t >= 1.0) || (whole(push) && whole(twist)) {
                     break;
                 }
             }
@@ -255,18 +317,26 @@ impl World {
 
     /// Sets each scaled instrument's insertion this step to `move_m(instrument, planned
     /// advance)` beyond where it was (`before_moves` as in `step_within_force_limits`).
+    /// With `twists` (each instrument's twist before and this step's scaled twist, rad, as
+    /// in `step_within_force_limits`, and the share), the twists are scaled by the share too.
     fn scale_moves(
         &mut self,
         before_moves: &[(f64, f64, bool)],
         move_m: impl Fn(usize, f64) -> f64,
+        twists: Option<(&[(f64, f64)], f64)>,
     ) -> Result<()> {
         for (i, &(inserted, advance, scaled)) in before_moves.iter().enumerate() {
+            let mut command = self.strand.command(i);
             if scaled {
-                let insertion = Insertion::Target(inserted + move_m(i, advance));
-                let twist = self.strand.command(i).twist;
-                self.strand
-                    .set_command(i, cathlab_physics::Command { insertion, twist })?;
+                command.insertion = Insertion::Target(inserted + move_m(i, advance));
             }
+            if let Some((twists, share)) = twists
+                && let Some(&(twisted, turn)) = twists.get(i)
+                && turn != 0.0
+            {
+                command.twist = Twist::Target(twisted + share * turn);
+            }
+            self.strand.set_command(i, command)?;
         }
         Ok(())
     }
