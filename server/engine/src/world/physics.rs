@@ -267,12 +267,16 @@ impl World {
                 .zip(reactions)
                 .map(|(&(limit, last), r)| {
                     let now = r.torque_nm.abs();
-                    // A hand already past it gives its twist back (`limited_twist`) and is
-                    // not held here.
-                    if now <= limit * (1.0 + TORQUE_OVERSHOOT) || last >= limit {
+                    if now <= limit * (1.0 + TORQUE_OVERSHOOT) {
+                        1.0
+                    } else if last < limit {
+                        ((limit - last) / (now - last)).clamp(0.0, 1.0)
+                    } else if now <= last {
+                        // Past it and giving its twist back (`limited_twist`): the moves may
+                        // not load it further.
                         1.0
                     } else {
-                        ((limit - last) / (now - last)).clamp(0.0, 1.0)
+                        0.0
                     }
                 })
                 .fold(1.0, f64::min);
@@ -291,22 +295,50 @@ impl World {
                 .map(|(i, &(inserted, _, _))| self.strand.inserted_m(i) - inserted)
                 .collect();
             let first = reactions.clone();
-            // Then, if still too far, without the moves whose share was short.
-            let held = |share: f64| if share < 1.0 { 0.0 } else { 1.0 };
-            for (push, twist) in [
-                (push_share, twist_share),
-                (held(push_share), held(twist_share)),
-            ] {
+            // The tries: the share; then, if still too far, without the moves whose share was
+            // short, first keeping the moves of hands past their limit that move against the
+            // force they feel (a guide catheter pulled back while the microcatheter pushed
+            // through it loads it: holding both held the guide past its limit for seconds,
+            // every step taken three times), then without those too.
+            let count = before_moves.len();
+            let relieving: Vec<bool> = before_moves
+                .iter()
+                .zip(&hands)
+                .map(|(&(_, _, scaled), &(push, pull, last))| {
+                    scaled && !(last < push && last > pull)
+                })
+                .collect();
+            let mut tries: Vec<(Vec<f64>, f64)> = Vec::new();
+            if push_share > 0.0 || (twist_share > 0.0 && twist_share < 1.0) {
+                tries.push((vec![push_share; count], twist_share));
+            }
+            let others_move = before_moves
+                .iter()
+                .zip(&relieving)
+                .any(|(&(_, _, scaled), &r)| scaled && !r);
+            if push_share < 1.0 && others_move && relieving.contains(&true) {
+                let keep = relieving
+                    .iter()
+                    .map(|&r| if r { 1.0 } else { 0.0 })
+                    .collect();
+                tries.push((keep, 0.0));
+            }
+            // Every move held, twists too: a push's share and a twist's interact (the stroke
+            // scene's guide, pushed at a wall and twisted, kept within its torque by its push
+            // and past it without).
+            let hold = (vec![0.0; count], 0.0);
+            if tries.last() != Some(&hold) {
+                tries.push(hold);
+            }
+            for (k, (push, twist)) in tries.iter().enumerate() {
                 self.metrics.force_retakes += 1;
                 self.strand = before.clone();
-                let twists = (twist < 1.0).then_some((&before_twists[..], twist));
-                self.scale_moves(&before_moves, |i, _| push * taken[i], twists)?;
+                let twists = (*twist < 1.0).then_some((&before_twists[..], *twist));
+                self.scale_moves(&before_moves, |i, _| push[i] * taken[i], twists)?;
                 self.strand.step()?;
                 reactions = self.strand.reactions().1;
                 let (p, t) = allowed(&reactions);
-                // Done when within, or when this try held every move that was short.
-                let whole = |share: f64| share == 0.0 || share >= 1.0;
-                if (p >= 1.0 && t >= 1.0) || (whole(push) && whole(twist)) {
+                if (p >= 1.0 && t >= 1.0) || k + 1 == tries.len() {
                     break;
                 }
             }
