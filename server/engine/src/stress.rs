@@ -162,9 +162,22 @@ impl StressReport {
     /// [`crate::scene::FORCE_OVERSHOOT`]) and no hand twisted past its torque strength by
     /// more than [`TORQUE_OVERSHOOT`].
     pub fn hands_within_limits(&self) -> bool {
-        self.worst_hand_force_n <= self.hand_limit_n * (1.0 + crate::scene::FORCE_OVERSHOOT) + 1e-9
-            && self.worst_hand_torque_nm <= self.hand_torque_limit_nm * (1.0 + TORQUE_OVERSHOOT)
+        within_strength(
+            (self.worst_hand_force_n, self.worst_hand_torque_nm),
+            (self.hand_limit_n, self.hand_torque_limit_nm),
+        )
     }
+}
+
+/// Whether a hand's force and torque (N, N·m; either sign) are within its strength (N, N·m),
+/// the force within the step's [`crate::scene::FORCE_OVERSHOOT`] and the torque within
+/// [`TORQUE_OVERSHOOT`].
+fn within_strength(
+    (force_n, torque_nm): (f64, f64),
+    (limit_n, torque_limit_nm): (f64, f64),
+) -> bool {
+    force_n.abs() <= limit_n * (1.0 + crate::scene::FORCE_OVERSHOOT) + 1e-9
+        && torque_nm.abs() <= torque_limit_nm * (1.0 + TORQUE_OVERSHOOT)
 }
 
 /// SplitMix64: a small deterministic generator for the operator's choices (and the fuzz
@@ -320,16 +333,11 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
         }
         if report.limit_passed_at.is_none() {
             let limits = &world.assets().spec.limits;
-            let (force_n, torque_nm) = (
-                limits.push_force_n * (1.0 + crate::scene::FORCE_OVERSHOOT),
-                limits.twist_torque_nm * (1.0 + TORQUE_OVERSHOOT),
-            );
+            let strength = (limits.push_force_n, limits.twist_torque_nm);
             let metrics = world.metrics();
             report.limit_passed_at = metrics.instruments[..metrics.instrument_count as usize]
                 .iter()
-                .position(|m| {
-                    m.peak_axial_force_n.abs() > force_n || m.peak_torque_nm.abs() > torque_nm
-                })
+                .position(|m| !within_strength((m.peak_axial_force_n, m.peak_torque_nm), strength))
                 .map(|i| {
                     let m = &metrics.instruments[i];
                     (now, i, m.peak_axial_force_n, m.peak_torque_nm)

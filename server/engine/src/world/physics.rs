@@ -156,38 +156,6 @@ impl World {
     /// forces (a settling shape) may still load a hand. `moves` are the insertions this step
     /// runs.
     fn step_within_force_limits(&mut self, moves: &[Insertion], dt: f64) -> Result<()> {
-        // Per instrument: inserted before (m), its move this step (m) and whether the move is
-        // scaled in a retake (it moves, and its hand is within its limit: not giving way).
-        let before_moves: Vec<(f64, f64, bool)> = moves
-            .iter()
-            .enumerate()
-            .map(|(i, insertion)| {
-                let inserted = self.strand.inserted_m(i);
-                let advance = advance_m(*insertion, inserted, dt);
-                let hand = &self.hands[i];
-                let last = hand.reaction.axial_force_n;
-                let within = last < hand.limits.force_n && -last < hand.limits.pull_force_n;
-                // A hand past its limit moving against the force it feels (pulling while the
-                // device pushes it out, as a coil pulled out of a dead end does here) is not
-                // giving way: its move is scaled too, and held where it loads the hand further.
-                let against = advance * last < 0.0;
-                (inserted, advance, advance != 0.0 && (within || against))
-            })
-            .collect();
-        // Per instrument: twisted before (rad) and its twist this step (rad), scaled in a
-        // retake where its hand is within its torque limit (not giving its twist back).
-        let before_twists: Vec<(f64, f64)> = (0..moves.len())
-            .map(|i| {
-                let twisted = self.strand.twist_rad(i);
-                let turn = match self.strand.command(i).twist {
-                    Twist::Rate(w) => w * dt,
-                    Twist::Target(angle) => angle - twisted,
-                };
-                let hand = &self.hands[i];
-                let within = hand.reaction.torque_nm.abs() < hand.limits.torque_nm;
-                (twisted, if within { turn } else { 0.0 })
-            })
-            .collect();
         // Per hand: its limits as signed forces (push, pull) and its last reaction (N).
         let hands: Vec<(f64, f64, f64)> = self
             .hands
@@ -200,11 +168,44 @@ impl World {
                 )
             })
             .collect();
+        // Per hand: whether its last force was within its limits (not giving way).
+        let within: Vec<bool> = hands
+            .iter()
+            .map(|&(push, pull, last)| last < push && last > pull)
+            .collect();
         // Per hand: its torque limit and its last torque's size (N·m).
         let torques: Vec<(f64, f64)> = self
             .hands
             .iter()
             .map(|h| (h.limits.torque_nm, h.reaction.torque_nm.abs()))
+            .collect();
+        // Per instrument: inserted before (m), its move this step (m) and whether the move is
+        // scaled in a retake (it moves, and its hand is within its limit: not giving way).
+        let before_moves: Vec<(f64, f64, bool)> = moves
+            .iter()
+            .enumerate()
+            .map(|(i, insertion)| {
+                let inserted = self.strand.inserted_m(i);
+                let advance = advance_m(*insertion, inserted, dt);
+                // A hand past its limit moving against the force it feels (pulling while the
+                // device pushes it out, as a coil pulled out of a dead end does here) is not
+                // giving way: its move is scaled too, and held where it loads the hand further.
+                let against = advance * hands[i].2 < 0.0;
+                (inserted, advance, advance != 0.0 && (within[i] || against))
+            })
+            .collect();
+        // Per instrument: twisted before (rad) and its twist this step (rad), scaled in a
+        // retake where its hand is within its torque limit (not giving its twist back).
+        let before_twists: Vec<(f64, f64)> = (0..moves.len())
+            .map(|i| {
+                let twisted = self.strand.twist_rad(i);
+                let turn = match self.strand.command(i).twist {
+                    Twist::Rate(w) => w * dt,
+                    Twist::Target(angle) => angle - twisted,
+                };
+                let (limit, last) = torques[i];
+                (twisted, if last < limit { turn } else { 0.0 })
+            })
             .collect();
         let pushing = before_moves.iter().any(|&(_, _, scaled)| scaled);
         let twisting = before_twists.iter().any(|&(_, turn)| turn != 0.0);
@@ -237,8 +238,6 @@ impl World {
             self.scale_moves(&before_moves, |_, advance| predicted * advance, None)?;
         }
         self.strand.step()?;
-        // The share of this step's loading moves that keeps every hand that was within its
-        // limit there (1: all).
         // The shares of this step's loading moves that keep every hand that was within its
         // limits there (1: all): the pushes' by the forces and the torques, the twists' by
         // the torques alone.
@@ -303,10 +302,8 @@ impl World {
             let count = before_moves.len();
             let relieving: Vec<bool> = before_moves
                 .iter()
-                .zip(&hands)
-                .map(|(&(_, _, scaled), &(push, pull, last))| {
-                    scaled && !(last < push && last > pull)
-                })
+                .zip(&within)
+                .map(|(&(_, _, scaled), &within)| scaled && !within)
                 .collect();
             let mut tries: Vec<(Vec<f64>, f64)> = Vec::new();
             if push_share > 0.0 || (twist_share > 0.0 && twist_share < 1.0) {
