@@ -120,6 +120,13 @@ impl BeamModel {
             .fold(0.0, f64::max)
     }
 
+    /// The axial force element `index` carries (N, tension positive), as the element
+    /// computes it from its chord: E·A/ℓ₀ times the chord's change from the rest length.
+    pub fn element_axial_force_n(&self, index: usize) -> f64 {
+        self.elements[index]
+            .axial_force_n((self.positions[index + 1] - self.positions[index]).norm())
+    }
+
     /// Reaction wrench at the base (force N, moment N·m, world frame): what the operator's
     /// hand must apply to hold the device where it is.
     pub fn base_reaction(&mut self) -> Vector6<f64> {

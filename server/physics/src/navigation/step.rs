@@ -208,6 +208,8 @@ impl<W: Wall> Navigation<W> {
         // bend would strain it.
         let positions = self.model.positions().to_vec();
         let rotations = self.model.rotations().to_vec();
+        // What the hand felt (N, tension positive), kept across a merge at the entry.
+        let held = self.model.element_axial_force_n(0);
         let last = self.material.len() - 1;
         let curved_from = self.first_curved_element().map_or(last, |e| e.max(1));
         let along = |s: f64| -> (Vector3<f64>, UnitQuaternion<f64>) {
@@ -265,10 +267,26 @@ impl<W: Wall> Navigation<W> {
                 )?;
                 self.material.insert(1, split);
             } else if push < 0.0 && element < 0.5 * h && self.material.len() > 2 {
+                // The hand feels element 0's axial force. Element 1 may carry more (what the
+                // wall's friction holds beyond node 1, or strain a capped step has not yet
+                // corrected there, up to the relief's bound): joined as they are, a pulled wire
+                // went from 2 to 14 N of compression at the hand in one step. So the joined
+                // element keeps element 0's force from before the slide: the entry's material
+                // coordinate moves by the difference in strain (micrometres: the wire slips
+                // that far at the hand).
                 let second = self.material[2];
                 self.model
                     .remove_node_after_base(element_spec(&self.device, base, second))?;
                 self.material.remove(1);
+                let chord = (self.model.positions()[1] - self.model.positions()[0]).norm();
+                let stiffness = element_spec(&self.device, base, second)
+                    .props
+                    .axial_stiffness_n;
+                let rest = chord * stiffness / (stiffness + held);
+                // (A force near E·A would mean a wrecked element: then joined as it lies.)
+                if (rest - (second - base)).abs() < 0.1 * (second - base) {
+                    self.material[0] = second - rest;
+                }
             } else {
                 return self
                     .model
@@ -373,5 +391,72 @@ impl<W: Wall> Navigation<W> {
                     .map(|probe| s.radius - probe.clearance_m)
             })
             .fold(0.0, f64::max)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::device::presets;
+    use crate::navigation::NavigationSettings;
+    use crate::wall::CappedTube;
+
+    /// Regression (the random operator on `arch_to_cow_lcca`, seed 1, at 33.478 s): a wire
+    /// pulled out through the entry, element 0 at 2 N of compression and element 1 at 20 N
+    /// (strain the capped steps had not yet corrected), felt 14 N at the hand the step the two
+    /// were joined. Joined, they keep element 0's force; the entry moves by micrometres.
+    #[test]
+    fn a_merge_at_the_entry_keeps_the_force_the_hand_feels() {
+        let tube = CappedTube {
+            start: Vector3::zeros(),
+            axis: Vector3::x(),
+            length_m: 0.3,
+            radius_m: 2e-3,
+        };
+        let mut nav = Navigation::new(
+            presets::guidewire_035(),
+            tube,
+            Vector3::zeros(),
+            Vector3::x(),
+            0.1,
+            NavigationSettings::default(),
+        )
+        .unwrap();
+        let pull = -0.05e-3;
+        let length = nav.device.length_m();
+        // Pulled (slid alone: nothing loads the straight wire) until the next pull joins
+        // elements 0 and 1.
+        loop {
+            let (base, first) = (nav.material[0] - pull, nav.material[1]);
+            if first - base < 0.5 * spacing(&nav.settings, length, first) {
+                break;
+            }
+            nav.slide(pull).unwrap();
+        }
+        // Element 1 crushed by 10 µm: node 2 and all beyond moved towards node 1.
+        let crush = 10e-6;
+        let mut positions = nav.model.positions().to_vec();
+        for p in &mut positions[2..] {
+            p.x -= crush;
+        }
+        let rotations = nav.model.rotations().to_vec();
+        nav.model.set_nodes(&positions, &rotations).unwrap();
+        let felt = nav.model.element_axial_force_n(0);
+        let crushed = nav.model.element_axial_force_n(1);
+        let (elements, entry) = (nav.model.element_count(), nav.material[0]);
+        assert!(felt.abs() < 1e-6 && crushed < -5.0, "{felt} N, {crushed} N");
+        nav.slide(pull).unwrap();
+        assert_eq!(nav.model.element_count(), elements - 1, "joined");
+        let joined = nav.model.element_axial_force_n(0);
+        assert!(
+            (joined - felt).abs() < 1e-6,
+            "the hand felt {felt} N before the join and {joined} N after ({crushed} N crushed)"
+        );
+        // The entry moved by the pull and by the crushed micrometre at most.
+        let moved = nav.material[0] - entry;
+        assert!(
+            (moved + pull).abs() <= crush,
+            "entry moved {moved} m for a {pull} m pull"
+        );
     }
 }
