@@ -305,9 +305,11 @@ impl World {
                 .zip(&within)
                 .map(|(&(_, _, scaled), &within)| scaled && !within)
                 .collect();
-            let mut tries: Vec<(Vec<f64>, f64)> = Vec::new();
+            // Each try: the share of each move kept, of the twists, and the gives (m).
+            let none = vec![0.0; count];
+            let mut tries: Vec<(Vec<f64>, f64, Vec<f64>)> = Vec::new();
             if push_share > 0.0 || (twist_share > 0.0 && twist_share < 1.0) {
-                tries.push((vec![push_share; count], twist_share));
+                tries.push((vec![push_share; count], twist_share, none.clone()));
             }
             let others_move = before_moves
                 .iter()
@@ -318,20 +320,36 @@ impl World {
                     .iter()
                     .map(|&r| if r { 1.0 } else { 0.0 })
                     .collect();
-                tries.push((keep, 0.0));
+                tries.push((keep, 0.0, none.clone()));
+            }
+            // Every move and twist held, and each hand past its limit that did not move
+            // gives way (as `limited_command` gives): what others' moves or the device's own
+            // settling put on such a hand is not held there. (A guide held at its strength
+            // while a microwire was pulled back through it crept 0.01–0.02 N a step past it
+            // with everything held: the stroke scene, seed 2.)
+            let gives = self.gives_past_limits(&hands, &first, &before_moves);
+            if gives.iter().any(|&g| g != 0.0) {
+                tries.push((none.clone(), 0.0, gives));
             }
             // Every move held, twists too: a push's share and a twist's interact (the stroke
             // scene's guide, pushed at a wall and twisted, kept within its torque by its push
             // and past it without).
-            let hold = (vec![0.0; count], 0.0);
+            let hold = (none.clone(), 0.0, none);
             if tries.last() != Some(&hold) {
                 tries.push(hold);
             }
-            for (k, (push, twist)) in tries.iter().enumerate() {
+            for (k, (push, twist, gives)) in tries.iter().enumerate() {
                 self.metrics.force_retakes += 1;
                 self.strand = before.clone();
                 let twists = (*twist < 1.0).then_some((&before_twists[..], *twist));
                 self.scale_moves(&before_moves, |i, _| push[i] * taken[i], twists)?;
+                for (i, &give) in gives.iter().enumerate() {
+                    if give != 0.0 {
+                        let mut command = self.strand.command(i);
+                        command.insertion = Insertion::Target(before_moves[i].0 + give);
+                        self.strand.set_command(i, command)?;
+                    }
+                }
                 self.strand.step()?;
                 reactions = self.strand.reactions().1;
                 let (p, t) = allowed(&reactions);
@@ -342,6 +360,44 @@ impl World {
             self.learn_hand_stiffness(&before_moves, (&taken, &first), &reactions);
         }
         Ok(())
+    }
+
+    /// For each instrument (m; 0: none), the give of its hand where the force guard's first
+    /// try left it past its limit by more than [`FORCE_OVERSHOOT`] and its own move did not
+    /// (it was held, `before_moves`' flag unset): its excess over the aim
+    /// ([`GIVE_UNDERSHOOT`] under the limit) over its stiffness, at most [`MAX_GIVE_M`], back
+    /// against a push and in against a pull (never past its hub). `hands`: each one's signed
+    /// limits, push and pull (N); `first`: the reactions after the first try.
+    fn gives_past_limits(
+        &self,
+        hands: &[(f64, f64, f64)],
+        first: &[HandReaction],
+        before_moves: &[(f64, f64, bool)],
+    ) -> Vec<f64> {
+        hands
+            .iter()
+            .zip(first)
+            .zip(before_moves)
+            .enumerate()
+            .map(|(i, ((&(push, pull, _), r), &(inserted, _, scaled)))| {
+                let now = r.axial_force_n;
+                let limit = if now >= 0.0 { push } else { pull };
+                if scaled || now / limit <= 1.0 + FORCE_OVERSHOOT {
+                    return 0.0;
+                }
+                let axial = self.proximal_stiffness(i, |p| p.axial_stiffness_n);
+                let stiffness = self.hands[i]
+                    .stiffness_n_per_m
+                    .map_or(axial, |k| k.min(axial));
+                let give =
+                    ((now - (1.0 - GIVE_UNDERSHOOT) * limit).abs() / stiffness).min(MAX_GIVE_M);
+                if now > 0.0 {
+                    -give.min(inserted)
+                } else {
+                    give.min((self.hands[i].limits.max_inserted_m - inserted).max(0.0))
+                }
+            })
+            .collect()
     }
 
     /// Sets each scaled instrument's insertion this step to `move_m(instrument, planned

@@ -456,18 +456,27 @@ fn a_push_held_at_its_limit_is_stepped_once() {
 /// guide's hand sat past its 10 N while it was pulled back and the microcatheter pushed
 /// through it: every move was held, the guide's relieving pull too, and the guide's force
 /// crept to 11.4 N with 1,898 of 7,000 steps taken again; now the moves that relieve a hand
-/// past its limit are kept in a try of their own before everything is held.
+/// past its limit are kept in a try of their own before everything is held. (3) Seed 2, at
+/// 16.378 s: the guide held at its 10 N while the microwire was pulled back through it at
+/// 136 mm/s crept 0.01–0.02 N a step, to 10.21 N with everything held; now a hand held past
+/// its limit gives way in a try before everything is held.
 #[test]
 fn a_stack_under_the_random_operator_keeps_its_hands_within_their_strength() {
+    for (seed, seconds) in [(1, 14.0), (2, 16.5)] {
+        a_stack_under_the_random_operator(seed, seconds);
+    }
+}
+
+fn a_stack_under_the_random_operator(seed: u64, seconds: f64) {
     let text = std::fs::read_to_string(scenes().join("stroke_m1_thrombectomy.toml")).unwrap();
     let mut world = World::new(assets(&text)).unwrap();
     let report = cathlab_engine::stress::run(
         &mut world,
-        &cathlab_engine::stress::StressSettings::new(1, 14.0),
+        &cathlab_engine::stress::StressSettings::new(seed, seconds),
     );
     let limit = world.assets().spec.limits.twist_torque_nm;
     println!(
-        "largest force {:.2} N, torque {:.1} mN·m under {:.0} mN·m; {} of {} steps taken again",
+        "seed {seed}: largest force {:.2} N, torque {:.1} mN·m under {:.0} mN·m; {} of {} steps taken again",
         report.worst_hand_force_n,
         report.worst_hand_torque_nm * 1e3,
         limit * 1e3,
