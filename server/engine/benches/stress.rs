@@ -16,7 +16,10 @@
 //! `STRESS_LANES` (comma-separated: `full`, `switched`, `levels`) keeps only those lanes and
 //! `STRESS_FIRST_SEED` (default 1) numbers the full lane's seeds from there, so that an hour
 //! can be run as separate processes, one seed each. `STRESS_TRACE=MS` prints each step of
-//! the full lane slower than MS milliseconds (the strand's size and its last solve).
+//! the full lane slower than MS milliseconds (the strand's size and its last solve);
+//! `STRESS_WATCH=FROM-TO` (simulated seconds) prints every step of the full lane in that
+//! window: each hand's inserted length, force, torque and command, and the forces in the
+//! elements at the entry.
 
 use std::path::Path;
 
@@ -154,6 +157,10 @@ fn main() {
     let trace_ms = std::env::var("STRESS_TRACE")
         .ok()
         .and_then(|v| v.parse::<f64>().ok());
+    let watch_s = std::env::var("STRESS_WATCH").ok().and_then(|v| {
+        let (from, to) = v.split_once('-')?;
+        Some((from.parse::<f64>().ok()?, to.parse::<f64>().ok()?))
+    });
     let only = common::picked("STRESS_SCENES");
     let names = common::bundled_scenes(&scenes, |n| {
         only.as_ref().is_none_or(|o| o.iter().any(|x| x == n))
@@ -172,6 +179,7 @@ fn main() {
                     let mut world = World::new(assets.clone()).unwrap();
                     let settings = StressSettings {
                         slow_step_s: trace_ms.map(|ms| ms * 1e-3),
+                        watch_s,
                         ..StressSettings::new(first_seed + seed, seconds)
                     };
                     let report = run(&mut world, &settings);
@@ -195,6 +203,31 @@ fn main() {
                             s.level,
                             inserted.join("/"),
                             s.nodes
+                        );
+                    }
+                    for w in &report.watched {
+                        let hands: Vec<String> = w
+                            .hands
+                            .iter()
+                            .zip(&w.step.inserted_m)
+                            .map(|(&(force, torque, command), inserted)| {
+                                format!(
+                                    "{:.3} mm {force:.3} N {:.2} mN·m ({:?}, {:?})",
+                                    inserted * 1e3,
+                                    torque * 1e3,
+                                    command.insertion,
+                                    command.twist
+                                )
+                            })
+                            .collect();
+                        let (contacts, pushing, sweeps, rounds) = w.step.contacts;
+                        println!(
+                            "    watch {:.3} s, {:.2} ms: {}; {} nodes, {contacts} contacts, {pushing} pushing, {sweeps} sweeps, {rounds} rounds; entry elements {:.2?} N",
+                            w.step.at_s,
+                            w.step.step_s * 1e3,
+                            hands.join(" | "),
+                            w.step.nodes,
+                            w.entry_elements_n
                         );
                     }
                     report

@@ -44,6 +44,9 @@ pub struct StressSettings {
     /// Steps slower than this (s) are described in [`StressReport::slow_steps`] (at most
     /// [`SLOW_STEPS_KEPT`]); `None` keeps none.
     pub slow_step_s: Option<f64>,
+    /// Every step in this window of simulated time (from, to; s) is described in
+    /// [`StressReport::watched`]; `None` describes none.
+    pub watch_s: Option<(f64, f64)>,
 }
 
 /// The most slow steps a report describes.
@@ -66,6 +69,22 @@ pub struct SlowStep {
     pub contacts: (usize, usize, usize, usize),
 }
 
+/// One step of the watched window ([`StressSettings::watch_s`]): what each hand did and felt.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WatchedStep {
+    /// What [`SlowStep`] says of every slow step.
+    pub step: SlowStep,
+    /// Each instrument's hand (outermost first): the force it feels (N, push positive), its
+    /// torque (N·m) and the operator's command.
+    pub hands: Vec<(f64, f64, cathlab_physics::Command)>,
+    /// The axial forces (N, tension positive) of the strand's first elements from the entry
+    /// (at most [`WATCHED_ENTRY_ELEMENTS`]).
+    pub entry_elements_n: Vec<f64>,
+}
+
+/// How many elements from the entry a [`WatchedStep`] reports.
+pub const WATCHED_ENTRY_ELEMENTS: usize = 4;
+
 impl StressSettings {
     /// A run of `simulated_s` seconds with seed `seed` at full fidelity, pushing up to
     /// 150 mm/s and twisting up to two turns a second.
@@ -77,6 +96,7 @@ impl StressSettings {
             max_push_m_s: 0.15,
             max_twist_rad_s: 4.0 * std::f64::consts::PI,
             slow_step_s: None,
+            watch_s: None,
         }
     }
 }
@@ -126,6 +146,8 @@ pub struct StressReport {
     pub worst_element_force_n: f64,
     /// The steps slower than [`StressSettings::slow_step_s`], in order.
     pub slow_steps: Vec<SlowStep>,
+    /// The steps of the watched window ([`StressSettings::watch_s`]), in order.
+    pub watched: Vec<WatchedStep>,
     /// When a hand first felt more than its strength: simulated time (s), the instrument
     /// (outermost first), its force (N) and torque (N·m) then; None while none did.
     pub limit_passed_at: Option<(f64, usize, f64, f64)>,
@@ -271,6 +293,25 @@ fn slow_step(world: &World, now: f64, took: f64) -> SlowStep {
     }
 }
 
+/// A step of the watched window at `now`, of `took` seconds.
+fn watched_step(world: &World, now: f64, took: f64) -> WatchedStep {
+    let strand = world.strand();
+    let snapshot = world.snapshot();
+    let model = strand.model();
+    WatchedStep {
+        step: slow_step(world, now, took),
+        hands: snapshot
+            .instruments
+            .iter()
+            .enumerate()
+            .map(|(i, h)| (h.axial_force_n, h.torque_nm, strand.command(i)))
+            .collect(),
+        entry_elements_n: (0..model.element_count().min(WATCHED_ENTRY_ELEMENTS))
+            .map(|e| model.element_axial_force_n(e))
+            .collect(),
+    }
+}
+
 /// Drives `world` with the random operator of `settings` and reports what happened.
 pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
     let mut dice = Dice(settings.seed);
@@ -318,6 +359,13 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
             && outcome.is_ok()
         {
             report.slow_steps.push(slow_step(world, now, took));
+        }
+        if settings
+            .watch_s
+            .is_some_and(|(from, to)| now >= from && now <= to)
+            && outcome.is_ok()
+        {
+            report.watched.push(watched_step(world, now, took));
         }
         report.steps += 1;
         match outcome {
