@@ -105,6 +105,9 @@ pub(crate) fn active_set_normals(
     let scale = c.iter().fold(1e-12f64, |a, b| a.max(b.abs()));
     let mut lambda: Vec<f64> = local.iter().map(|l| l.x.max(0.0)).collect();
     let mut active: Vec<bool> = lambda.iter().map(|&l| l > 0.0).collect();
+    // The Cholesky factor of the last pass's W_AA, updated as contacts join and leave (a
+    // coil's 100 pushing contacts were factored afresh every pass: 58 % of its steps).
+    let mut factor: Option<SetFactor> = None;
     for _ in 0..MAX_ACTIVE_SET_PASSES + 2 * m.max(1) {
         let set: Vec<usize> = (0..m).filter(|&k| active[k]).collect();
         for &j in &set {
@@ -115,12 +118,26 @@ pub(crate) fn active_set_normals(
         // Every member's column is there now (borrowed, not copied each pass).
         let cols: Vec<&[f64]> = set.iter().filter_map(|&j| columns[j].as_deref()).collect();
         let target = if set.is_empty() {
+            factor = None;
             DVector::zeros(0)
+        } else if let Some(x) = factor
+            .take()
+            .and_then(|f| f.updated(&set, columns))
+            .map(|f| factor.insert(f).solve(&set, c))
+        {
+            x
         } else {
             let w = DMatrix::from_fn(set.len(), set.len(), |a, b| cols[b][set[a]]);
             let rhs = DVector::from_iterator(set.len(), set.iter().map(|&k| -c[k]));
             match w.clone().cholesky() {
-                Some(ch) => ch.solve(&rhs),
+                Some(ch) => {
+                    let x = ch.solve(&rhs);
+                    factor = Some(SetFactor {
+                        order: set.clone(),
+                        cholesky: ch,
+                    });
+                    x
+                }
                 None => match w.lu().solve(&rhs) {
                     Some(x) => x,
                     None => return false,
@@ -173,6 +190,61 @@ pub(crate) fn active_set_normals(
         return true;
     }
     false
+}
+
+/// The Cholesky factor of W restricted to a set of contacts, in the order they joined.
+struct SetFactor {
+    /// The contacts, in the factor's order.
+    order: Vec<usize>,
+    cholesky: nalgebra::Cholesky<f64, nalgebra::Dyn>,
+}
+
+impl SetFactor {
+    /// The factor of `set` (W's columns in `columns`, each present): the contacts that left
+    /// removed (a rank-one update each), those that joined appended (a triangular solve
+    /// each); `None` where an appended one makes W_AA not positive definite (a contact
+    /// redundant with the set: the caller factors afresh).
+    fn updated(mut self, set: &[usize], columns: &[Option<Vec<f64>>]) -> Option<Self> {
+        for p in (0..self.order.len()).rev() {
+            if set.binary_search(&self.order[p]).is_err() {
+                self.cholesky = self.cholesky.remove_column(p);
+                self.order.remove(p);
+            }
+        }
+        for &k in set {
+            if self.order.contains(&k) {
+                continue;
+            }
+            let column = columns[k].as_deref()?;
+            let n = self.order.len();
+            let new = DVector::from_fn(n + 1, |a, _| column[if a < n { self.order[a] } else { k }]);
+            // The new pivot, as the full factorization would find it: positive, or no factor.
+            let mut l = new.rows(0, n).into_owned();
+            if !self.cholesky.l_dirty().solve_lower_triangular_mut(&mut l) {
+                return None;
+            }
+            let pivot = new[n] - l.norm_squared();
+            if pivot.is_nan() || pivot <= 0.0 {
+                return None;
+            }
+            self.cholesky = self.cholesky.insert_column(n, new);
+            self.order.push(k);
+        }
+        Some(self)
+    }
+
+    /// The solution of W_AA x = −c_A, in the order of `set` (the factor's contacts).
+    fn solve(&self, set: &[usize], c: &[f64]) -> DVector<f64> {
+        let rhs = DVector::from_iterator(self.order.len(), self.order.iter().map(|&k| -c[k]));
+        let x = self.cholesky.solve(&rhs);
+        DVector::from_iterator(
+            set.len(),
+            set.iter().map(|k| {
+                let p = self.order.iter().position(|o| o == k).unwrap_or_default();
+                x[p]
+            }),
+        )
+    }
 }
 
 /// Passes of [`active_set_normals`] beyond 2M before it gives up.
@@ -563,10 +635,10 @@ pub fn dense_reference(
 
 #[cfg(test)]
 mod tests {
-    use nalgebra::{DMatrix, Vector3};
+    use nalgebra::{DMatrix, DVector, Vector3};
     use proptest::prelude::*;
 
-    use super::active_set_normals;
+    use super::{SetFactor, active_set_normals};
 
     /// The solution of λ ≥ 0, W λ + c ≥ 0, λ·(W λ + c) = 0 by trying every active set (W
     /// symmetric positive definite: exactly one set gives it).
@@ -612,6 +684,42 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(300))]
+
+        /// The Cholesky factor of W_AA updated from one set of contacts to another solves as
+        /// a fresh factorization of the new set.
+        #[test]
+        fn an_updated_set_factor_solves_as_a_fresh_one(
+            positions in proptest::collection::vec(0.0f64..20.0, 2..9),
+            stiffness in 1.0f64..50.0,
+            gaps in proptest::collection::vec(-1.0f64..1.0, 9),
+            first in proptest::collection::vec(any::<bool>(), 9),
+            second in proptest::collection::vec(any::<bool>(), 9),
+        ) {
+            // From the factor of one set to another's, contacts leaving and joining: the
+            // solution of W_AA x = −c_A equals a fresh factorization's (where the update
+            // declines, a redundant contact joining, there is nothing to compare).
+            let m = positions.len();
+            let w = rod_matrix(&positions, stiffness);
+            let c = &gaps[..m];
+            let set = |pick: &[bool]| -> Vec<usize> { (0..m).filter(|&k| pick[k]).collect() };
+            let (a, b) = (set(&first), set(&second));
+            prop_assume!(!a.is_empty() && !b.is_empty());
+            let sub = |s: &[usize]| DMatrix::from_fn(s.len(), s.len(), |i, j| w[(s[i], s[j])]);
+            let Some(cholesky) = sub(&a).cholesky() else {
+                return Ok(());
+            };
+            let columns: Vec<Option<Vec<f64>>> =
+                (0..m).map(|j| Some((0..m).map(|k| w[(k, j)]).collect())).collect();
+            let factor = SetFactor { order: a, cholesky };
+            let Some(updated) = factor.updated(&b, &columns) else {
+                return Ok(());
+            };
+            let rhs = DVector::from_iterator(b.len(), b.iter().map(|&k| -c[k]));
+            let fresh = sub(&b).lu().solve(&rhs).unwrap();
+            let x = updated.solve(&b, c);
+            let scale = fresh.iter().fold(1.0f64, |s, v| s.max(v.abs()));
+            prop_assert!((x - &fresh).amax() <= 1e-8 * scale, "{fresh}");
+        }
 
         /// The primal active-set solve finds the one solution, from any non-negative start.
         #[test]
