@@ -113,10 +113,8 @@ impl BeamModel {
     /// near what the hands and the wall put into it; far more is a numerical fault, such as
     /// elements crushed by motions the step did not correct.
     pub fn max_axial_force_n(&self) -> f64 {
-        self.elements
-            .iter()
-            .zip(self.positions.windows(2))
-            .map(|(element, ends)| element.axial_force_n((ends[1] - ends[0]).norm()).abs())
+        (0..self.elements.len())
+            .map(|e| self.element_axial_force_n(e).abs())
             .fold(0.0, f64::max)
     }
 

@@ -275,13 +275,11 @@ impl<W: Wall> Navigation<W> {
                 // coordinate moves by the difference in strain (micrometres: the wire slips
                 // that far at the hand).
                 let second = self.material[2];
-                self.model
-                    .remove_node_after_base(element_spec(&self.device, base, second))?;
+                let merged = element_spec(&self.device, base, second);
+                let stiffness = merged.props.axial_stiffness_n;
+                self.model.remove_node_after_base(merged)?;
                 self.material.remove(1);
                 let chord = (self.model.positions()[1] - self.model.positions()[0]).norm();
-                let stiffness = element_spec(&self.device, base, second)
-                    .props
-                    .axial_stiffness_n;
                 let rest = chord * stiffness / (stiffness + held);
                 // (A force near E·A would mean a wrecked element: then joined as it lies.)
                 if (rest - (second - base)).abs() < 0.1 * (second - base) {
