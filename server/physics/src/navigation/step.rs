@@ -10,7 +10,7 @@ use super::detection::{Sample, detect, material_of, push_element_samples, warm_s
 use super::settings::{MAX_SUBSTEP_DEPTH, solver_settings, spacing};
 use super::sleep::contact_counts;
 use super::state::{Navigation, element_spec};
-use crate::beam::{BeamModel, hermite_point};
+use crate::beam::BeamModel;
 use crate::error::Result;
 use crate::wall::Wall;
 
@@ -40,11 +40,6 @@ pub struct NavigationReport {
 pub(crate) const STILL_M: f64 = 1e-12;
 /// See [`STILL_M`].
 pub(crate) const STILL_RAD: f64 = 1e-12;
-
-/// The largest angle (rad) between a node's axis and the chord to its neighbour for which
-/// the slide follows the arc through the two; beyond it (an element folded by a buckle or a
-/// loop, its frames no guide to its shape) it follows the chord.
-const MAX_ARC_BEND_RAD: f64 = 0.25;
 
 impl<W: Wall> Navigation<W> {
     /// Advances one time step.
@@ -207,10 +202,7 @@ impl<W: Wall> Navigation<W> {
         let length = self.device.length_m();
         // Predictor. Follow the leader along the straight part: every node moves along the
         // device's current shape by `push` (behind the entry along the entry axis), so the
-        // material slides along its own path and nothing is compressed. The shape between two
-        // nodes is the arc through them along their frames' axes (`hermite_point`): along
-        // the chords, a wire bent 0.1 rad an element was crushed by 7 N a fifth of an element
-        // slid (the corner cut), more than the capped steps of a coil could correct. A curved rest shape at
+        // material slides along its own path and nothing is compressed. A curved rest shape at
         // the tip (angled or J) is carried rigidly by the last straight node, which moves along
         // its own axis (pushed) or back along the curve (pulled): sliding material through a
         // bend would strain it.
@@ -228,16 +220,10 @@ impl<W: Wall> Navigation<W> {
             } else {
                 let k = m.partition_point(|&x| x <= s).clamp(1, last) - 1;
                 let f = ((s - m[k]) / (m[k + 1] - m[k])).min(1.0);
-                let (a, b) = (positions[k], positions[k + 1]);
-                let chord = b - a;
-                let bend = (rotations[k] * Vector3::x())
-                    .angle(&chord)
-                    .max((rotations[k + 1] * Vector3::x()).angle(&chord));
-                if bend <= MAX_ARC_BEND_RAD {
-                    hermite_point((&a, &rotations[k]), (&b, &rotations[k + 1]), f)
-                } else {
-                    (a + chord * f, rotations[k].slerp(&rotations[k + 1], f))
-                }
+                (
+                    positions[k] + (positions[k + 1] - positions[k]) * f,
+                    rotations[k].slerp(&rotations[k + 1], f),
+                )
             }
         };
         let mut new_positions = positions.clone();
@@ -470,68 +456,5 @@ mod tests {
             (moved + pull).abs() <= crush,
             "entry moved {moved} m for a {pull} m pull"
         );
-    }
-
-    /// A wire lying on an arc bent 0.1 rad an element (the refinement's largest bend), pulled
-    /// back through the entry by a fifth of an element and then pushed in by as much: the
-    /// material slides along the arc, and no element's axial force changes by more than
-    /// 0.1 N (0.05 N where the spacing, and so the bend an element, changes).
-    /// Slid along the chords between the nodes, the elements were crushed by 7.4 N (strain
-    /// θ²·f(1−f)/2): the slide's corner-cutting that had a pulled wire's elements at 11–17 N
-    /// in `arch_to_cow_lcca`'s 1,200 s run.
-    #[test]
-    fn material_slides_along_a_bent_wire_without_straining_it() {
-        let tube = CappedTube {
-            start: Vector3::zeros(),
-            axis: Vector3::x(),
-            length_m: 0.3,
-            radius_m: 2e-3,
-        };
-        let mut nav = Navigation::new(
-            presets::guidewire_035(),
-            tube,
-            Vector3::zeros(),
-            Vector3::x(),
-            0.1,
-            NavigationSettings::default(),
-        )
-        .unwrap();
-        let m = nav.material.clone();
-        let h = m[2] - m[1];
-        let radius = h / 0.1;
-        // Nodes on the arc in the x–y plane leaving the entry along x.
-        let (positions, rotations): (Vec<_>, Vec<_>) = m
-            .iter()
-            .map(|&s| {
-                let a = (s - m[0]) / radius;
-                (
-                    Vector3::new(radius * a.sin(), radius * (1.0 - a.cos()), 0.0),
-                    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a),
-                )
-            })
-            .unzip();
-        nav.model.set_nodes(&positions, &rotations).unwrap();
-        let straight = nav.first_curved_element().unwrap_or(m.len() - 1);
-        let forces = |nav: &Navigation<CappedTube>| -> Vec<f64> {
-            (1..straight - 1)
-                .map(|e| nav.model.element_axial_force_n(e))
-                .collect()
-        };
-        let before = forces(&nav);
-        let elements = nav.model.element_count();
-        for push in [-0.2 * h, 0.2 * h] {
-            nav.slide(push).unwrap();
-            assert_eq!(nav.model.element_count(), elements, "no split or merge");
-            let change = forces(&nav)
-                .iter()
-                .zip(&before)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max);
-            println!(
-                "slid {:+.3} mm: largest change of an element's force {change:.2e} N",
-                push * 1e3
-            );
-            assert!(change < 0.1, "{change} N");
-        }
     }
 }
