@@ -19,11 +19,14 @@
 //! the full lane slower than MS milliseconds (the strand's size and its last solve);
 //! `STRESS_WATCH=FROM-TO` (simulated seconds) prints every step of the full lane in that
 //! window: each hand's inserted length, force, torque and command, and the forces in the
-//! elements at the entry.
+//! elements at the entry. `STRESS_PROGRESS=S` prints a line every S simulated seconds of
+//! each full-lane run (its step times so far and the worst it met), and `STRESS_STOP=1` ends
+//! a full-lane run at its first failure (a divergence, error, panic, node past the wall or
+//! hand past its strength) instead of running its hour out.
 
 use std::path::Path;
 
-use cathlab_engine::stress::{Levels, StressReport, StressSettings, run};
+use cathlab_engine::stress::{Levels, StressReport, StressSettings, run, run_while};
 use cathlab_engine::world::MAX_FIDELITY_LEVEL;
 use cathlab_engine::*;
 
@@ -135,6 +138,48 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
         && reports.iter().all(|r| r.elements_within_bound())
 }
 
+/// One line on a full-lane run under way (`STRESS_PROGRESS`, and where `STRESS_STOP` stops
+/// it): how far it got, at what wall time, its step times so far, and the worst it met.
+fn progress(
+    seed: u64,
+    simulated_s: f64,
+    wall: std::time::Duration,
+    world: &World,
+    report: &StressReport,
+) {
+    let mut steps = report.step_s.clone();
+    steps.sort_by(f64::total_cmp);
+    let at = |q: f64| {
+        steps
+            .get((q * steps.len() as f64) as usize)
+            .copied()
+            .unwrap_or(0.0)
+            * 1e3
+    };
+    let metrics = world.metrics();
+    let hand = metrics.instruments[..metrics.instrument_count as usize]
+        .iter()
+        .map(|m| m.peak_axial_force_n.abs())
+        .fold(0.0, f64::max);
+    println!(
+        "    progress seed {seed}: {simulated_s:.1} s simulated in {:.0} s; step p50 {:.3} ms, p99 {:.3} ms; deepest {:.3} mm, hand {hand:.2} N, element {:.1} N; {}",
+        wall.as_secs_f64(),
+        at(0.5),
+        at(0.99),
+        report.worst_penetration_m * 1e3,
+        metrics.peak_element_force_n,
+        match (&report.first_failure, report.limit_passed_at) {
+            (Some(f), _) => format!("failed: {f}"),
+            (None, Some((t, i, f, m))) => format!(
+                "instrument {i} past its strength at {t:.3} s: {f:.2} N, {:.1} mN·m",
+                m * 1e3
+            ),
+            (None, None) if report.panicked => "panicked".to_owned(),
+            (None, None) => "sound so far".to_owned(),
+        }
+    );
+}
+
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
     let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
@@ -161,6 +206,11 @@ fn main() {
         let (from, to) = v.split_once('-')?;
         Some((from.parse::<f64>().ok()?, to.parse::<f64>().ok()?))
     });
+    let progress_s = std::env::var("STRESS_PROGRESS")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|s| *s > 0.0);
+    let stop = std::env::var_os("STRESS_STOP").is_some();
     let only = common::picked("STRESS_SCENES");
     let names = common::bundled_scenes(&scenes, |n| {
         only.as_ref().is_none_or(|o| o.iter().any(|x| x == n))
@@ -182,7 +232,18 @@ fn main() {
                         watch_s,
                         ..StressSettings::new(first_seed + seed, seconds)
                     };
-                    let report = run(&mut world, &settings);
+                    let started = std::time::Instant::now();
+                    let mut next_progress = progress_s.unwrap_or(f64::INFINITY);
+                    let report = run_while(&mut world, &settings, |world, report| {
+                        let simulated = report.steps as f64 * world.assets().spec.time_step_s();
+                        let failed = report.failed_so_far()
+                            || report.worst_penetration_m > MAX_PENETRATION_M;
+                        if simulated >= next_progress || (stop && failed) {
+                            next_progress += progress_s.unwrap_or(f64::INFINITY);
+                            progress(first_seed + seed, simulated, started.elapsed(), world, report);
+                        }
+                        !(stop && failed)
+                    });
                     if trace_ms.is_some() {
                         println!(
                             "    seed {}: {} steps, {} taken again by the force guard",

@@ -174,6 +174,15 @@ impl StressReport {
         self.divergences == 0 && self.errors == 0 && !self.panicked
     }
 
+    /// While the run goes on ([`run_while`]): whether it has failed yet, by a divergence, an
+    /// error, a panic, or a hand past its strength.
+    pub fn failed_so_far(&self) -> bool {
+        self.first_failure.is_some()
+            || self.errors > 0
+            || self.panicked
+            || self.limit_passed_at.is_some()
+    }
+
     /// Whether no element carried more than [`ELEMENT_FORCE_BOUND`] times the hands'
     /// strength.
     pub fn elements_within_bound(&self) -> bool {
@@ -314,6 +323,18 @@ fn watched_step(world: &World, now: f64, took: f64) -> WatchedStep {
 
 /// Drives `world` with the random operator of `settings` and reports what happened.
 pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
+    run_while(world, settings, |_, _| true)
+}
+
+/// [`run`], asking `go_on` after every step (the world and the report so far: its step times
+/// unsorted, its divergences and hands' peaks not yet gathered) whether to go on: a long run
+/// can report its progress, or stop at its first failure ([`StressReport::failed_so_far`])
+/// instead of running its hour out. Stopped, the report covers the steps taken.
+pub fn run_while(
+    world: &mut World,
+    settings: &StressSettings,
+    mut go_on: impl FnMut(&World, &StressReport) -> bool,
+) -> StressReport {
     let mut dice = Dice(settings.seed);
     let mut report = StressReport::default();
     let dt = world.assets().spec.time_step_s();
@@ -402,6 +423,9 @@ pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
                     .first_failure
                     .get_or_insert(format!("{:.3} s: {}", now, event.message));
             }
+        }
+        if !go_on(world, &report) {
+            break;
         }
     }
     report.divergences = world.metrics().divergence_resets - divergences_before;

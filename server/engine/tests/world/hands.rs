@@ -502,3 +502,27 @@ fn a_stack_under_the_random_operator(seed: u64, seconds: f64) {
         report.steps
     );
 }
+
+/// A long random-operator run can be watched and stopped (`stress::run_while`, the bench's
+/// `STRESS_PROGRESS` and `STRESS_STOP`): asked after every step, in order, it stops where
+/// told, and its report covers the steps it took, no more.
+#[test]
+fn a_stress_run_stops_where_it_is_told_and_reports_what_it_ran() {
+    let text = std::fs::read_to_string(scenes().join("arch_to_cow_lcca.toml")).unwrap();
+    let mut world = World::new(assets(&text)).unwrap();
+    let dt = world.assets().spec.time_step_s();
+    let mut asked = Vec::new();
+    let report = cathlab_engine::stress::run_while(
+        &mut world,
+        &cathlab_engine::stress::StressSettings::new(3, 10.0),
+        |_, report| {
+            asked.push(report.steps);
+            report.steps < 120
+        },
+    );
+    assert_eq!(asked, (1..=120).collect::<Vec<u64>>());
+    assert_eq!(report.steps, 120);
+    assert_eq!(report.step_s.len(), 120);
+    assert!((report.simulated_s - 120.0 * dt).abs() < 1e-12);
+    assert!(!report.failed_so_far() && report.sound(), "{report:?}");
+}
