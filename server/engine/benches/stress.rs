@@ -170,6 +170,13 @@ fn progress(
         metrics.peak_element_force_n,
         match (&report.first_failure, report.limit_passed_at) {
             (Some(f), _) => format!("failed: {f}"),
+            _ if report.worst_penetration_m > MAX_PENETRATION_M => {
+                let (at, level) = report.deepest_at.unwrap_or_default();
+                format!(
+                    "a node {:.3} mm past the wall at {at:.3} s, fidelity level {level}",
+                    report.worst_penetration_m * 1e3
+                )
+            }
             (None, Some((t, i, f, m))) => format!(
                 "instrument {i} past its strength at {t:.3} s: {f:.2} N, {:.1} mN·m",
                 m * 1e3
