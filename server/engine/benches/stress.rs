@@ -26,7 +26,7 @@
 
 use std::path::Path;
 
-use cathlab_engine::stress::{Levels, StressReport, StressSettings, run, run_while};
+use cathlab_engine::stress::{Levels, StressReport, StressSettings, run, run_while, worst_hand};
 use cathlab_engine::world::MAX_FIDELITY_LEVEL;
 use cathlab_engine::*;
 
@@ -87,11 +87,8 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
         if let Some(failure) = &r.first_failure {
             println!("    run {i}: {failure}");
         }
-        if let Some((at_s, hand, force, torque)) = r.limit_passed_at {
-            println!(
-                "    run {i}: instrument {hand} past its strength at {at_s:.3} s: {force:.2} N, {:.1} mN·m",
-                torque * 1e3
-            );
+        if let Some(passed) = r.limit_passed_at {
+            println!("    run {i}: {}", past_strength(passed));
         }
         if !r.hands_within_limits() {
             println!(
@@ -138,6 +135,14 @@ fn row(scene: &str, label: &str, reports: &[StressReport]) -> bool {
         && reports.iter().all(|r| r.elements_within_bound())
 }
 
+/// Where a hand first passed its strength ([`StressReport::limit_passed_at`]), in words.
+fn past_strength((at_s, hand, force, torque): (f64, usize, f64, f64)) -> String {
+    format!(
+        "instrument {hand} past its strength at {at_s:.3} s: {force:.2} N, {:.1} mN·m",
+        torque * 1e3
+    )
+}
+
 /// One line on a full-lane run under way (`STRESS_PROGRESS`, and where `STRESS_STOP` stops
 /// it): how far it got, at what wall time, its step times so far, and the worst it met.
 fn progress(
@@ -147,27 +152,19 @@ fn progress(
     world: &World,
     report: &StressReport,
 ) {
-    let mut steps = report.step_s.clone();
-    steps.sort_by(f64::total_cmp);
-    let at = |q: f64| {
-        steps
-            .get((q * steps.len() as f64) as usize)
-            .copied()
-            .unwrap_or(0.0)
-            * 1e3
+    let mut sorted = StressReport {
+        step_s: report.step_s.clone(),
+        ..Default::default()
     };
-    let metrics = world.metrics();
-    let hand = metrics.instruments[..metrics.instrument_count as usize]
-        .iter()
-        .map(|m| m.peak_axial_force_n.abs())
-        .fold(0.0, f64::max);
+    sorted.step_s.sort_by(f64::total_cmp);
+    let hand = worst_hand(world, |m| m.peak_axial_force_n);
     println!(
         "    progress seed {seed}: {simulated_s:.1} s simulated in {:.0} s; step p50 {:.3} ms, p99 {:.3} ms; deepest {:.3} mm, hand {hand:.2} N, element {:.1} N; {}",
         wall.as_secs_f64(),
-        at(0.5),
-        at(0.99),
+        sorted.quantile_s(0.5) * 1e3,
+        sorted.quantile_s(0.99) * 1e3,
         report.worst_penetration_m * 1e3,
-        metrics.peak_element_force_n,
+        world.metrics().peak_element_force_n,
         match (&report.first_failure, report.limit_passed_at) {
             (Some(f), _) => format!("failed: {f}"),
             _ if report.worst_penetration_m > MAX_PENETRATION_M => {
@@ -177,10 +174,7 @@ fn progress(
                     report.worst_penetration_m * 1e3
                 )
             }
-            (None, Some((t, i, f, m))) => format!(
-                "instrument {i} past its strength at {t:.3} s: {f:.2} N, {:.1} mN·m",
-                m * 1e3
-            ),
+            (None, Some(passed)) => past_strength(passed),
             (None, None) if report.panicked => "panicked".to_owned(),
             (None, None) => "sound so far".to_owned(),
         }

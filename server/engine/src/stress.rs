@@ -321,6 +321,16 @@ fn watched_step(world: &World, now: f64, took: f64) -> WatchedStep {
     }
 }
 
+/// The largest of a figure any of `world`'s instruments' hands felt so far, either way
+/// (`figure`: one of [`InstrumentMetrics`]' peaks, N or N·m).
+pub fn worst_hand(world: &World, figure: fn(&InstrumentMetrics) -> f64) -> f64 {
+    let metrics = world.metrics();
+    metrics.instruments[..metrics.instrument_count as usize]
+        .iter()
+        .map(|m| figure(m).abs())
+        .fold(0.0, f64::max)
+}
+
 /// Drives `world` with the random operator of `settings` and reports what happened.
 pub fn run(world: &mut World, settings: &StressSettings) -> StressReport {
     run_while(world, settings, |_, _| true)
@@ -435,15 +445,8 @@ pub fn run_while(
     // `report.worst_penetration_m` followed it step by step).
     report.worst_element_force_n = metrics.peak_element_force_n;
     report.force_retakes = metrics.force_retakes;
-    // The largest of a figure any instrument's hand felt, either way.
-    let worst = |figure: fn(&InstrumentMetrics) -> f64| {
-        metrics.instruments[..metrics.instrument_count as usize]
-            .iter()
-            .map(|m| figure(m).abs())
-            .fold(0.0, f64::max)
-    };
-    report.worst_hand_force_n = worst(|m| m.peak_axial_force_n);
-    report.worst_hand_torque_nm = worst(|m| m.peak_torque_nm);
+    report.worst_hand_force_n = worst_hand(world, |m| m.peak_axial_force_n);
+    report.worst_hand_torque_nm = worst_hand(world, |m| m.peak_torque_nm);
     let limits = &world.assets().spec.limits;
     report.hand_limit_n = limits.push_force_n;
     report.hand_torque_limit_nm = limits.twist_torque_nm;
