@@ -40,6 +40,7 @@ fn sweep_cost(c: &mut Criterion) {
                     normal: Vector3::new(0.0, angle.cos(), angle.sin()),
                     gap: 1e-5 * ((i % 7) as f64 - 3.0),
                     friction: 0.05,
+                    slip: Vector3::zeros(),
                 }
             })
             .collect();

@@ -211,6 +211,7 @@ fn random_problem(
                 normal: Vector3::new(0.0, angle.cos(), angle.sin()),
                 gap,
                 friction: if with_friction { mu } else { 0.0 },
+                slip: Vector3::zeros(),
             }
         })
         .collect();
@@ -318,6 +319,7 @@ fn near_redundant_contacts_converge_in_a_few_active_set_steps() {
             normal: normal(tilt),
             gap: 2e-6,
             friction: 0.0,
+            slip: Vector3::zeros(),
         });
         contacts.push(Contact {
             element: node,
@@ -325,6 +327,7 @@ fn near_redundant_contacts_converge_in_a_few_active_set_steps() {
             normal: normal(tilt + 10.0),
             gap: 1e-6,
             friction: 0.0,
+            slip: Vector3::zeros(),
         });
     }
     let settings = |polish| ContactSettings {
@@ -383,6 +386,7 @@ fn solution_satisfies_signorini_and_coulomb() {
             normal: Vector3::y(),
             gap: 0.5e-3 - 1e-6 * e as f64,
             friction: 0.3,
+            slip: Vector3::zeros(),
         })
         .collect();
     let response = gauss_seidel(&flexibility, &free, &contacts, &tight(), None).unwrap();
@@ -463,6 +467,7 @@ fn a_pressed_wire_slides_only_past_mu_n() {
             normal: Vector3::y(),
             gap: 0.0,
             friction: mu,
+            slip: Vector3::zeros(),
         };
         let response = gauss_seidel(&flexibility, &free, &[contact], &tight(), None).unwrap();
         let force = response.forces[0];
@@ -505,6 +510,7 @@ fn bad_contacts_give_clear_errors() {
         normal: Vector3::y(),
         gap: 0.0,
         friction: 0.1,
+        slip: Vector3::zeros(),
     };
     let cases = [
         (Contact { element: 9, ..good }, "element index"),

@@ -21,6 +21,14 @@ pub struct Contact {
     pub gap: f64,
     /// Coulomb friction coefficient (dimensionless).
     pub friction: f64,
+    /// How far the device's material at the contact point has already moved this step before
+    /// the solve (m, anatomy frame): the slide through the entry, which moves the material
+    /// along the device's own path and so is not in the free motion. Its tangential part is
+    /// sliding the friction law resists (Coulomb's law acts on the whole motion of the
+    /// material past the wall, so a wire drawn round a bend feels the capstan law); its
+    /// normal part is already in `gap`. Zero where nothing slid.
+    #[serde(default)]
+    pub slip: Vector3<f64>,
 }
 
 impl Contact {
@@ -249,6 +257,9 @@ pub(crate) fn prepare(
             }
             let frame = c.frame();
             let compliance = frame.transpose() * w * frame;
+            // The slide already taken counts towards the tangential motion the law resists.
+            let slip = frame.transpose() * c.slip;
+            d = frame.transpose() * d + Vector3::new(0.0, slip.y, slip.z);
             Ok(Prepared {
                 compliance_inverse: compliance.try_inverse(),
                 first,
@@ -256,7 +267,7 @@ pub(crate) fn prepare(
                 t: c.t,
                 frame,
                 compliance,
-                free: frame.transpose() * d,
+                free: d,
                 gap: c.gap,
                 friction: c.friction,
             })

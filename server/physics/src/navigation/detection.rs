@@ -52,6 +52,9 @@ pub(crate) struct Sample {
     pub(crate) t: f64,
     pub(crate) radius: f64,
     pub(crate) friction: f64,
+    /// How far the material at this point slid this step before the solve (m): the contact's
+    /// [`Contact::slip`]. Zero as laid out; the step sets it.
+    pub(crate) slip: Vector3<f64>,
 }
 
 /// Appends the collision points of element `e` of `elements` (its length `length_m`, points
@@ -76,6 +79,7 @@ pub(crate) fn push_element_samples(
             t: j as f64 / count as f64,
             radius: section.cross_section.outer_radius_m,
             friction: section.friction_coefficient,
+            slip: Vector3::zeros(),
         });
     }
 }
@@ -171,6 +175,7 @@ pub(crate) fn detect<W: Wall>(
             normal: probe.normal,
             gap: predicted_gap - probe.normal.dot(&delta),
             friction: s.friction,
+            slip: s.slip,
         };
         if contacts.last().is_none_or(|c| c.element != s.element) {
             element_start = contacts.len();
@@ -218,6 +223,7 @@ mod clearance_tests {
                     t: j as f64 / 4.0,
                     radius,
                     friction: 0.1,
+                    slip: Vector3::zeros(),
                 })
             })
             .collect()

@@ -53,6 +53,16 @@ pub struct NavigationSettings {
     /// ([`crate::beam::BeamModel::relieve_axial_excess`]): the hands' strength is the most
     /// the loads on a device put into it (the engine allows twice that: see its strand).
     pub max_axial_force_n: Option<f64>,
+    /// Whether the wall's friction resists the slide through the entry (false by default).
+    /// The slide moves the material along the device's own path before the solve, so the
+    /// solve's friction otherwise resists only its own corrections: a wire drawn round a bend
+    /// then feels its friction with the wrong sign, where Coulomb's law on the whole motion
+    /// gives the capstan law, the tension growing as e^{μθ} towards the hand that draws it
+    /// (`cargo test -p cathlab-physics --test coaxial capstan`). Each contact's
+    /// [`crate::contact::Contact::slip`] then carries the slide. Not yet the default: with
+    /// it, the scripted genu prolapse's pull-back hooks its tip in the dead end beyond the
+    /// genu and the scenes' two-hand demonstrations change course (docs/physics.md).
+    pub slide_friction: bool,
 }
 
 /// Where the device gets nodes beyond its nominal spacing. Before each step, elements that
@@ -108,6 +118,7 @@ impl Default for NavigationSettings {
             refinement: Some(Refinement::default()),
             sleep: None,
             max_axial_force_n: None,
+            slide_friction: false,
         }
     }
 }

@@ -149,7 +149,7 @@ impl<W: Wall> Navigation<W> {
 
     /// One solve: slide, twist, detect, solve.
     fn single_step(&mut self, push: f64, turn: f64) -> Result<NavigationReport> {
-        self.slide(push)?;
+        let slid = self.slide(push)?;
         self.twist_rad += turn;
         let twist = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), self.twist_rad);
         self.model
@@ -158,7 +158,12 @@ impl<W: Wall> Navigation<W> {
             self.model.relieve_axial_excess(limit)?;
         }
         // 2–4. Detection at the predicted configuration, beam solve with contacts.
-        let samples = self.sample_layout();
+        let mut samples = self.sample_layout();
+        if self.settings.slide_friction {
+            for s in &mut samples {
+                s.slip = slid[s.element] * (1.0 - s.t) + slid[s.element + 1] * s.t;
+            }
+        }
         let wall = &self.wall;
         let margin = self.settings.contact_margin_m;
         let material = &self.material;
@@ -194,10 +199,13 @@ impl<W: Wall> Navigation<W> {
     }
 
     /// Slides the device in (`push` > 0) or out through the entry point, growing or shrinking
-    /// the element next to it and splitting or merging it as needed.
-    fn slide(&mut self, push: f64) -> Result<()> {
+    /// the element next to it and splitting or merging it as needed. Returns how far the
+    /// material at each node moved (m, one per node as the model now has them; at the entry,
+    /// `push` along the entry axis): the slip the wall's friction resists in this step's
+    /// solve.
+    fn slide(&mut self, push: f64) -> Result<Vec<Vector3<f64>>> {
         if push == 0.0 {
-            return Ok(());
+            return Ok(vec![Vector3::zeros(); self.model.positions().len()]);
         }
         let length = self.device.length_m();
         // Predictor. Follow the leader along the straight part: every node moves along the
@@ -252,6 +260,14 @@ impl<W: Wall> Navigation<W> {
         }
         self.model.set_nodes(&new_positions, &new_rotations)?;
         self.material[0] -= push;
+        // The material's motion: at the entry along its axis, elsewhere each node's.
+        let entry_slip = rotations[0] * Vector3::x() * push;
+        let mut slid: Vec<Vector3<f64>> = new_positions
+            .iter()
+            .zip(&positions)
+            .map(|(new, old)| new - old)
+            .collect();
+        slid[0] = entry_slip;
         loop {
             let base = self.material[0];
             let first = self.material[1];
@@ -266,6 +282,7 @@ impl<W: Wall> Navigation<W> {
                     element_spec(&self.device, split, first),
                 )?;
                 self.material.insert(1, split);
+                slid.insert(1, entry_slip);
             } else if push < 0.0 && element < 0.5 * h && self.material.len() > 2 {
                 // The hand feels element 0's axial force. Element 1 may carry more (what the
                 // wall's friction holds beyond node 1, or strain a capped step has not yet
@@ -279,6 +296,7 @@ impl<W: Wall> Navigation<W> {
                 let stiffness = merged.props.axial_stiffness_n;
                 self.model.remove_node_after_base(merged)?;
                 self.material.remove(1);
+                slid.remove(1);
                 let chord = (self.model.positions()[1] - self.model.positions()[0]).norm();
                 let rest = chord * stiffness / (stiffness + held);
                 // (A force near E·A would mean a wrecked element: then joined as it lies.)
@@ -286,9 +304,9 @@ impl<W: Wall> Navigation<W> {
                     self.material[0] = second - rest;
                 }
             } else {
-                return self
-                    .model
-                    .set_base_element(element_spec(&self.device, base, first));
+                self.model
+                    .set_base_element(element_spec(&self.device, base, first))?;
+                return Ok(slid);
             }
         }
     }

@@ -223,8 +223,10 @@ impl<W: Wall> Stack<W> {
 
     /// One solve: kinematic update, detection, beam solve with contacts.
     fn single_step(&mut self, targets: &[(f64, f64)]) -> Result<StackReport> {
+        let before: Vec<f64> = self.instruments.iter().map(|i| i.inserted_m).collect();
         self.prepare(targets)?;
-        let samples = self.sample_layout(true);
+        let mut samples = self.sample_layout(true);
+        self.set_slips(&mut samples, &before);
         let wall = &self.wall;
         let margin = self.settings.contact_margin_m;
         let sigma: Vec<f64> = self.nodes.iter().map(|n| n.sigma).collect();
@@ -256,6 +258,29 @@ impl<W: Wall> Stack<W> {
         self.last = Some(step);
         self.sync_nodes();
         Ok(report)
+    }
+
+    /// With [`NavigationSettings::slide_friction`](crate::navigation::NavigationSettings), sets
+    /// each collision point's slip: the outermost instrument there slid along the strand
+    /// by its own move this step (the inserted lengths `before` it, m), and the wall's
+    /// friction resists that in the solve. The strand's nodes stay where the instruments
+    /// slide through them, so the slip is not in the free motion.
+    fn set_slips(&self, samples: &mut [Sample], before: &[f64]) {
+        if !self.settings.slide_friction {
+            return;
+        }
+        let positions = self.model.positions();
+        for s in samples {
+            let e = s.element;
+            let mid = 0.5 * (self.nodes[e].sigma + self.nodes[e + 1].sigma);
+            let Some(k) = self.instruments.iter().position(|i| i.inserted_m > mid) else {
+                continue;
+            };
+            let advance = self.instruments[k].inserted_m - before[k];
+            if let Some(axis) = (positions[e + 1] - positions[e]).try_normalize(1e-12) {
+                s.slip = axis * advance;
+            }
+        }
     }
 
     /// Collision points per element, with the radius and wall friction of the outermost

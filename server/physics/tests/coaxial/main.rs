@@ -7,10 +7,12 @@
 //!
 //! One module a topic: `merged` (mechanics of the composite strand), `control` (fit, bad
 //! input, exchange, ranges, effort), `catalogue` (device definitions), `nested` (nested
-//! coupling), `arch_to_cow` (runs in the real anatomy); shared builders and measures in
-//! `support`.
+//! coupling), `arch_to_cow` (runs in the real anatomy), `capstan` (friction on a wire slid
+//! round a bend: the capstan law, and the hand's force against the wall's); shared builders
+//! and measures in `support`.
 
 mod arch_to_cow;
+mod capstan;
 mod catalogue;
 mod control;
 mod merged;
