@@ -48,6 +48,7 @@ fn equilibrium(c: &mut Criterion) {
         compute_flexibility: false,
         drag: None,
         max_step_increment: None,
+        cap_with_held_contacts: false,
         geometric_stiffness_in_compression: true,
         max_substep_halvings: 0,
     };

@@ -58,15 +58,75 @@ impl BeamModel {
         settings: &ContactSettings,
         warm_start: impl FnOnce(&[Contact]) -> Option<Vec<Vector3<f64>>>,
     ) -> Result<ContactStep> {
-        // Step-size control on the free motion only: the contact solve then makes the end
-        // state feasible whatever the scale.
-        let free = self.begin_coupled_step()?;
-        let mut contacts = detect(&self.positions, &self.rotations, &free)?;
-        let mut warm = if contacts.is_empty() {
+        // Step-size control on the free motion: detection predicts with the capped free
+        // motion, and the contact solve makes the end state feasible whatever the scale. With
+        // `cap_with_held_contacts` the cap judges the motion the last contact forces leave
+        // first, and only where the motion the contacts then leave passes the cap (a contact
+        // released, a loop let go) is the free motion itself scaled.
+        let capped = self.begin_coupled_step()?;
+        let whole = (self.settings.cap_with_held_contacts
+            && self.settings.max_step_increment.is_some()
+            && self.rhs != capped)
+            .then(|| self.rhs.clone());
+        let contacts = detect(&self.positions, &self.rotations, &capped)?;
+        let warm = if contacts.is_empty() {
             None
         } else {
             warm_start(&contacts)
         };
+        if let (Some(whole), Some(held)) = (whole, warm.as_ref()) {
+            // The motion the last contact forces leave: the cap judges that, and the contact
+            // solve starts from it, so that a wall's force is not scaled with the springback
+            // it holds.
+            let mut held_motion = contact_loads(&contacts, held, whole.len());
+            self.substructure.solve_in_place(&mut held_motion);
+            let mut free: Vec<Vector6<f64>> =
+                whole.iter().zip(&held_motion).map(|(w, h)| w + h).collect();
+            let scale = 1.0 / self.step_cap_excess(&free).max(1.0);
+            for (f, h) in free.iter_mut().zip(&held_motion) {
+                *f = *f * scale - h;
+            }
+            let rounds = self.contact_rounds(&mut detect, settings, &free, &contacts, &warm)?;
+            if self.step_cap_excess(&rounds.increments) <= 1.0 + 1e-9 {
+                return self.finish_contact_rounds(rounds, settings);
+            }
+        }
+        let rounds = self.contact_rounds(&mut detect, settings, &capped, &contacts, &warm)?;
+        self.finish_contact_rounds(rounds, settings)
+    }
+
+    /// How far `increments` go past the step cap
+    /// ([`SolverSettings::max_step_increment`](super::SolverSettings)): the largest node
+    /// translation over its cap, or rotation over its (1 or less: within; 0 without a cap).
+    fn step_cap_excess(&self, increments: &[Vector6<f64>]) -> f64 {
+        self.settings
+            .max_step_increment
+            .map_or(0.0, |(max_dx, max_dtheta)| {
+                increments.iter().fold(0.0, |worst: f64, du| {
+                    worst
+                        .max(du.fixed_rows::<3>(0).norm() / max_dx)
+                        .max(du.fixed_rows::<3>(3).norm() / max_dtheta)
+                })
+            })
+    }
+
+    /// The contact solve of a step from the free increment `free`, with detection rounds:
+    /// `contacts` were detected at the predicted configuration (`warm`: their warm start).
+    /// Moves nothing.
+    fn contact_rounds(
+        &mut self,
+        detect: &mut impl FnMut(
+            &[Vector3<f64>],
+            &[UnitQuaternion<f64>],
+            &[Vector6<f64>],
+        ) -> Result<Vec<Contact>>,
+        settings: &ContactSettings,
+        free: &[Vector6<f64>],
+        contacts: &[Contact],
+        warm: &Option<Vec<Vector3<f64>>>,
+    ) -> Result<ContactRounds> {
+        let mut contacts = contacts.to_vec();
+        let mut warm = warm.clone();
         let rounds = settings.detection_rounds.max(1);
         let mut increments;
         let mut response;
@@ -84,7 +144,7 @@ impl BeamModel {
             } else {
                 solve(
                     &self.flexibility,
-                    &free,
+                    free,
                     &contacts,
                     settings,
                     warm.as_deref(),
@@ -94,7 +154,7 @@ impl BeamModel {
             if !contacts.is_empty() {
                 self.substructure.solve_in_place(&mut increments);
             }
-            for (du, f) in increments.iter_mut().zip(&free) {
+            for (du, f) in increments.iter_mut().zip(free) {
                 *du += f;
             }
             round += 1;
@@ -145,6 +205,31 @@ impl BeamModel {
             warm = Some(carry_forces(&next, &contacts, &response.local));
             contacts = next;
         }
+        Ok(ContactRounds {
+            increments,
+            response,
+            contacts,
+            round,
+            penetration,
+            projection,
+        })
+    }
+
+    /// Applies what [`Self::contact_rounds`] found: the penetration left projected out (where
+    /// `settings` ask), then the increments.
+    fn finish_contact_rounds(
+        &mut self,
+        rounds: ContactRounds,
+        settings: &ContactSettings,
+    ) -> Result<ContactStep> {
+        let ContactRounds {
+            mut increments,
+            response,
+            contacts,
+            round,
+            penetration,
+            projection,
+        } = rounds;
         if let Some((left, depths)) = projection {
             project_out(
                 &left,
@@ -225,6 +310,37 @@ impl BeamModel {
             last_rotation_increment_rad: dtheta,
         })
     }
+}
+
+/// The nodal loads (per unknown node, of `unknowns`) of forces `local` (contact frames, N) on
+/// `contacts`.
+fn contact_loads(
+    contacts: &[Contact],
+    local: &[Vector3<f64>],
+    unknowns: usize,
+) -> Vec<Vector6<f64>> {
+    let mut loads = vec![Vector6::zeros(); unknowns];
+    for (c, l) in contacts.iter().zip(local) {
+        let f = c.frame() * l;
+        let at = |w: f64| Vector6::new(f.x * w, f.y * w, f.z * w, 0.0, 0.0, 0.0);
+        loads[c.element] += at(c.t);
+        if let Some(i) = c.element.checked_sub(1) {
+            loads[i] += at(1.0 - c.t);
+        }
+    }
+    loads
+}
+
+/// What a step's contact solve found, before anything moves: the increments, the last
+/// round's response and contacts, the rounds taken, the penetration the last look saw, and the
+/// contacts still penetrated past the tolerance with their depths (to project out).
+struct ContactRounds {
+    increments: Vec<Vector6<f64>>,
+    response: ContactResponse,
+    contacts: Vec<Contact>,
+    round: usize,
+    penetration: f64,
+    projection: Option<(Vec<Contact>, Vec<f64>)>,
 }
 
 /// Whether two contacts are the same wall touching the same point: same element and

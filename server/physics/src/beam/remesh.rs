@@ -25,16 +25,32 @@ impl BeamModel {
         Ok(())
     }
 
-    /// Splits element 0 by a new node 1 on its chord, `distal_length` (m, rest) from node 1
-    /// (the old node 1 becomes node 2): the shape does not jump. `base` and `distal` are the two
-    /// new elements' rest geometries.
-    pub fn insert_node_after_base(&mut self, base: ElementSpec, distal: ElementSpec) -> Result<()> {
+    /// Splits element 0 by a new node 1, `distal_length` (m, rest) from node 1 (the old node 1
+    /// becomes node 2): on the chord, or with `on_curve` on the smooth (Hermite) curve through
+    /// the two nodes' positions and tangents, as [`Self::split_element`] places it. The shape
+    /// does not jump. `base` and `distal` are the two new elements' rest geometries.
+    pub fn insert_node_after_base(
+        &mut self,
+        base: ElementSpec,
+        distal: ElementSpec,
+        on_curve: bool,
+    ) -> Result<()> {
         let first = Element::from_spec(&base)?;
         let second = Element::from_spec(&distal)?;
         let fraction = first.rest_length_m / (first.rest_length_m + second.rest_length_m);
-        let (p0, p1) = (self.positions[0], self.positions[1]);
-        let position = p0 + (p1 - p0) * fraction;
-        let rotation = self.rotations[0].slerp(&self.rotations[1], fraction);
+        let (position, rotation) = if on_curve {
+            hermite_point(
+                (&self.positions[0], &self.rotations[0]),
+                (&self.positions[1], &self.rotations[1]),
+                fraction,
+            )
+        } else {
+            let (p0, p1) = (self.positions[0], self.positions[1]);
+            (
+                p0 + (p1 - p0) * fraction,
+                self.rotations[0].slerp(&self.rotations[1], fraction),
+            )
+        };
         self.insert_node(0, first, second, position, rotation);
         Ok(())
     }

@@ -63,6 +63,15 @@ pub struct NavigationSettings {
     /// it, the scripted genu prolapse's pull-back hooks its tip in the dead end beyond the
     /// genu and the scenes' two-hand demonstrations change course (docs/physics.md).
     pub slide_friction: bool,
+    /// Whether the step cap judges the motion the last contact forces leave
+    /// ([`SolverSettings::cap_with_held_contacts`], which says why), and the node split off
+    /// at the entry goes on the smooth curve through its neighbours rather than on their
+    /// chord (the chord puts it up to 0.1 mm off a bent wire; the uncapped correction of that
+    /// stretched the short element at the entry by micrometres, 36 N at the hand for a step).
+    /// False by default: with it, the autopilots' shaped wire strays into the left
+    /// subclavian instead of the LCCA and the two-hand RVA run changes course
+    /// (docs/physics.md, twenty-second session).
+    pub cap_with_held_contacts: bool,
 }
 
 /// Where the device gets nodes beyond its nominal spacing. Before each step, elements that
@@ -119,6 +128,7 @@ impl Default for NavigationSettings {
             sleep: None,
             max_axial_force_n: None,
             slide_friction: false,
+            cap_with_held_contacts: false,
         }
     }
 }
@@ -236,6 +246,7 @@ pub(crate) fn solver_settings(settings: &NavigationSettings, fraction: f64) -> S
             settings.max_step_m * fraction,
             settings.max_step_rad * fraction,
         )),
+        cap_with_held_contacts: settings.cap_with_held_contacts,
         geometric_stiffness_in_compression: false,
         max_substep_halvings: 0,
     }

@@ -280,6 +280,7 @@ impl<W: Wall> Navigation<W> {
                 self.model.insert_node_after_base(
                     element_spec(&self.device, base, split),
                     element_spec(&self.device, split, first),
+                    self.settings.cap_with_held_contacts,
                 )?;
                 self.material.insert(1, split);
                 slid.insert(1, entry_slip);
