@@ -52,6 +52,8 @@ fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
         refinement: q.refine.then(Refinement::default),
         sleep: q.sleep_at_rest.then(Sleep::default),
         max_axial_force_n: Some(ELEMENT_FORCE_STRENGTHS * assets.spec.limits.push_force_n),
+        slide_friction: q.slide_friction,
+        cap_with_held_contacts: q.cap_with_held_contacts,
         ..NavigationSettings::default()
     };
     settings.contact.tolerance = q.contact_tolerance;

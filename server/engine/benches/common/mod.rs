@@ -1,5 +1,5 @@
 //! What the engine's scene benchmarks share: the bundled scenes by name, and a scene's spec
-//! read with its contact solve overridden from the environment.
+//! read with its contact solve and physics options overridden from the environment.
 
 use std::path::Path;
 
@@ -27,7 +27,9 @@ pub fn bundled_scenes(dir: &Path, keep: impl Fn(&str) -> bool) -> Vec<String> {
 }
 
 /// Scene `name` of `dir`, its contact solve replaced by the one `variable` names (`newton` or
-/// `gauss_seidel`; anything else leaves the scene's own).
+/// `gauss_seidel`; anything else leaves the scene's own), with the physics options
+/// `PHYSICS_OPTIONS` names turned on (comma-separated: `slide_friction`,
+/// `cap_with_held_contacts`; an unknown name panics).
 pub fn scene_spec(dir: &Path, name: &str, variable: &str) -> SceneSpec {
     let text = std::fs::read_to_string(dir.join(format!("{name}.toml"))).unwrap();
     let mut spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
@@ -35,6 +37,15 @@ pub fn scene_spec(dir: &Path, name: &str, variable: &str) -> SceneSpec {
         Ok("gauss_seidel") => spec.fidelity.contact_solver = scene::ContactSolver::GaussSeidel,
         Ok("newton") => spec.fidelity.contact_solver = scene::ContactSolver::Newton,
         _ => {}
+    }
+    // `PHYSICS_OPTIONS=slide_friction,cap_with_held_contacts` turns those physics options on.
+    let options = std::env::var("PHYSICS_OPTIONS").unwrap_or_default();
+    for option in options.split(',').filter(|o| !o.is_empty()) {
+        match option {
+            "slide_friction" => spec.fidelity.slide_friction = true,
+            "cap_with_held_contacts" => spec.fidelity.cap_with_held_contacts = true,
+            other => panic!("PHYSICS_OPTIONS: unknown option {other:?}"),
+        }
     }
     spec
 }

@@ -35,6 +35,17 @@ pub struct FidelitySpec {
     /// any command, load or exchange wakes them.
     #[serde(default = "yes")]
     pub sleep_at_rest: bool,
+    /// Let the wall's friction resist the slide through the entry, so that a device drawn
+    /// round bends feels the capstan law ([`cathlab_physics::NavigationSettings`]'s
+    /// `slide_friction`). Off by default until the scenes' scripted runs are tuned with it.
+    #[serde(default)]
+    pub slide_friction: bool,
+    /// Cap a step on the motion the last contact forces leave, not on the free motion, so
+    /// that the wall's forces are not scaled with the springback it holds
+    /// ([`cathlab_physics::NavigationSettings`]'s `cap_with_held_contacts`). Off by default
+    /// until the scenes' scripted runs are tuned with it.
+    #[serde(default)]
+    pub cap_with_held_contacts: bool,
     /// Detector size (pixels, square).
     #[serde(default = "default_frame_px")]
     pub frame_px: u32,
@@ -99,6 +110,8 @@ impl Default for FidelitySpec {
             contact_solver: ContactSolver::default(),
             refine: true,
             sleep_at_rest: true,
+            slide_friction: false,
+            cap_with_held_contacts: false,
             frame_px: default_frame_px(),
             contrast_cell_mm: default_cell_mm(),
             contrast_every_steps: default_contrast_every(),

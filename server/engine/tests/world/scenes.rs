@@ -382,3 +382,31 @@ fn a_circle_of_willis_without_its_four_inflows_is_refused_by_name() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The physics options a scene may turn on (`fidelity.slide_friction`,
+/// `fidelity.cap_with_held_contacts`) are off unless the scene says so, read when it does,
+/// and a value of the wrong type is named.
+#[test]
+fn a_scene_turns_the_physics_options_on_by_name() {
+    let plain = SceneSpec::parse(&default_text(), SceneFormat::Toml).unwrap();
+    assert!(!plain.fidelity.slide_friction);
+    assert!(!plain.fidelity.cap_with_held_contacts);
+    let text = default_text().replace(
+        "step_rate_hz = 500",
+        "step_rate_hz = 500\nslide_friction = true\ncap_with_held_contacts = true",
+    );
+    let on = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
+    assert!(on.fidelity.slide_friction);
+    assert!(on.fidelity.cap_with_held_contacts);
+    let bad = default_text().replace(
+        "step_rate_hz = 500",
+        "step_rate_hz = 500\nslide_friction = 1",
+    );
+    match SceneSpec::parse(&bad, SceneFormat::Toml) {
+        Err(EngineError::Scene { path, reason }) => {
+            assert!(path.contains("fidelity.slide_friction"), "{path}: {reason}");
+            assert!(reason.contains("invalid type"), "{reason}");
+        }
+        other => panic!("expected a scene error, got {other:?}"),
+    }
+}
