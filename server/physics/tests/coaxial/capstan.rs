@@ -4,10 +4,10 @@
 
 use cathlab_physics::navigation::{Command, Insertion, NavigationSettings, Twist};
 use cathlab_physics::wall::RingTube;
-use cathlab_physics::{
-    CircularSection, Coupling, Device, InstrumentSpec, Material, RestShape, Section, Stack,
-};
+use cathlab_physics::{CircularSection, Device, Material, RestShape, Section};
 use nalgebra::Vector3;
+
+use crate::support::merged_stack_in;
 
 /// A uniform 0.014"-like nitinol wire with wall friction `mu`.
 fn wire(mu: f64) -> Device {
@@ -60,15 +60,7 @@ fn a_wire_drawn_round_a_bend_feels_the_capstan_law() {
         major_radius_m: r,
         minor_radius_m: 2e-3,
     };
-    let mut stack = Stack::with_coupling(
-        vec![InstrumentSpec::new(wire(mu), 0.01, &settings)],
-        ring,
-        Vector3::zeros(),
-        Vector3::x(),
-        settings,
-        Coupling::Merged,
-    )
-    .unwrap();
+    let mut stack = merged_stack_in(vec![(wire(mu), 0.01)], ring, settings);
     let go = |v: f64| Command {
         insertion: Insertion::Velocity(v),
         twist: Twist::Rate(0.0),

@@ -3,13 +3,11 @@
 //! governor's effort cap.
 
 use cathlab_physics::navigation::{Command, Insertion, NavigationSettings, Twist};
-use cathlab_physics::{
-    Coupling, Device, FreeSpace, InstrumentSpec, PhysicsError, RestShape, Stack, presets,
-};
+use cathlab_physics::{Device, FreeSpace, InstrumentSpec, PhysicsError, RestShape, Stack, presets};
 use nalgebra::Vector3;
 use proptest::prelude::*;
 
-use crate::support::{free_stack, run_to_targets, straight_pair, uniform};
+use crate::support::{free_stack, merged_stack_in, run_to_targets, straight_pair, uniform};
 
 #[test]
 fn a_stack_that_does_not_fit_is_a_typed_error_naming_both_devices() {
@@ -147,18 +145,7 @@ fn ring_run(effort: Option<cathlab_physics::Effort>) -> (Vec<(usize, usize)>, Ve
         major_radius_m: 0.03,
         minor_radius_m: 2e-3,
     };
-    let mut stack = Stack::with_coupling(
-        vec![
-            InstrumentSpec::new(tube, 0.02, &settings),
-            InstrumentSpec::new(wire, 0.03, &settings),
-        ],
-        ring,
-        Vector3::zeros(),
-        Vector3::x(),
-        settings,
-        Coupling::Merged,
-    )
-    .unwrap();
+    let mut stack = merged_stack_in(vec![(tube, 0.02), (wire, 0.03)], ring, settings);
     if let Some(effort) = effort {
         stack.set_effort(effort).unwrap();
     }

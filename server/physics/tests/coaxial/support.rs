@@ -56,14 +56,33 @@ pub fn straight_pair() -> (Device, Device) {
 
 /// A free-space stack entering along x at the origin, with default settings.
 pub fn coupled_stack(devices: Vec<(Device, f64)>, coupling: Coupling) -> Stack<FreeSpace> {
-    let settings = NavigationSettings::default();
+    stack_in(devices, FreeSpace, NavigationSettings::default(), coupling)
+}
+
+/// A merged stack in `wall`, entering along x at the origin: each device with its inserted
+/// length (m), outermost first.
+pub fn merged_stack_in<W: cathlab_physics::Wall>(
+    devices: Vec<(Device, f64)>,
+    wall: W,
+    settings: NavigationSettings,
+) -> Stack<W> {
+    stack_in(devices, wall, settings, Coupling::Merged)
+}
+
+/// A stack in `wall`, entering along x at the origin, coupled as `coupling` says.
+fn stack_in<W: cathlab_physics::Wall>(
+    devices: Vec<(Device, f64)>,
+    wall: W,
+    settings: NavigationSettings,
+    coupling: Coupling,
+) -> Stack<W> {
     let specs = devices
         .into_iter()
         .map(|(d, l)| InstrumentSpec::new(d, l, &settings))
         .collect();
     Stack::with_coupling(
         specs,
-        FreeSpace,
+        wall,
         Vector3::zeros(),
         Vector3::x(),
         settings,
