@@ -8,7 +8,9 @@ use nalgebra::{UnitQuaternion, Vector3, Vector6};
 use super::model::BeamModel;
 use super::report::{ContactStep, StepReport};
 use super::settings::StepMode;
-use crate::contact::{Contact, ContactResponse, ContactSettings, point_displacement, solve};
+use crate::contact::{
+    Contact, ContactResponse, ContactSettings, contact_loads, point_displacement, solve,
+};
 use crate::error::{PhysicsError, Result};
 
 impl BeamModel {
@@ -102,11 +104,8 @@ impl BeamModel {
         self.settings
             .max_step_increment
             .map_or(0.0, |(max_dx, max_dtheta)| {
-                increments.iter().fold(0.0, |worst: f64, du| {
-                    worst
-                        .max(du.fixed_rows::<3>(0).norm() / max_dx)
-                        .max(du.fixed_rows::<3>(3).norm() / max_dtheta)
-                })
+                let (dx, dtheta) = largest_increments(increments);
+                (dx / max_dx).max(dtheta / max_dtheta)
             })
     }
 
@@ -264,12 +263,7 @@ impl BeamModel {
         self.solve_free(gamma, true)?;
         let mut free = self.rhs.clone();
         if let Some((max_dx, max_dtheta)) = self.settings.max_step_increment {
-            let (dx, dtheta) = free.iter().fold((0.0f64, 0.0f64), |(a, b), du| {
-                (
-                    a.max(du.fixed_rows::<3>(0).norm()),
-                    b.max(du.fixed_rows::<3>(3).norm()),
-                )
-            });
+            let (dx, dtheta) = largest_increments(&free);
             let scale = (max_dx / dx).min(max_dtheta / dtheta).min(1.0);
             if scale < 1.0 {
                 free.iter_mut().for_each(|du| *du *= scale);
@@ -312,23 +306,14 @@ impl BeamModel {
     }
 }
 
-/// The nodal loads (per unknown node, of `unknowns`) of forces `local` (contact frames, N) on
-/// `contacts`.
-fn contact_loads(
-    contacts: &[Contact],
-    local: &[Vector3<f64>],
-    unknowns: usize,
-) -> Vec<Vector6<f64>> {
-    let mut loads = vec![Vector6::zeros(); unknowns];
-    for (c, l) in contacts.iter().zip(local) {
-        let f = c.frame() * l;
-        let at = |w: f64| Vector6::new(f.x * w, f.y * w, f.z * w, 0.0, 0.0, 0.0);
-        loads[c.element] += at(c.t);
-        if let Some(i) = c.element.checked_sub(1) {
-            loads[i] += at(1.0 - c.t);
-        }
-    }
-    loads
+/// The largest node translation (m) and rotation (rad) among `increments`.
+fn largest_increments(increments: &[Vector6<f64>]) -> (f64, f64) {
+    increments.iter().fold((0.0f64, 0.0f64), |(a, b), du| {
+        (
+            a.max(du.fixed_rows::<3>(0).norm()),
+            b.max(du.fixed_rows::<3>(3).norm()),
+        )
+    })
 }
 
 /// What a step's contact solve found, before anything moves: the increments, the last

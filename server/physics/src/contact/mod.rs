@@ -41,8 +41,8 @@ pub use problem::{
 };
 use problem::{Prepared, accumulate_loads, prepare};
 pub(crate) use problem::{
-    force6, local_law, normal_with_fixed_tangent, project_on_cone, tip_ward_pass, top_left,
-    translation,
+    contact_loads, force6, local_law, normal_with_fixed_tangent, project_on_cone, tip_ward_pass,
+    top_left, translation,
 };
 
 pub use delassus::DelassusProblem;

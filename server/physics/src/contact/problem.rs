@@ -531,11 +531,31 @@ pub(crate) fn accumulate_loads(
     loads: &mut [Vector6<f64>],
 ) {
     for (p, l) in prepared.iter().zip(local) {
-        let f = p.frame * l;
-        loads[p.second] += force6(&(f * p.t));
-        if let Some(i) = p.first {
-            loads[i] += force6(&(f * (1.0 - p.t)));
-        }
+        add_point_load(loads, p.second, p.t, &(p.frame * l));
+    }
+}
+
+/// The nodal loads (one per unknown node, `unknowns` of them) of forces `local` (each in its
+/// contact's frame, N) on `contacts`.
+pub(crate) fn contact_loads(
+    contacts: &[Contact],
+    local: &[Vector3<f64>],
+    unknowns: usize,
+) -> Vec<Vector6<f64>> {
+    let mut loads = vec![Vector6::zeros(); unknowns];
+    for (c, l) in contacts.iter().zip(local) {
+        add_point_load(&mut loads, c.element, c.t, &(c.frame() * l));
+    }
+    loads
+}
+
+/// Adds force `f` (N) at parameter `t` of element `element` into `loads` (per unknown node:
+/// the element's second node is unknown `element`, its first `element − 1`, none for the
+/// driven base), shared between the two nodes linearly.
+fn add_point_load(loads: &mut [Vector6<f64>], element: usize, t: f64, f: &Vector3<f64>) {
+    loads[element] += force6(&(f * t));
+    if let Some(i) = element.checked_sub(1) {
+        loads[i] += force6(&(f * (1.0 - t)));
     }
 }
 

@@ -270,15 +270,19 @@ impl<W: Wall> Stack<W> {
             return;
         }
         let positions = self.model.positions();
+        // Per element: the outermost instrument's move along the element's axis.
+        let slips: Vec<Option<Vector3<f64>>> = (0..self.model.element_count())
+            .map(|e| {
+                let mid = 0.5 * (self.nodes[e].sigma + self.nodes[e + 1].sigma);
+                let k = self.instruments.iter().position(|i| i.inserted_m > mid)?;
+                let advance = self.instruments[k].inserted_m - before[k];
+                let axis = (positions[e + 1] - positions[e]).try_normalize(1e-12)?;
+                Some(axis * advance)
+            })
+            .collect();
         for s in samples {
-            let e = s.element;
-            let mid = 0.5 * (self.nodes[e].sigma + self.nodes[e + 1].sigma);
-            let Some(k) = self.instruments.iter().position(|i| i.inserted_m > mid) else {
-                continue;
-            };
-            let advance = self.instruments[k].inserted_m - before[k];
-            if let Some(axis) = (positions[e + 1] - positions[e]).try_normalize(1e-12) {
-                s.slip = axis * advance;
+            if let Some(slip) = slips[s.element] {
+                s.slip = slip;
             }
         }
     }
