@@ -25,32 +25,44 @@ impl BeamModel {
         Ok(())
     }
 
-    /// Splits element 0 by a new node 1, `distal_length` (m, rest) from node 1 (the old node 1
-    /// becomes node 2): on the chord, or with `on_curve` on the smooth (Hermite) curve through
-    /// the two nodes' positions and tangents, as [`Self::split_element`] places it. The shape
-    /// does not jump. `base` and `distal` are the two new elements' rest geometries.
-    pub fn insert_node_after_base(
-        &mut self,
-        base: ElementSpec,
-        distal: ElementSpec,
-        on_curve: bool,
-    ) -> Result<()> {
+    /// Splits element 0 by a new node 1 on its chord, at the rest-length fraction of `base`
+    /// (the old node 1 becomes node 2). The chord keeps both halves' axial strain. `base`
+    /// and `distal` are the two new elements' rest geometries.
+    pub fn insert_node_after_base(&mut self, base: ElementSpec, distal: ElementSpec) -> Result<()> {
         let first = Element::from_spec(&base)?;
         let second = Element::from_spec(&distal)?;
         let fraction = first.rest_length_m / (first.rest_length_m + second.rest_length_m);
-        let (position, rotation) = if on_curve {
-            hermite_point(
-                (&self.positions[0], &self.rotations[0]),
-                (&self.positions[1], &self.rotations[1]),
-                fraction,
-            )
-        } else {
-            let (p0, p1) = (self.positions[0], self.positions[1]);
-            (
-                p0 + (p1 - p0) * fraction,
-                self.rotations[0].slerp(&self.rotations[1], fraction),
-            )
-        };
+        let (p0, p1) = (self.positions[0], self.positions[1]);
+        let position = p0 + (p1 - p0) * fraction;
+        let rotation = self.rotations[0].slerp(&self.rotations[1], fraction);
+        self.insert_node(0, first, second, position, rotation);
+        Ok(())
+    }
+
+    /// The point at fraction `fraction` ∈ [0, 1] of the smooth curve through nodes 0 and 1
+    /// (position m, frame), where [`Self::split_element`] would put a new node.
+    pub fn base_curve_point(&self, fraction: f64) -> (Vector3<f64>, UnitQuaternion<f64>) {
+        hermite_point(
+            (&self.positions[0], &self.rotations[0]),
+            (&self.positions[1], &self.rotations[1]),
+            fraction,
+        )
+    }
+
+    /// Splits element 0 by a new node 1 at `position` (m) with frame `rotation` (the old node
+    /// 1 becomes node 2). `base` and `distal` are the two new elements' rest geometries.
+    pub fn insert_node_after_base_at(
+        &mut self,
+        base: ElementSpec,
+        distal: ElementSpec,
+        position: Vector3<f64>,
+        rotation: UnitQuaternion<f64>,
+    ) -> Result<()> {
+        for &x in position.iter() {
+            require_finite(|| "the new node's position".into(), x)?;
+        }
+        let first = Element::from_spec(&base)?;
+        let second = Element::from_spec(&distal)?;
         self.insert_node(0, first, second, position, rotation);
         Ok(())
     }

@@ -276,12 +276,16 @@ impl<W: Wall> Navigation<W> {
             // Only split while pushing and only merge while pulling: with a spacing that varies
             // along the device, doing both could alternate forever.
             if push > 0.0 && element > 1.5 * h {
-                let split = first - h;
-                self.model.insert_node_after_base(
-                    element_spec(&self.device, base, split),
-                    element_spec(&self.device, split, first),
-                    self.settings.cap_with_held_contacts,
-                )?;
+                let split = if self.settings.cap_with_held_contacts {
+                    self.split_entry_on_curve(h)?
+                } else {
+                    let split = first - h;
+                    self.model.insert_node_after_base(
+                        element_spec(&self.device, base, split),
+                        element_spec(&self.device, split, first),
+                    )?;
+                    split
+                };
                 self.material.insert(1, split);
                 slid.insert(1, entry_slip);
             } else if push < 0.0 && element < 0.5 * h && self.material.len() > 2 {
@@ -310,6 +314,44 @@ impl<W: Wall> Navigation<W> {
                 return Ok(slid);
             }
         }
+    }
+
+    /// Splits the element at the entry by a new node on the smooth curve through its nodes,
+    /// about `h` (m, rest) from node 1, and returns the new node's material coordinate (m);
+    /// the entry's moves by micrometres. On the chord the new node would kink the device
+    /// (with the held-contacts cap, whose correction is not scaled, that put 36 N on the hand
+    /// for one step); on the curve the two halves' chords add up to more than the element's
+    /// (ℓθ²/32 on an arc turning θ: 1–2 µm, 15–30 N on a 0.035" wire's 2 mm elements). So
+    /// each half's rest length is the one at which its chord carries the element's axial
+    /// force, as the entry's merge keeps it.
+    fn split_entry_on_curve(&mut self, h: f64) -> Result<f64> {
+        let (base, first) = (self.material[0], self.material[1]);
+        let rest = first - base;
+        let [p0, p1] = [self.model.positions()[0], self.model.positions()[1]];
+        let stiffness = |a: f64, b: f64| element_spec(&self.device, a, b).props.axial_stiffness_n;
+        let force = stiffness(base, first) / rest * ((p1 - p0).norm() - rest);
+        let (position, rotation) = self.model.base_curve_point(1.0 - h / rest);
+        // The rest length at which a chord of `chord` m carries `force` with stiffness E·A.
+        let relaxed = |chord: f64, ea: f64| chord * ea / (ea + force);
+        let split = first - relaxed((p1 - position).norm(), stiffness(first - h, first));
+        let new_base = split - relaxed((position - p0).norm(), stiffness(base, split));
+        // (A force near −E·A would mean a wrecked element: then split on the chord.)
+        if !((new_base - base).abs() < 0.1 * h && split > new_base && split < first) {
+            let split = first - h;
+            self.model.insert_node_after_base(
+                element_spec(&self.device, base, split),
+                element_spec(&self.device, split, first),
+            )?;
+            return Ok(split);
+        }
+        self.model.insert_node_after_base_at(
+            element_spec(&self.device, new_base, split),
+            element_spec(&self.device, split, first),
+            position,
+            rotation,
+        )?;
+        self.material[0] = new_base;
+        Ok(split)
     }
 
     /// Halves elements that bend too much or touch the wall and merges halves that no longer
@@ -418,27 +460,32 @@ mod tests {
     use crate::navigation::NavigationSettings;
     use crate::wall::CappedTube;
 
-    /// Regression (the random operator on `arch_to_cow_lcca`, seed 1, at 33.478 s): a wire
-    /// pulled out through the entry, element 0 at 2 N of compression and element 1 at 20 N
-    /// (strain the capped steps had not yet corrected), felt 14 N at the hand the step the two
-    /// were joined. Joined, they keep element 0's force; the entry moves by micrometres.
-    #[test]
-    fn a_merge_at_the_entry_keeps_the_force_the_hand_feels() {
+    /// A 0.035" wire 100 mm into a straight 300 mm tube of 2 mm radius.
+    fn wire_in_a_tube(settings: NavigationSettings) -> Navigation<CappedTube> {
         let tube = CappedTube {
             start: Vector3::zeros(),
             axis: Vector3::x(),
             length_m: 0.3,
             radius_m: 2e-3,
         };
-        let mut nav = Navigation::new(
+        Navigation::new(
             presets::guidewire_035(),
             tube,
             Vector3::zeros(),
             Vector3::x(),
             0.1,
-            NavigationSettings::default(),
+            settings,
         )
-        .unwrap();
+        .unwrap()
+    }
+
+    /// Regression (the random operator on `arch_to_cow_lcca`, seed 1, at 33.478 s): a wire
+    /// pulled out through the entry, element 0 at 2 N of compression and element 1 at 20 N
+    /// (strain the capped steps had not yet corrected), felt 14 N at the hand the step the two
+    /// were joined. Joined, they keep element 0's force; the entry moves by micrometres.
+    #[test]
+    fn a_merge_at_the_entry_keeps_the_force_the_hand_feels() {
+        let mut nav = wire_in_a_tube(NavigationSettings::default());
         let pull = -0.05e-3;
         let length = nav.device.length_m();
         // Pulled (slid alone: nothing loads the straight wire) until the next pull joins
@@ -474,6 +521,74 @@ mod tests {
         assert!(
             (moved + pull).abs() <= crush,
             "entry moved {moved} m for a {pull} m pull"
+        );
+    }
+
+    /// The held-contacts cap does not scale the correction a split makes, so the entry's split
+    /// puts its new node on the curve (on the chord it kinked the wire: 36 N at the hand for
+    /// one step); there the halves' chords add up to more than the element's, and with the
+    /// element's rest length cut in two they were stretched by 1–2 µm (19 N at the hand for
+    /// one step, the random operator on `arch_to_cow_lcca` at 60.8 s). Each half now carries
+    /// the element's force; the entry moves by micrometres.
+    #[test]
+    fn a_split_at_the_entry_on_the_curve_keeps_the_force_the_hand_feels() {
+        let mut nav = wire_in_a_tube(NavigationSettings {
+            cap_with_held_contacts: true,
+            ..NavigationSettings::default()
+        });
+        let push = 0.05e-3;
+        let length = nav.device.length_m();
+        // Pushed (slid alone) until the next push splits element 0.
+        loop {
+            let (base, first) = (nav.material[0] - push, nav.material[1]);
+            if first - base > 1.5 * spacing(&nav.settings, length, first) {
+                break;
+            }
+            nav.slide(push).unwrap();
+        }
+        // Element 0 bent by 0.3 rad as an arc (node 1's frame turned by θ, the rest of the
+        // wire by θ/2 about the entry) and every element stretched by 5e-4.
+        let theta: f64 = 0.3;
+        let (half, whole) = (
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.5 * theta),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), theta),
+        );
+        let positions: Vec<Vector3<f64>> = nav
+            .model
+            .positions()
+            .iter()
+            .map(|p| half * p * (1.0 + 5e-4))
+            .collect();
+        let mut rotations = nav.model.rotations().to_vec();
+        for q in &mut rotations[1..] {
+            *q = whole * *q;
+        }
+        nav.model.set_nodes(&positions, &rotations).unwrap();
+        let felt = nav.model.element_axial_force_n(0);
+        let (elements, entry) = (nav.model.element_count(), nav.material[0]);
+        assert!(felt > 1.0, "stretched: {felt} N");
+        nav.slide(push).unwrap();
+        assert_eq!(nav.model.element_count(), elements + 1, "split");
+        let halves = [0, 1].map(|e| nav.model.element_axial_force_n(e));
+        for force in halves {
+            assert!(
+                (force - felt).abs() < 0.02 * felt,
+                "the hand felt {felt} N before the split; the halves carry {halves:?} N"
+            );
+        }
+        assert!((halves[0] - halves[1]).abs() < 1e-6 * felt, "{halves:?} N");
+        // On the curve, off the chord.
+        let p = nav.model.positions();
+        let chord = (p[2] - p[0]).normalize();
+        let off = (p[1] - p[0]).cross(&chord).norm();
+        assert!(off > 5e-6, "the new node is {off} m off the chord");
+        // The entry moved by the push and by what the curve adds to the chord (the halves'
+        // chords' excess over the element's; 19 µm on this 0.3 rad bend, ℓθ²/24-ish).
+        let moved = nav.material[0] - entry;
+        let excess = (p[1] - p[0]).norm() + (p[2] - p[1]).norm() - (p[2] - p[0]).norm();
+        assert!(
+            (moved + push).abs() <= 1.01 * excess && excess < 0.05 * push.max(1e-3),
+            "entry moved {moved} m for a {push} m push ({excess} m of curve)"
         );
     }
 }
