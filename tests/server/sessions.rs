@@ -223,19 +223,20 @@ async fn a_diverging_session_is_reset_and_reported_while_others_go_on() {
     let server = shared();
     let mut client = server.client().await;
     let healthy = create(&mut client).await;
-    // The coarse scene (100 Hz, 5/50 mm elements, loose contact, a sharply hooked wire)
+    // The coarse scene (100 Hz, 2/50 mm elements, loose contact, a sharply hooked wire)
     // diverges when pushed and twisted hard; the default fidelity does not.
     let coarse = std::fs::read_to_string(repo_root().join("scenes/arch_to_cow_lcca.toml"))
         .unwrap()
         .replace(
             "step_rate_hz = 500",
-            "step_rate_hz = 100\ntip_element_mm = 5\nshaft_element_mm = 50\n\
+            "step_rate_hz = 100\ntip_element_mm = 2\nshaft_element_mm = 50\n\
              contact_tolerance = 0.5\nrefine = false",
         )
-        // A 180° hook over 10 mm on 5 mm tip elements, each bent by 90°. (One 10 mm element
+        // A 180° hook over 10 mm on 2 mm tip elements, each bent by 36°. (One 10 mm element
         // bent by 180° stopped diverging once the hand's limit held within the step; with
         // the 90°-over-30 mm wire the scene stopped once elements took the exact mean of the
-        // rest curvature instead of its mid-point value.)
+        // rest curvature instead of its mid-point value; on 5 mm elements once a hand at its
+        // strength gave way within the step.)
         .replace("bend_deg = 90.0", "bend_deg = 180.0")
         .replace("bend_length_mm = 30.0", "bend_length_mm = 10.0")
         // A hand that pushes and twists through anything (the 10 N and 0.1 N·m defaults

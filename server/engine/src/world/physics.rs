@@ -20,6 +20,11 @@ use crate::strand::{HandReaction, Strand};
 /// instrument is guarded ([`World::step_within_force_limits`]).
 const FORCE_GUARD_FRACTION: f64 = 0.25;
 
+/// The share of its limit from which a hand is watched while nothing moves that loads it: the
+/// device settling (new contacts, friction giving, a twist's writhing) can take it past, and
+/// then it gives way within the step ([`World::step_within_force_limits`]).
+const SETTLING_WATCH_FRACTION: f64 = 0.9;
+
 /// How far past its torque strength a step may leave a hand that was within it (a fraction
 /// of the limit) before the force guard takes the step again: a push can load a hand's
 /// torque as well as its force (a curved catheter's tip meeting a wall turns the shaft about
@@ -41,6 +46,11 @@ const GIVE_UNDERSHOOT: f64 = FORCE_OVERSHOOT / 2.0;
 
 /// The most a hand held past its strength gives way in one step (m).
 const MAX_GIVE_M: f64 = 0.5e-3;
+
+/// How many times a step the force guard retakes it with the hands still past their limits
+/// giving way, after holding every move did not bring them within
+/// ([`World::step_within_force_limits`]).
+const FINAL_GIVES: usize = 2;
 
 /// The most a hand twisted past its strength gives its twist back in one step (rad).
 const MAX_GIVE_RAD: f64 = 0.05;
@@ -69,6 +79,21 @@ fn gives_way(last: Option<(f64, bool)>, force: f64) -> bool {
             force.abs() >= before.abs()
         }
     })
+}
+
+/// The give (m, signed as `give`) that brings a hand to [`GIVE_UNDERSHOOT`] under its signed
+/// `limit` (N), by the secant through the hold (force `f0`, N) and a try that gave `give`
+/// (force `f1`): at least `give`, at most [`MAX_GIVE_M`], and four times `give` where the
+/// force did not fall with it.
+fn next_give(give: f64, (f0, f1): (f64, f64), limit: f64) -> f64 {
+    let aim = (1.0 - GIVE_UNDERSHOOT) * limit;
+    let secant = give * (aim - f0) / (f1 - f0);
+    let next = if secant.is_finite() && secant * give > 0.0 {
+        secant
+    } else {
+        4.0 * give
+    };
+    next.signum() * next.abs().clamp(give.abs().min(MAX_GIVE_M), MAX_GIVE_M)
 }
 
 impl World {
@@ -152,9 +177,12 @@ impl World {
     /// twice. Torques are guarded alike: a step that leaves a hand within its torque limit
     /// more than [`TORQUE_OVERSHOOT`] past it is taken again with the moves and the twists
     /// scaled by the share the torque allows (a push loads the torque too, through the lever
-    /// arm of a curved device's contacts). What the held step leaves is accepted: other
-    /// forces (a settling shape) may still load a hand. `moves` are the insertions this step
-    /// runs.
+    /// arm of a curved device's contacts). Where the held step still leaves a hand past its
+    /// limit (a settling shape loads it with nothing moving), that hand gives way within the
+    /// step: by its excess over its stiffness, then along the secant through the hold and
+    /// that give (at most [`FINAL_GIVES`] tries); a hand at
+    /// [`SETTLING_WATCH_FRACTION`] of its limit is watched so even where nothing moves.
+    /// `moves` are the insertions this step runs.
     fn step_within_force_limits(&mut self, moves: &[Insertion], dt: f64) -> Result<()> {
         // Per hand: its limits as signed forces (push, pull) and its last reaction (N).
         let hands: Vec<(f64, f64, f64)> = self
@@ -215,7 +243,13 @@ impl World {
         let near_torque = torques
             .iter()
             .any(|&(limit, last)| last / limit >= FORCE_GUARD_FRACTION);
-        if !((pushing && (near_force || near_torque)) || (twisting && near_torque)) {
+        let guarded = (pushing && (near_force || near_torque)) || (twisting && near_torque);
+        // At its limit with nothing loading it, a hand is still watched: the device's own
+        // settling can take it past (below).
+        let at_limit = hands.iter().any(|&(push, pull, last)| {
+            last / push >= SETTLING_WATCH_FRACTION || last / pull >= SETTLING_WATCH_FRACTION
+        });
+        if !guarded && !at_limit {
             return Ok(self.strand.step()?);
         }
         let before = self.strand.clone();
@@ -286,7 +320,7 @@ impl World {
         let (push_share, twist_share) = allowed(&reactions);
         if push_share >= 1.0 && twist_share >= 1.0 {
             self.forget_slack_stiffness(&hands, &reactions);
-        } else {
+        } else if guarded {
             // The moves as the physics took them (clamped to the device's speed and range).
             let taken: Vec<f64> = before_moves
                 .iter()
@@ -327,7 +361,7 @@ impl World {
             // settling put on such a hand is not held there. (A guide held at its strength
             // while a microwire was pulled back through it crept 0.01–0.02 N a step past it
             // with everything held: the stroke scene, seed 2.)
-            let gives = self.gives_past_limits(&hands, &first, &before_moves);
+            let gives = self.gives_past_limits(&hands, &first, &before_moves, false);
             if gives.iter().any(|&g| g != 0.0) {
                 tries.push((none.clone(), 0.0, gives));
             }
@@ -339,19 +373,9 @@ impl World {
                 tries.push(hold);
             }
             for (k, (push, twist, gives)) in tries.iter().enumerate() {
-                self.metrics.force_retakes += 1;
-                self.strand = before.clone();
                 let twists = (*twist < 1.0).then_some((&before_twists[..], *twist));
-                self.scale_moves(&before_moves, |i, _| push[i] * taken[i], twists)?;
-                for (i, &give) in gives.iter().enumerate() {
-                    if give != 0.0 {
-                        let mut command = self.strand.command(i);
-                        command.insertion = Insertion::Target(before_moves[i].0 + give);
-                        self.strand.set_command(i, command)?;
-                    }
-                }
-                self.strand.step()?;
-                reactions = self.strand.reactions().1;
+                let moves = |i: usize, _| push[i] * taken[i];
+                reactions = self.retake(&before, &before_moves, moves, twists, gives)?;
                 let (p, t) = allowed(&reactions);
                 if (p >= 1.0 && t >= 1.0) || k + 1 == tries.len() {
                     break;
@@ -359,20 +383,40 @@ impl World {
             }
             self.learn_hand_stiffness(&before_moves, (&taken, &first), &reactions);
         }
+        // Held and still past: the device settling (new contacts found, friction giving,
+        // a twist's writhing) loaded the hand with nothing moving. A hand cannot hold
+        // more than its strength, so every hand still past it gives way, moving or not
+        // (the aorta's wire, pushed and twisted at its limits, went 10.00 → 10.22 N in
+        // one step with both held: the random operator, seed 1, with the physics
+        // options on). The first give is the excess over the hand's stiffness; a looped
+        // wire is far softer than that, so a second comes from the secant between the
+        // hold and the first give.
+        let held = reactions.clone();
+        let mut gives = self.gives_past_limits(&hands, &reactions, &before_moves, true);
+        for _ in 0..FINAL_GIVES {
+            if allowed(&reactions).0 >= 1.0 || gives.iter().all(|&g| g == 0.0) {
+                break;
+            }
+            let held_twists = Some((&before_twists[..], 0.0));
+            reactions = self.retake(&before, &before_moves, |_, _| 0.0, held_twists, &gives)?;
+            gives = self.secant_gives(&hands, &held, (&gives, &reactions), &before_moves);
+        }
         Ok(())
     }
 
-    /// For each instrument (m; 0: none), the give of its hand where the force guard's first
-    /// try left it past its limit by more than [`FORCE_OVERSHOOT`] and its own move did not
-    /// (it was held, `before_moves`' flag unset): its excess over the aim
+    /// For each instrument (m; 0: none), the give of its hand where the force guard's try
+    /// (`first`: the reactions after it) left it past its limit by more than
+    /// [`FORCE_OVERSHOOT`] and, unless `moving_too`, its own move did not (it was held,
+    /// `before_moves`' flag unset): its excess over the aim
     /// ([`GIVE_UNDERSHOOT`] under the limit) over its stiffness, at most [`MAX_GIVE_M`], back
     /// against a push and in against a pull (never past its hub). `hands`: each one's signed
-    /// limits, push and pull (N); `first`: the reactions after the first try.
+    /// limits, push and pull (N).
     fn gives_past_limits(
         &self,
         hands: &[(f64, f64, f64)],
         first: &[HandReaction],
         before_moves: &[(f64, f64, bool)],
+        moving_too: bool,
     ) -> Vec<f64> {
         hands
             .iter()
@@ -382,7 +426,7 @@ impl World {
             .map(|(i, ((&(push, pull, _), r), &(inserted, _, scaled)))| {
                 let now = r.axial_force_n;
                 let limit = if now >= 0.0 { push } else { pull };
-                if scaled || now / limit <= 1.0 + FORCE_OVERSHOOT {
+                if (scaled && !moving_too) || now / limit <= 1.0 + FORCE_OVERSHOOT {
                     return 0.0;
                 }
                 let axial = self.proximal_stiffness(i, |p| p.axial_stiffness_n);
@@ -396,6 +440,62 @@ impl World {
                 } else {
                     give.min((self.hands[i].limits.max_inserted_m - inserted).max(0.0))
                 }
+            })
+            .collect()
+    }
+
+    /// The step taken again from `before`: the scaled moves set by `move_m` and the twists
+    /// by `twists` (as in [`Self::scale_moves`]), then each hand with a give (m) set to give
+    /// way by it from where it was. Returns the hands' reactions.
+    fn retake(
+        &mut self,
+        before: &Strand,
+        before_moves: &[(f64, f64, bool)],
+        move_m: impl Fn(usize, f64) -> f64,
+        twists: Option<(&[(f64, f64)], f64)>,
+        gives: &[f64],
+    ) -> Result<Vec<HandReaction>> {
+        self.metrics.force_retakes += 1;
+        self.strand = before.clone();
+        self.scale_moves(before_moves, move_m, twists)?;
+        for (i, &give) in gives.iter().enumerate() {
+            if give != 0.0 {
+                let mut command = self.strand.command(i);
+                command.insertion = Insertion::Target(before_moves[i].0 + give);
+                self.strand.set_command(i, command)?;
+            }
+        }
+        self.strand.step()?;
+        Ok(self.strand.reactions().1)
+    }
+
+    /// The next gives of the hands still past their limits after a try that gave `gives`
+    /// (m) and led to `reactions`, from the secant between that try and the hold (`held`: the
+    /// reactions with nothing moving): each aims [`GIVE_UNDERSHOOT`] under its limit, at
+    /// least the last give, at most [`MAX_GIVE_M`] (four times the last where the force did
+    /// not fall with it), never past the hub or out of the sheath. 0 where a hand is within
+    /// its limit or did not give. `hands` as in [`Self::gives_past_limits`].
+    fn secant_gives(
+        &self,
+        hands: &[(f64, f64, f64)],
+        held: &[HandReaction],
+        (gives, reactions): (&[f64], &[HandReaction]),
+        before_moves: &[(f64, f64, bool)],
+    ) -> Vec<f64> {
+        (0..gives.len())
+            .map(|i| {
+                let (give, f0, f1) = (gives[i], held[i].axial_force_n, reactions[i].axial_force_n);
+                let (push, pull, _) = hands[i];
+                let limit = if f1 >= 0.0 { push } else { -pull };
+                if give == 0.0 || f1 / limit <= 1.0 + FORCE_OVERSHOOT {
+                    return 0.0;
+                }
+                let next = next_give(give, (f0, f1), limit);
+                let inserted = before_moves[i].0;
+                next.clamp(
+                    -inserted,
+                    (self.hands[i].limits.max_inserted_m - inserted).max(0.0),
+                )
             })
             .collect()
     }
@@ -658,7 +758,26 @@ impl World {
 
 #[cfg(test)]
 mod tests {
-    use super::gives_way;
+    use super::{GIVE_UNDERSHOOT, MAX_GIVE_M, gives_way, next_give};
+
+    #[test]
+    fn a_second_give_follows_the_secant_to_the_aim() {
+        let aim = (1.0 - GIVE_UNDERSHOOT) * 10.0;
+        // A hand held at 10.3 N gave 5 µm and felt 10.2 N: 20 kN/m, so the aim is that much
+        // further back (a linear response meets it exactly).
+        let f0 = 10.3;
+        let next = next_give(-5e-6, (f0, 10.2), 10.0);
+        assert!((f0 + 20e3 * next - aim).abs() < 1e-9, "{next} m");
+        // Pulls alike.
+        let next = next_give(5e-6, (-10.3, -10.2), -10.0);
+        assert!((-10.3 + 20e3 * next + aim).abs() < 1e-9, "{next} m");
+        // A force that did not fall with the give: four times as far; never past the most a
+        // hand gives in a step, never less than the give before.
+        assert_eq!(next_give(-5e-6, (10.3, 10.35), 10.0), -20e-6);
+        assert_eq!(next_give(-0.2e-3, (10.3, 10.3), 10.0), -MAX_GIVE_M);
+        assert_eq!(next_give(-5e-6, (10.3, 10.2999999), 10.0), -MAX_GIVE_M);
+        assert_eq!(next_give(-5e-6, (10.3, -30.0), 10.0), -5e-6);
+    }
 
     #[test]
     fn a_hold_that_does_not_lower_the_force_gives_way_and_a_give_that_raised_it_holds() {

@@ -50,16 +50,17 @@ pub fn coarse_text() -> String {
     )
 }
 
-/// The coarse scene with a 180° hook over 10 mm on 5 mm tip elements (each bent by 90°),
+/// The coarse scene with a 180° hook over 10 mm on 2 mm tip elements (each bent by 36°),
 /// which diverges when pushed and twisted hard. (The 90°-over-30 mm wire stopped diverging
 /// once elements took the exact mean of the rest curvature instead of its mid-point value;
-/// the hook on one 10 mm element once the hand's limit held within the step.) Its hand
+/// the hook on one 10 mm element once the hand's limit held within the step; on 5 mm
+/// elements once a hand at its strength gave way within the step.) Its hand
 /// pushes and twists through anything: the 10 N default holds the push back, and the
 /// 0.1 N·m default the twist, before the hook breaks the coarse elements (as in the server's
 /// diverging-session test).
 fn fragile_text() -> String {
     coarse_text()
-        .replace("tip_element_mm = 10", "tip_element_mm = 5")
+        .replace("tip_element_mm = 10", "tip_element_mm = 2")
         .replace("bend_deg = 90.0", "bend_deg = 180.0")
         .replace("bend_length_mm = 30.0", "bend_length_mm = 10.0")
         + "\n[limits]\npush_force_n = 10000.0\nunsupported_mm = 5.0\ntwist_torque_nm = 10.0\n"
