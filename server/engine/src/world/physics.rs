@@ -81,19 +81,22 @@ fn gives_way(last: Option<(f64, bool)>, force: f64) -> bool {
     })
 }
 
-/// The give (m, signed as `give`) that brings a hand to [`GIVE_UNDERSHOOT`] under its signed
-/// `limit` (N), by the secant through the hold (force `f0`, N) and a try that gave `give`
-/// (force `f1`): at least `give`, at most [`MAX_GIVE_M`], and four times `give` where the
-/// force did not fall with it.
-fn next_give(give: f64, (f0, f1): (f64, f64), limit: f64) -> f64 {
+/// The give (m, from where the hand was) that brings a hand to [`GIVE_UNDERSHOOT`] under
+/// its signed `limit` (N), by the secant through the hold (`held`: its give, m, and force, N;
+/// a hand past its limit already gives in the hold) and a try (`tried`: its give and force):
+/// at least the try's give, at most [`MAX_GIVE_M`], and four times as far beyond the hold
+/// where the force did not fall with the try.
+fn next_give((g0, f0): (f64, f64), (g1, f1): (f64, f64), limit: f64) -> f64 {
     let aim = (1.0 - GIVE_UNDERSHOOT) * limit;
-    let secant = give * (aim - f0) / (f1 - f0);
-    let next = if secant.is_finite() && secant * give > 0.0 {
+    let step = g1 - g0;
+    let secant = step * (aim - f0) / (f1 - f0);
+    let beyond = if secant.is_finite() && secant * step > 0.0 {
         secant
     } else {
-        4.0 * give
+        4.0 * step
     };
-    next.signum() * next.abs().clamp(give.abs().min(MAX_GIVE_M), MAX_GIVE_M)
+    let next = g0 + beyond;
+    next.signum() * next.abs().clamp(g1.abs().min(MAX_GIVE_M), MAX_GIVE_M)
 }
 
 impl World {
@@ -392,6 +395,9 @@ impl World {
         // wire is far softer than that, so a second comes from the secant between the
         // hold and the first give.
         let held = reactions.clone();
+        let held_gives: Vec<f64> = (0..before_moves.len())
+            .map(|i| self.strand.inserted_m(i) - before_moves[i].0)
+            .collect();
         let mut gives = self.gives_past_limits(&hands, &reactions, &before_moves, true);
         for _ in 0..FINAL_GIVES {
             if allowed(&reactions).0 >= 1.0 || gives.iter().all(|&g| g == 0.0) {
@@ -399,7 +405,8 @@ impl World {
             }
             let held_twists = Some((&before_twists[..], 0.0));
             reactions = self.retake(&before, &before_moves, |_, _| 0.0, held_twists, &gives)?;
-            gives = self.secant_gives(&hands, &held, (&gives, &reactions), &before_moves);
+            let hold = (&held_gives[..], &held[..]);
+            gives = self.secant_gives(&hands, hold, (&gives, &reactions), &before_moves);
         }
         Ok(())
     }
@@ -470,15 +477,14 @@ impl World {
     }
 
     /// The next gives of the hands still past their limits after a try that gave `gives`
-    /// (m) and led to `reactions`, from the secant between that try and the hold (`held`: the
-    /// reactions with nothing moving): each aims [`GIVE_UNDERSHOOT`] under its limit, at
-    /// least the last give, at most [`MAX_GIVE_M`] (four times the last where the force did
-    /// not fall with it), never past the hub or out of the sheath. 0 where a hand is within
-    /// its limit or did not give. `hands` as in [`Self::gives_past_limits`].
+    /// (m) and led to `reactions`, by [`next_give`] from the hold (`held`: each hand's give
+    /// there, m, and its reactions with no move loading it), never past the hub or out of the
+    /// sheath. 0 where a hand is within its limit or did not give. `hands` as in
+    /// [`Self::gives_past_limits`] (signed limits: the pull's is negative).
     fn secant_gives(
         &self,
         hands: &[(f64, f64, f64)],
-        held: &[HandReaction],
+        (held_gives, held): (&[f64], &[HandReaction]),
         (gives, reactions): (&[f64], &[HandReaction]),
         before_moves: &[(f64, f64, bool)],
     ) -> Vec<f64> {
@@ -486,11 +492,11 @@ impl World {
             .map(|i| {
                 let (give, f0, f1) = (gives[i], held[i].axial_force_n, reactions[i].axial_force_n);
                 let (push, pull, _) = hands[i];
-                let limit = if f1 >= 0.0 { push } else { -pull };
+                let limit = if f1 >= 0.0 { push } else { pull };
                 if give == 0.0 || f1 / limit <= 1.0 + FORCE_OVERSHOOT {
                     return 0.0;
                 }
-                let next = next_give(give, (f0, f1), limit);
+                let next = next_give((held_gives[i], f0), (give, f1), limit);
                 let inserted = before_moves[i].0;
                 next.clamp(
                     -inserted,
@@ -766,17 +772,23 @@ mod tests {
         // A hand held at 10.3 N gave 5 µm and felt 10.2 N: 20 kN/m, so the aim is that much
         // further back (a linear response meets it exactly).
         let f0 = 10.3;
-        let next = next_give(-5e-6, (f0, 10.2), 10.0);
+        let next = next_give((0.0, f0), (-5e-6, 10.2), 10.0);
         assert!((f0 + 20e3 * next - aim).abs() < 1e-9, "{next} m");
-        // Pulls alike.
-        let next = next_give(5e-6, (-10.3, -10.2), -10.0);
+        // Pulls alike (the pull's limit is negative).
+        let next = next_give((0.0, -10.3), (5e-6, -10.2), -10.0);
         assert!((-10.3 + 20e3 * next + aim).abs() < 1e-9, "{next} m");
-        // A force that did not fall with the give: four times as far; never past the most a
-        // hand gives in a step, never less than the give before.
-        assert_eq!(next_give(-5e-6, (10.3, 10.35), 10.0), -20e-6);
-        assert_eq!(next_give(-0.2e-3, (10.3, 10.3), 10.0), -MAX_GIVE_M);
-        assert_eq!(next_give(-5e-6, (10.3, 10.2999999), 10.0), -MAX_GIVE_M);
-        assert_eq!(next_give(-5e-6, (10.3, -30.0), 10.0), -5e-6);
+        // A hand already giving 2 µm in the hold: the secant runs from there.
+        let next = next_give((-2e-6, f0), (-7e-6, 10.2), 10.0);
+        assert!((f0 + 20e3 * (next + 2e-6) - aim).abs() < 1e-9, "{next} m");
+        // A force that did not fall with the give: four times as far beyond the hold; never
+        // past the most a hand gives in a step, never less than the give tried.
+        assert_eq!(next_give((0.0, 10.3), (-5e-6, 10.35), 10.0), -20e-6);
+        assert_eq!(next_give((0.0, 10.3), (-0.2e-3, 10.3), 10.0), -MAX_GIVE_M);
+        assert_eq!(
+            next_give((0.0, 10.3), (-5e-6, 10.2999999), 10.0),
+            -MAX_GIVE_M
+        );
+        assert_eq!(next_give((0.0, 10.3), (-5e-6, -30.0), 10.0), -5e-6);
     }
 
     #[test]
