@@ -82,14 +82,20 @@ fn gives_way(last: Option<(f64, bool)>, force: f64) -> bool {
 }
 
 /// The give (m, from where the hand was) that brings a hand to [`GIVE_UNDERSHOOT`] under
-/// its signed `limit` (N), by the secant through the hold (`held`: its give, m, and force, N;
-/// a hand past its limit already gives in the hold) and a try (`tried`: its give and force):
-/// at least the try's give, at most [`MAX_GIVE_M`], and four times as far beyond the hold
-/// where the force did not fall with the try.
+/// its signed `limit` (N; the held force's side), by the secant through the hold (`held`:
+/// its give, m, and force, N; a hand past its limit already gives in the hold) and a try
+/// (`tried`: its give and force). Where the try fell short of the aim: at least the try's
+/// give, at most [`MAX_GIVE_M`], and four times as far beyond the hold where the force did
+/// not fall with it. Where the try overshot (the force went past the aim, even to the other
+/// side: a pulled wire's give in against the default cap's strain put 16 N of push on the
+/// hand), the secant between the two.
 fn next_give((g0, f0): (f64, f64), (g1, f1): (f64, f64), limit: f64) -> f64 {
     let aim = (1.0 - GIVE_UNDERSHOOT) * limit;
     let step = g1 - g0;
     let secant = step * (aim - f0) / (f1 - f0);
+    if (f1 - aim) * (f0 - aim) < 0.0 {
+        return g0 + secant;
+    }
     let beyond = if secant.is_finite() && secant * step > 0.0 {
         secant
     } else {
@@ -492,10 +498,11 @@ impl World {
             .map(|i| {
                 let (give, f0, f1) = (gives[i], held[i].axial_force_n, reactions[i].axial_force_n);
                 let (push, pull, _) = hands[i];
-                let limit = if f1 >= 0.0 { push } else { pull };
-                if give == 0.0 || f1 / limit <= 1.0 + FORCE_OVERSHOOT {
+                let past = f1 / push > 1.0 + FORCE_OVERSHOOT || f1 / pull > 1.0 + FORCE_OVERSHOOT;
+                if give == 0.0 || !past {
                     return 0.0;
                 }
+                let limit = if f0 >= 0.0 { push } else { pull };
                 let next = next_give((held_gives[i], f0), (give, f1), limit);
                 let inserted = before_moves[i].0;
                 next.clamp(
@@ -788,7 +795,14 @@ mod tests {
             next_give((0.0, 10.3), (-5e-6, 10.2999999), 10.0),
             -MAX_GIVE_M
         );
-        assert_eq!(next_give((0.0, 10.3), (-5e-6, -30.0), 10.0), -5e-6);
+        // A try that overshot, here through zero to the push side (a pull held at 10.3 N
+        // gave 0.3 mm in and the hand then pushed with 16 N): back along the secant.
+        let next = next_give((0.0, -10.3), (0.3e-3, 16.0), -10.0);
+        assert!(
+            (-10.3 + 26.3 / 0.3e-3 * next + aim).abs() < 1e-9,
+            "{next} m"
+        );
+        assert!(next > 0.0 && next < 0.3e-3, "{next} m");
     }
 
     #[test]
