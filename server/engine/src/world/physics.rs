@@ -246,19 +246,20 @@ impl World {
             .collect();
         let pushing = before_moves.iter().any(|&(_, _, scaled)| scaled);
         let twisting = before_twists.iter().any(|&(_, turn)| turn != 0.0);
-        let near_force = hands.iter().any(|&(push, pull, last)| {
-            last / push >= FORCE_GUARD_FRACTION || last / pull >= FORCE_GUARD_FRACTION
-        });
+        // Whether any hand's last force is at `fraction` of its limit or more.
+        let force_at = |fraction: f64| {
+            hands
+                .iter()
+                .any(|&(push, pull, last)| last / push >= fraction || last / pull >= fraction)
+        };
+        let near_force = force_at(FORCE_GUARD_FRACTION);
         let near_torque = torques
             .iter()
             .any(|&(limit, last)| last / limit >= FORCE_GUARD_FRACTION);
         let guarded = (pushing && (near_force || near_torque)) || (twisting && near_torque);
         // At its limit with nothing loading it, a hand is still watched: the device's own
         // settling can take it past (below).
-        let at_limit = hands.iter().any(|&(push, pull, last)| {
-            last / push >= SETTLING_WATCH_FRACTION || last / pull >= SETTLING_WATCH_FRACTION
-        });
-        if !guarded && !at_limit {
+        if !guarded && !force_at(SETTLING_WATCH_FRACTION) {
             return Ok(self.strand.step()?);
         }
         let before = self.strand.clone();
@@ -405,11 +406,11 @@ impl World {
             .map(|i| self.strand.inserted_m(i) - before_moves[i].0)
             .collect();
         let mut gives = self.gives_past_limits(&hands, &reactions, &before_moves, true);
+        let held_twists = Some((&before_twists[..], 0.0));
         for _ in 0..FINAL_GIVES {
             if allowed(&reactions).0 >= 1.0 || gives.iter().all(|&g| g == 0.0) {
                 break;
             }
-            let held_twists = Some((&before_twists[..], 0.0));
             reactions = self.retake(&before, &before_moves, |_, _| 0.0, held_twists, &gives)?;
             let hold = (&held_gives[..], &held[..]);
             gives = self.secant_gives(&hands, hold, (&gives, &reactions), &before_moves);
@@ -448,13 +449,16 @@ impl World {
                     .map_or(axial, |k| k.min(axial));
                 let give =
                     ((now - (1.0 - GIVE_UNDERSHOOT) * limit).abs() / stiffness).min(MAX_GIVE_M);
-                if now > 0.0 {
-                    -give.min(inserted)
-                } else {
-                    give.min((self.hands[i].limits.max_inserted_m - inserted).max(0.0))
-                }
+                self.within_travel(i, inserted, if now > 0.0 { -give } else { give })
             })
             .collect()
+    }
+
+    /// `give` (m) for instrument `index`, inserted `inserted` m, kept within its travel:
+    /// never out of the sheath, never in past its hub.
+    fn within_travel(&self, index: usize, inserted: f64, give: f64) -> f64 {
+        let to_hub = (self.hands[index].limits.max_inserted_m - inserted).max(0.0);
+        give.clamp(-inserted, to_hub)
     }
 
     /// The step taken again from `before`: the scaled moves set by `move_m` and the twists
@@ -504,11 +508,7 @@ impl World {
                 }
                 let limit = if f0 >= 0.0 { push } else { pull };
                 let next = next_give((held_gives[i], f0), (give, f1), limit);
-                let inserted = before_moves[i].0;
-                next.clamp(
-                    -inserted,
-                    (self.hands[i].limits.max_inserted_m - inserted).max(0.0),
-                )
+                self.within_travel(i, before_moves[i].0, next)
             })
             .collect()
     }

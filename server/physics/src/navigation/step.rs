@@ -276,15 +276,21 @@ impl<W: Wall> Navigation<W> {
             // Only split while pushing and only merge while pulling: with a spacing that varies
             // along the device, doing both could alternate forever.
             if push > 0.0 && element > 1.5 * h {
-                let split = if self.settings.cap_with_held_contacts {
+                let on_curve = if self.settings.cap_with_held_contacts {
                     self.split_entry_on_curve(h)?
                 } else {
-                    let split = first - h;
-                    self.model.insert_node_after_base(
-                        element_spec(&self.device, base, split),
-                        element_spec(&self.device, split, first),
-                    )?;
-                    split
+                    None
+                };
+                let split = match on_curve {
+                    Some(split) => split,
+                    None => {
+                        let split = first - h;
+                        self.model.insert_node_after_base(
+                            element_spec(&self.device, base, split),
+                            element_spec(&self.device, split, first),
+                        )?;
+                        split
+                    }
                 };
                 self.material.insert(1, split);
                 slid.insert(1, entry_slip);
@@ -303,7 +309,7 @@ impl<W: Wall> Navigation<W> {
                 self.material.remove(1);
                 slid.remove(1);
                 let chord = (self.model.positions()[1] - self.model.positions()[0]).norm();
-                let rest = chord * stiffness / (stiffness + held);
+                let rest = rest_carrying(chord, stiffness, held);
                 // (A force near E·A would mean a wrecked element: then joined as it lies.)
                 if (rest - (second - base)).abs() < 0.1 * (second - base) {
                     self.material[0] = second - rest;
@@ -318,31 +324,25 @@ impl<W: Wall> Navigation<W> {
 
     /// Splits the element at the entry by a new node on the smooth curve through its nodes,
     /// about `h` (m, rest) from node 1, and returns the new node's material coordinate (m);
-    /// the entry's moves by micrometres. On the chord the new node would kink the device
+    /// the entry's moves by micrometres. None, splitting nothing, where the element's force
+    /// is near −E·A (a wrecked element: the caller splits it on the chord). On the chord the new node would kink the device
     /// (with the held-contacts cap, whose correction is not scaled, that put 36 N on the hand
     /// for one step); on the curve the two halves' chords add up to more than the element's
     /// (ℓθ²/32 on an arc turning θ: 1–2 µm, 15–30 N on a 0.035" wire's 2 mm elements). So
     /// each half's rest length is the one at which its chord carries the element's axial
     /// force, as the entry's merge keeps it.
-    fn split_entry_on_curve(&mut self, h: f64) -> Result<f64> {
+    fn split_entry_on_curve(&mut self, h: f64) -> Result<Option<f64>> {
         let (base, first) = (self.material[0], self.material[1]);
         let rest = first - base;
         let [p0, p1] = [self.model.positions()[0], self.model.positions()[1]];
         let stiffness = |a: f64, b: f64| element_spec(&self.device, a, b).props.axial_stiffness_n;
         let force = stiffness(base, first) / rest * ((p1 - p0).norm() - rest);
         let (position, rotation) = self.model.base_curve_point(1.0 - h / rest);
-        // The rest length at which a chord of `chord` m carries `force` with stiffness E·A.
-        let relaxed = |chord: f64, ea: f64| chord * ea / (ea + force);
-        let split = first - relaxed((p1 - position).norm(), stiffness(first - h, first));
-        let new_base = split - relaxed((position - p0).norm(), stiffness(base, split));
-        // (A force near −E·A would mean a wrecked element: then split on the chord.)
+        let split =
+            first - rest_carrying((p1 - position).norm(), stiffness(first - h, first), force);
+        let new_base = split - rest_carrying((position - p0).norm(), stiffness(base, split), force);
         if !((new_base - base).abs() < 0.1 * h && split > new_base && split < first) {
-            let split = first - h;
-            self.model.insert_node_after_base(
-                element_spec(&self.device, base, split),
-                element_spec(&self.device, split, first),
-            )?;
-            return Ok(split);
+            return Ok(None);
         }
         self.model.insert_node_after_base_at(
             element_spec(&self.device, new_base, split),
@@ -351,7 +351,7 @@ impl<W: Wall> Navigation<W> {
             rotation,
         )?;
         self.material[0] = new_base;
-        Ok(split)
+        Ok(Some(split))
     }
 
     /// Halves elements that bend too much or touch the wall and merges halves that no longer
@@ -451,6 +451,13 @@ impl<W: Wall> Navigation<W> {
             })
             .fold(0.0, f64::max)
     }
+}
+
+/// The rest length (m) at which an element whose chord is `chord` m long carries `force` N
+/// (tension positive) with axial stiffness `ea` (N): what a split or a merge at the entry
+/// gives an element so that the force the hand feels does not jump.
+fn rest_carrying(chord: f64, ea: f64, force: f64) -> f64 {
+    chord * ea / (ea + force)
 }
 
 #[cfg(test)]
