@@ -223,7 +223,11 @@ impl<W: Wall> Stack<W> {
 
     /// One solve: kinematic update, detection, beam solve with contacts.
     fn single_step(&mut self, targets: &[(f64, f64)]) -> Result<StackReport> {
-        let before: Vec<f64> = self.instruments.iter().map(|i| i.inserted_m).collect();
+        let before: Vec<(f64, f64)> = self
+            .instruments
+            .iter()
+            .map(|i| (i.inserted_m, i.twist_rad))
+            .collect();
         self.prepare(targets)?;
         let mut samples = self.sample_layout(true);
         self.set_slips(&mut samples, &before);
@@ -262,27 +266,59 @@ impl<W: Wall> Stack<W> {
 
     /// With [`NavigationSettings::slide_friction`](crate::navigation::NavigationSettings), sets
     /// each collision point's slip: the outermost instrument there slid along the strand
-    /// by its own move this step (the inserted lengths `before` it, m), and the wall's
-    /// friction resists that in the solve. The strand's nodes stay where the instruments
-    /// slide through them, so the slip is not in the free motion.
-    fn set_slips(&self, samples: &mut [Sample], before: &[f64]) {
+    /// by its own move this step (the inserted lengths and twists `before` it, m and rad),
+    /// and the wall's friction resists that in the solve. The strand's nodes stay where the
+    /// instruments slide through them, so the slip is not in the free motion. Where the
+    /// outermost instrument is still and one inside it slides or turns, the point has no
+    /// friction: the wall holds the still one, and the lumen between them (frictionless in
+    /// merged mode) passes it none of the moving one's load. (With the wall's friction
+    /// there, a microcatheter pushed through a still guide put its compression into the
+    /// wall along the guide, and the guide's hand felt it: 10.5 N in the neuro phantom.)
+    fn set_slips(&self, samples: &mut [Sample], before: &[(f64, f64)]) {
         if !self.settings.slide_friction {
             return;
         }
         let positions = self.model.positions();
-        // Per element: the outermost instrument's move along the element's axis.
-        let slips: Vec<Option<Vector3<f64>>> = (0..self.model.element_count())
+        let moved = |k: usize| {
+            let i = &self.instruments[k];
+            (i.inserted_m - before[k].0, i.twist_rad != before[k].1)
+        };
+        // Per element: the outermost instrument there.
+        let outer: Vec<Option<usize>> = (0..self.model.element_count())
             .map(|e| {
                 let mid = 0.5 * (self.nodes[e].sigma + self.nodes[e + 1].sigma);
-                let k = self.instruments.iter().position(|i| i.inserted_m > mid)?;
-                let advance = self.instruments[k].inserted_m - before[k];
-                let axis = (positions[e + 1] - positions[e]).try_normalize(1e-12)?;
-                Some(axis * advance)
+                self.instruments.iter().position(|i| i.inserted_m > mid)
             })
             .collect();
+        // A point of instrument `k` at path coordinate `sigma` on element `e`: its slip, or
+        // none where `k` is still and an instrument inside it there moves.
+        let slip = |k: usize, e: usize, sigma: f64| -> Option<Vector3<f64>> {
+            let (advance, turned) = moved(k);
+            let inner_moves = (k + 1..self.instruments.len()).any(|j| {
+                let (a, t) = moved(j);
+                self.instruments[j].inserted_m > sigma && (a != 0.0 || t)
+            });
+            if advance == 0.0 && !turned && inner_moves {
+                return None;
+            }
+            let axis = (positions[e + 1] - positions[e])
+                .try_normalize(1e-12)
+                .unwrap_or_else(Vector3::zeros);
+            Some(axis * advance)
+        };
         for s in samples {
-            if let Some(slip) = slips[s.element] {
-                s.slip = slip;
+            let e = s.element;
+            // An outer instrument's rim (the first point past its tip) is its own.
+            let rim = (s.t == 0.0 && e > 0 && outer[e - 1] != outer[e])
+                .then(|| outer[e - 1])
+                .flatten();
+            let Some(k) = rim.or(outer[e]) else {
+                continue;
+            };
+            let sigma = self.nodes[e].sigma + s.t * (self.nodes[e + 1].sigma - self.nodes[e].sigma);
+            match slip(k, e, sigma) {
+                Some(v) => s.slip = v,
+                None => s.friction = 0.0,
             }
         }
     }
