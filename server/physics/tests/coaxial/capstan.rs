@@ -14,6 +14,22 @@ fn wire(mu: f64) -> Device {
     uniform_device("wire", 1.5, 0.356e-3 / 2.0, 0.0, 60e9, mu)
 }
 
+/// A ring of tube of core radius `r` (m) and lumen radius 2 mm about the z axis, entered at
+/// the origin along x, and settings with the slide's friction on.
+fn ring_with_slide_friction(r: f64) -> (RingTube, NavigationSettings) {
+    let ring = RingTube {
+        center: Vector3::new(0.0, r, 0.0),
+        axis: Vector3::z(),
+        major_radius_m: r,
+        minor_radius_m: 2e-3,
+    };
+    let settings = NavigationSettings {
+        slide_friction: true,
+        ..NavigationSettings::default()
+    };
+    (ring, settings)
+}
+
 /// A uniform device of length, outer and inner radius (m) and Young's modulus (Pa), with
 /// wall friction `mu`.
 fn uniform_device(
@@ -63,16 +79,7 @@ fn uniform_device(
 fn a_wire_drawn_round_a_bend_feels_the_capstan_law() {
     let mu = 0.3;
     let r = 0.03;
-    let settings = NavigationSettings {
-        slide_friction: true,
-        ..NavigationSettings::default()
-    };
-    let ring = RingTube {
-        center: Vector3::new(0.0, r, 0.0),
-        axis: Vector3::z(),
-        major_radius_m: r,
-        minor_radius_m: 2e-3,
-    };
+    let (ring, settings) = ring_with_slide_friction(r);
     let mut stack = merged_stack_in(vec![(wire(mu), 0.01)], ring, settings);
     let go = |v: f64| Command {
         insertion: Insertion::Velocity(v),
@@ -223,16 +230,7 @@ fn a_wire_pushed_round_a_ring_feels_its_friction_at_the_hand() {
 #[test]
 fn a_still_catheter_passes_a_wire_pushed_through_it_nothing_of_the_wall() {
     let r = 0.03;
-    let settings = NavigationSettings {
-        slide_friction: true,
-        ..NavigationSettings::default()
-    };
-    let ring = RingTube {
-        center: Vector3::new(0.0, r, 0.0),
-        axis: Vector3::z(),
-        major_radius_m: r,
-        minor_radius_m: 2e-3,
-    };
+    let (ring, settings) = ring_with_slide_friction(r);
     let catheter = uniform_device("catheter", 1.3, 0.45e-3, 0.25e-3, 2.5e9, 0.3);
     let go = |v: f64| Command {
         insertion: Insertion::Velocity(v),
