@@ -4,14 +4,14 @@
 
 use cathlab_physics::navigation::{Command, Insertion, NavigationSettings, Twist};
 use cathlab_physics::wall::RingTube;
-use cathlab_physics::{CircularSection, Device, Material, RestShape, Section};
+use cathlab_physics::{Device, RestShape};
 use nalgebra::Vector3;
 
-use crate::support::merged_stack_in;
+use crate::support::{merged_stack_in, uniform};
 
 /// A uniform 0.014"-like nitinol wire with wall friction `mu`.
 fn wire(mu: f64) -> Device {
-    uniform_device("wire", 1.5, 0.356e-3 / 2.0, 0.0, 60e9, mu)
+    uniform_device("wire", 1.5, 0.356e-3, 0.0, 60e9, mu)
 }
 
 /// A ring of tube of core radius `r` (m) and lumen radius 2 mm about the z axis, entered at
@@ -30,41 +30,29 @@ fn ring_with_slide_friction(r: f64) -> (RingTube, NavigationSettings) {
     (ring, settings)
 }
 
-/// A uniform device of length, outer and inner radius (m) and Young's modulus (Pa), with
-/// wall friction `mu`.
+/// A straight uniform device (nitinol's density) of length (m), outer and inner diameter (m) and
+/// Young's modulus (Pa) ([`uniform`]'s), with wall friction `mu`.
 fn uniform_device(
     name: &str,
     length_m: f64,
-    outer_m: f64,
-    inner_m: f64,
+    outer_diameter_m: f64,
+    inner_diameter_m: f64,
     young_pa: f64,
     mu: f64,
 ) -> Device {
-    let section = |label: &str, length_m: f64| Section {
-        name: label.into(),
-        length_m,
-        cross_section: CircularSection {
-            outer_radius_m: outer_m,
-            inner_radius_m: inner_m,
-        },
-        material: Material {
-            young_modulus_pa: young_pa,
-            poisson_ratio: 0.35,
-            density_kg_m3: 6500.0,
-        },
-        friction_coefficient: mu,
-        lumen_friction_coefficient: 0.04,
-        rest_shape: RestShape::straight(),
-    };
-    Device::new(
+    let mut device = uniform(
         name,
-        vec![
-            section("shaft", 0.8 * length_m),
-            section("transition", 0.1 * length_m),
-            section("tip", 0.1 * length_m),
-        ],
-    )
-    .unwrap()
+        length_m,
+        outer_diameter_m,
+        inner_diameter_m,
+        young_pa,
+        RestShape::straight(),
+    );
+    for section in &mut device.sections {
+        section.friction_coefficient = mu;
+        section.material.density_kg_m3 = 6500.0;
+    }
+    device
 }
 
 /// A wire pushed 71 mm round a ring of tube (core radius 30 mm, lumen 2 mm: 135° of turn),
@@ -231,7 +219,7 @@ fn a_wire_pushed_round_a_ring_feels_its_friction_at_the_hand() {
 fn a_still_catheter_passes_a_wire_pushed_through_it_nothing_of_the_wall() {
     let r = 0.03;
     let (ring, settings) = ring_with_slide_friction(r);
-    let catheter = uniform_device("catheter", 1.3, 0.45e-3, 0.25e-3, 2.5e9, 0.3);
+    let catheter = uniform_device("catheter", 1.3, 0.9e-3, 0.5e-3, 2.5e9, 0.3);
     let go = |v: f64| Command {
         insertion: Insertion::Velocity(v),
         twist: Twist::Rate(0.0),

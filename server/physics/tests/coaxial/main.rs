@@ -8,9 +8,8 @@
 //! One module a topic: `merged` (mechanics of the composite strand), `control` (fit, bad
 //! input, exchange, ranges, effort), `catalogue` (device definitions), `nested` (nested
 //! coupling), `arch_to_cow` (runs in the real anatomy), `capstan` (friction on a wire slid
-//! round a bend: the capstan law, the hand's force against the wall's, and a wire pushed through a
-//! still catheter); shared builders
-//! and measures in `support`.
+//! round a bend: the capstan law, the hand's force against the wall's, and a wire pushed
+//! through a still catheter); shared builders and measures in `support`.
 
 mod arch_to_cow;
 mod capstan;
