@@ -124,7 +124,7 @@ impl<W: Wall> Navigation<W> {
         });
         self.model
             .set_settings(solver_settings(&self.settings, 0.5f64.powi(depth as i32)));
-        let result = self.single_step(push, turn);
+        let result = self.single_step(push, turn, saved.is_none());
         // Halved where the solve diverged (a rotation increment past π, a node thrown) or
         // still penetrates the wall; a divergence at the deepest halving is reported.
         let halve = match &result {
@@ -147,8 +147,8 @@ impl<W: Wall> Navigation<W> {
         result
     }
 
-    /// One solve: slide, twist, detect, solve.
-    fn single_step(&mut self, push: f64, turn: f64) -> Result<NavigationReport> {
+    /// One solve: slide, twist, detect, solve; `last_try` where it will not be halved again.
+    fn single_step(&mut self, push: f64, turn: f64, last_try: bool) -> Result<NavigationReport> {
         let slid = self.slide(push)?;
         self.twist_rad += turn;
         let twist = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), self.twist_rad);
@@ -169,7 +169,11 @@ impl<W: Wall> Navigation<W> {
         let material = &self.material;
         let previous = &self.previous_contacts;
         let tolerance = self.settings.sample_spacing_m;
-        let contact = self.effort.contact(&self.settings.contact);
+        let contact = if last_try {
+            self.effort.last_try_contact(&self.settings.contact)
+        } else {
+            self.effort.contact(&self.settings.contact)
+        };
         let clearance = &mut self.clearance;
         let step = self.model.step_with_contacts(
             |positions, _rotations, free| {

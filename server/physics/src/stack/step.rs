@@ -156,7 +156,7 @@ impl<W: Wall> Stack<W> {
             });
         self.step_fraction = 0.5f64.powi(depth as i32);
         let result = match self.coupling {
-            Coupling::Merged => self.single_step(targets),
+            Coupling::Merged => self.single_step(targets, saved.is_none()),
             Coupling::Nested => self.nested_step(targets),
         };
         // Halved where the solve diverged (a rotation increment past π, a node thrown) or
@@ -221,8 +221,9 @@ impl<W: Wall> Stack<W> {
         Ok(())
     }
 
-    /// One solve: kinematic update, detection, beam solve with contacts.
-    fn single_step(&mut self, targets: &[(f64, f64)]) -> Result<StackReport> {
+    /// One solve: kinematic update, detection, beam solve with contacts; `last_try` where it
+    /// will not be halved again.
+    fn single_step(&mut self, targets: &[(f64, f64)], last_try: bool) -> Result<StackReport> {
         let before: Vec<(f64, f64)> = self
             .instruments
             .iter()
@@ -241,7 +242,11 @@ impl<W: Wall> Stack<W> {
             |positions, _rotations, free| {
                 Ok(detect(wall, &samples, positions, free, margin, clearance))
             },
-            &self.effort.contact(&self.settings.contact),
+            &if last_try {
+                self.effort.last_try_contact(&self.settings.contact)
+            } else {
+                self.effort.contact(&self.settings.contact)
+            },
             |contacts| warm_start(contacts, &sigma, previous, tolerance),
         )?;
         self.previous_contacts = step
