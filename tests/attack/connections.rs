@@ -372,10 +372,14 @@ async fn http2_stream_floods_stay_within_the_request_buffer_and_memory_returns()
     const DECLARED: usize = 1000 * 1024;
     const SENT: usize = 996 * 1024;
     // What the server may still hold once a flood's clients have gone (bytes): the live
-    // heap all but returns; resident memory, once the allocator has given its pages back,
-    // less than the request buffer (measured +2 to +3 MiB).
+    // heap all but returns (measured +0.0 MiB); resident memory within twice the request
+    // buffer, the pages the allocator keeps for reuse (measured +2 to +3 MiB alone on this
+    // machine, +17 and +36 MiB 15 s after two floods in a fresh-clone CI run, the heap back
+    // to +0.0 both times). That they are kept for reuse, not lost, is the next check: a
+    // second flood's peak stays within 16 MiB of the first's.
     const HEAP_BACK: u64 = 8 << 20;
-    const RSS_BACK: u64 = 32 << 20;
+    const RSS_BACK: u64 = 64 << 20;
+    const RSS_RATCHET: u64 = 16 << 20;
     tokio::time::timeout(Duration::from_secs(90), async {
         // The stream limit, from outside: the server's SETTINGS say 32, and of 40 streams
         // on one connection that each stall on 1 KiB of a message, 32 run (cut together by
@@ -525,11 +529,18 @@ async fn http2_stream_floods_stay_within_the_request_buffer_and_memory_returns()
             );
             assert!(
                 f.rss_after < base + RSS_BACK,
-                "RSS stayed {} MiB above the baseline 15 s after the clients left",
+                "RSS stayed {} MiB above the baseline once settled",
                 (f.rss_after.saturating_sub(base)) >> 20
             );
             assert!(f.fds_after <= fds_base + 2, "{fds_base} -> {}", f.fds_after);
         }
+        let (first, second) = (&rounds[0].0, &rounds[1].0);
+        assert!(
+            second.rss_peak < first.rss_peak + RSS_RATCHET,
+            "resident memory ratchets: peak {} MiB in the first flood, {} MiB in the second",
+            first.rss_peak >> 20,
+            second.rss_peak >> 20
+        );
     })
     .await
     .expect("the test ran within 90 s");

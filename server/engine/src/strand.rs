@@ -54,6 +54,7 @@ fn navigation_settings(assets: &SceneAssets) -> NavigationSettings {
         max_axial_force_n: Some(ELEMENT_FORCE_STRENGTHS * assets.spec.limits.push_force_n),
         slide_friction: q.slide_friction,
         cap_with_held_contacts: q.cap_with_held_contacts,
+        axial_slide: q.axial_slide,
         ..NavigationSettings::default()
     };
     settings.contact.tolerance = q.contact_tolerance;

@@ -29,7 +29,7 @@ pub fn bundled_scenes(dir: &Path, keep: impl Fn(&str) -> bool) -> Vec<String> {
 /// Scene `name` of `dir`, its contact solve replaced by the one `variable` names (`newton` or
 /// `gauss_seidel`; anything else leaves the scene's own), with the physics options
 /// `PHYSICS_OPTIONS` names turned on (comma-separated: `slide_friction`,
-/// `cap_with_held_contacts`; an unknown name panics).
+/// `cap_with_held_contacts`, `axial_slide`; an unknown name panics).
 pub fn scene_spec(dir: &Path, name: &str, variable: &str) -> SceneSpec {
     let text = std::fs::read_to_string(dir.join(format!("{name}.toml"))).unwrap();
     let mut spec = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
@@ -44,6 +44,7 @@ pub fn scene_spec(dir: &Path, name: &str, variable: &str) -> SceneSpec {
         match option {
             "slide_friction" => spec.fidelity.slide_friction = true,
             "cap_with_held_contacts" => spec.fidelity.cap_with_held_contacts = true,
+            "axial_slide" => spec.fidelity.axial_slide = true,
             other => panic!("PHYSICS_OPTIONS: unknown option {other:?}"),
         }
     }

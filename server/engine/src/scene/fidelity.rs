@@ -46,6 +46,12 @@ pub struct FidelitySpec {
     /// until the scenes' scripted runs are tuned with it.
     #[serde(default)]
     pub cap_with_held_contacts: bool,
+    /// Let a stack's inner instruments slide through the ones around them with their own
+    /// axial strain, so that each hand feels its own instrument's load and a hand that gives
+    /// way unloads it ([`cathlab_physics::NavigationSettings`]'s `axial_slide`). Off by
+    /// default until the scenes' scripted runs are tuned with it.
+    #[serde(default)]
+    pub axial_slide: bool,
     /// Detector size (pixels, square).
     #[serde(default = "default_frame_px")]
     pub frame_px: u32,
@@ -112,6 +118,7 @@ impl Default for FidelitySpec {
             sleep_at_rest: true,
             slide_friction: false,
             cap_with_held_contacts: false,
+            axial_slide: false,
             frame_px: default_frame_px(),
             contrast_cell_mm: default_cell_mm(),
             contrast_every_steps: default_contrast_every(),

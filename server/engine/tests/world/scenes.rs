@@ -384,20 +384,22 @@ fn a_circle_of_willis_without_its_four_inflows_is_refused_by_name() {
 }
 
 /// The physics options a scene may turn on (`fidelity.slide_friction`,
-/// `fidelity.cap_with_held_contacts`) are off unless the scene says so, read when it does,
+/// `fidelity.cap_with_held_contacts`, `fidelity.axial_slide`) are off unless the scene says so, read when it does,
 /// and a value of the wrong type is named.
 #[test]
 fn a_scene_turns_the_physics_options_on_by_name() {
     let plain = SceneSpec::parse(&default_text(), SceneFormat::Toml).unwrap();
     assert!(!plain.fidelity.slide_friction);
     assert!(!plain.fidelity.cap_with_held_contacts);
+    assert!(!plain.fidelity.axial_slide);
     let text = default_text().replace(
         "step_rate_hz = 500",
-        "step_rate_hz = 500\nslide_friction = true\ncap_with_held_contacts = true",
+        "step_rate_hz = 500\nslide_friction = true\ncap_with_held_contacts = true\naxial_slide = true",
     );
     let on = SceneSpec::parse(&text, SceneFormat::Toml).unwrap();
     assert!(on.fidelity.slide_friction);
     assert!(on.fidelity.cap_with_held_contacts);
+    assert!(on.fidelity.axial_slide);
     let bad = default_text().replace(
         "step_rate_hz = 500",
         "step_rate_hz = 500\nslide_friction = 1",

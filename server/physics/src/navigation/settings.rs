@@ -72,6 +72,16 @@ pub struct NavigationSettings {
     /// subclavian instead of the LCCA and the two-hand RVA run changes course
     /// (docs/physics.md, twenty-second session).
     pub cap_with_held_contacts: bool,
+    /// Whether a merged stack's inner instruments slide through the ones around them with
+    /// their own axial strain (false by default). Without it the strand is one composite
+    /// beam axially too, so an inner instrument's compression is the strand's, the hands
+    /// share the base force by axial stiffness, and a hand that gives way moves its tip but
+    /// not the strain it left in the strand. With it an inner instrument is a cable in the
+    /// frictionless lumen around it: its force is its own stiffness over the length it has
+    /// inside that lumen times how far its tip lags its hand, its hand feels exactly that,
+    /// the strand carries it as the loads a cable puts on its conduit, and the tip slides
+    /// until the force beyond the exit is the cable's (`stack/slide.rs`).
+    pub axial_slide: bool,
 }
 
 /// Where the device gets nodes beyond its nominal spacing. Before each step, elements that
@@ -129,6 +139,7 @@ impl Default for NavigationSettings {
             max_axial_force_n: None,
             slide_friction: false,
             cap_with_held_contacts: false,
+            axial_slide: false,
         }
     }
 }

@@ -27,8 +27,16 @@ pub(super) fn nominal_spacing(
 
 /// Rest geometry of the composite element between path coordinates `a` < `b`: stiffnesses
 /// summed over the instruments present, rest curvature blended by stiffness (bending by EI,
-/// torsion by GJ), each instrument's turned by its twist relative to the outermost's.
-pub(super) fn composite_spec(instruments: &[Instrument], a: f64, b: f64) -> ElementSpec {
+/// torsion by GJ), each instrument's turned by its twist relative to the outermost's. With
+/// `own_axial` ([`NavigationSettings::axial_slide`]) the axial stiffness is the outermost
+/// instrument's alone: those inside it slide through it with their own strain, which the
+/// strand carries as loads (`stack/slide.rs`), not as its own.
+pub(super) fn composite_spec(
+    instruments: &[Instrument],
+    a: f64,
+    b: f64,
+    own_axial: bool,
+) -> ElementSpec {
     let mid = 0.5 * (a + b);
     let reference = instruments[0].twist_rad;
     let mut props = BeamProperties {
@@ -42,7 +50,11 @@ pub(super) fn composite_spec(instruments: &[Instrument], a: f64, b: f64) -> Elem
     let (mut area, mut polar) = (0.0, 0.0);
     let mut bending = Vector3::zeros();
     let mut torsion = 0.0;
-    for instrument in instruments.iter().filter(|i| i.inserted_m > mid) {
+    for (n, instrument) in instruments
+        .iter()
+        .filter(|i| i.inserted_m > mid)
+        .enumerate()
+    {
         let offset = instrument.length_m - instrument.inserted_m;
         let (section, _) = instrument.device.section_at(offset + mid);
         let p = section.beam_properties();
@@ -54,7 +66,9 @@ pub(super) fn composite_spec(instruments: &[Instrument], a: f64, b: f64) -> Elem
                 * kappa;
         bending += Vector3::new(0.0, turned.y, turned.z) * p.bending_stiffness_nm2;
         torsion += turned.x * p.torsional_stiffness_nm2;
-        props.axial_stiffness_n += p.axial_stiffness_n;
+        if n == 0 || !own_axial {
+            props.axial_stiffness_n += p.axial_stiffness_n;
+        }
         props.bending_stiffness_nm2 += p.bending_stiffness_nm2;
         props.torsional_stiffness_nm2 += p.torsional_stiffness_nm2;
         props.shear_stiffness_n += p.shear_stiffness_n;

@@ -5,7 +5,6 @@ use super::instrument::{Instrument, MAX_INSTRUMENTS, around, check_fit, inserted
 use super::state::Stack;
 use crate::device::Device;
 use crate::error::{PhysicsError, Result};
-use crate::navigation::Command;
 use crate::wall::Wall;
 
 impl<W: Wall> Stack<W> {
@@ -24,23 +23,13 @@ impl<W: Wall> Stack<W> {
         let outer = self.instruments.last().expect("a stack has an instrument");
         check_fit(&outer.device, &device)?;
         let (lo, _) = inserted_range(
-            Some((outer.inserted_m, outer.length_m)),
+            Some((outer.hand_m, outer.length_m)),
             device.length_m(),
             self.settings.tip_element_m,
         );
         let (speed, rate) = (outer.max_insertion_speed_m_s, outer.max_twist_rate_rad_s);
-        self.instruments.push(Instrument {
-            length_m: device.length_m(),
-            shaped_from_m: device.shaped_from_m(),
-            inserted_m: lo,
-            twist_rad: 0.0,
-            command: Command::default(),
-            max_insertion_speed_m_s: speed,
-            max_twist_rate_rad_s: rate,
-            tip_node: None,
-            tip_load_n: 0.0,
-            device,
-        });
+        self.instruments
+            .push(Instrument::new(device, lo, 0.0, speed, rate));
         Ok(())
     }
 
@@ -60,11 +49,11 @@ impl<W: Wall> Stack<W> {
             instrument.length_m,
             self.settings.tip_element_m,
         );
-        if instrument.inserted_m > lo + 1e-12 {
+        if instrument.hand_m > lo + 1e-12 {
             return Err(PhysicsError::Stack(format!(
                 "instrument {index} \"{}\" is still inserted {:.1} mm beyond the hub of the one around it; withdraw it before removing it",
                 instrument.device.name,
-                (instrument.inserted_m - lo) * 1e3
+                (instrument.hand_m - lo) * 1e3
             )));
         }
         Ok(self.instruments.pop().expect("checked above").device)
@@ -100,7 +89,7 @@ impl<W: Wall> Stack<W> {
                     instrument.length_m,
                     self.settings.tip_element_m,
                 );
-                (instrument.inserted_m > lo + 1e-12).then_some((k, instrument.inserted_m - lo))
+                (instrument.hand_m > lo + 1e-12).then_some((k, instrument.hand_m - lo))
             })
     }
 
@@ -123,18 +112,13 @@ impl<W: Wall> Stack<W> {
             self.settings.tip_element_m,
         );
         let old = &self.instruments[index];
-        self.instruments[index] = Instrument {
-            length_m: device.length_m(),
-            shaped_from_m: device.shaped_from_m(),
-            inserted_m: lo,
-            twist_rad: 0.0,
-            command: Command::default(),
-            max_insertion_speed_m_s: old.max_insertion_speed_m_s,
-            max_twist_rate_rad_s: old.max_twist_rate_rad_s,
-            tip_node: None,
-            tip_load_n: 0.0,
+        self.instruments[index] = Instrument::new(
             device,
-        };
+            lo,
+            0.0,
+            old.max_insertion_speed_m_s,
+            old.max_twist_rate_rad_s,
+        );
         Ok(())
     }
 }

@@ -48,7 +48,20 @@ pub(super) struct Instrument {
     pub(super) length_m: f64,
     /// Material coordinate where the distal shaped part starts (m), if any.
     pub(super) shaped_from_m: Option<f64>,
+    /// Where the tip lies: how far beyond the entry point the strand places the instrument's
+    /// material (m). The hand's inserted length unless the instrument slides inside the one
+    /// around it ([`NavigationSettings::axial_slide`]).
     pub(super) inserted_m: f64,
+    /// The hand's inserted length (m): where the tip would lie with the instrument unstrained
+    /// between the hand and its exit from the one around it. Commands, ranges and the
+    /// reports are in it.
+    pub(super) hand_m: f64,
+    /// With [`NavigationSettings::axial_slide`]: how far the material lags the hand (m,
+    /// positive: compressed), taken at the next move; zero otherwise.
+    pub(super) lag_m: f64,
+    /// With [`NavigationSettings::axial_slide`]: what the slide has learnt of the part beyond
+    /// the exit.
+    pub(super) slide: Slide,
     pub(super) twist_rad: f64,
     pub(super) command: Command,
     pub(super) max_insertion_speed_m_s: f64,
@@ -59,6 +72,47 @@ pub(super) struct Instrument {
     /// Axial load on the tip (N, along its tangent, positive forward), from the next step
     /// on: what a clot asks of a tip crossing it.
     pub(super) tip_load_n: f64,
+}
+
+/// What the axial slide of an instrument inside the one around it has learnt (see
+/// `stack/slide.rs`).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(super) struct Slide {
+    /// The last solve's force in the first element beyond the exit (N, compression positive)
+    /// and the tip's placement then (m).
+    pub(super) last: Option<(f64, f64)>,
+    /// Axial stiffness of the part beyond the exit against the tip's placement (N/m): how
+    /// much the force there rises when the material slides 1 m further out (a secant; zero
+    /// while the part is free).
+    pub(super) beyond_n_m: f64,
+}
+
+impl Instrument {
+    /// `device` inserted `inserted_m` (m) and twisted `twist_rad` (rad), its hand's speed
+    /// limits (m/s, rad/s), unstrained and still.
+    pub(super) fn new(
+        device: Device,
+        inserted_m: f64,
+        twist_rad: f64,
+        max_insertion_speed_m_s: f64,
+        max_twist_rate_rad_s: f64,
+    ) -> Self {
+        Self {
+            length_m: device.length_m(),
+            shaped_from_m: device.shaped_from_m(),
+            inserted_m,
+            hand_m: inserted_m,
+            lag_m: 0.0,
+            slide: Slide::default(),
+            twist_rad,
+            command: Command::default(),
+            max_insertion_speed_m_s,
+            max_twist_rate_rad_s,
+            tip_node: None,
+            tip_load_n: 0.0,
+            device,
+        }
+    }
 }
 
 /// Checks that `inner` fits the lumen of `outer`: its largest outer diameter is smaller than
@@ -110,11 +164,12 @@ pub fn inserted_range(outer: Option<(f64, f64)>, length_m: f64, tip_element_m: f
     }
 }
 
-/// Inserted length and length (m) of the instrument around instrument `index`.
+/// The hand's inserted length and the length (m) of the instrument around instrument
+/// `index`.
 pub(super) fn around(instruments: &[Instrument], index: usize) -> Option<(f64, f64)> {
     index
         .checked_sub(1)
-        .map(|k| (instruments[k].inserted_m, instruments[k].length_m))
+        .map(|k| (instruments[k].hand_m, instruments[k].length_m))
 }
 
 /// Section properties of `instrument` at path coordinate `sigma`.

@@ -26,6 +26,9 @@ impl<W: Wall> Stack<W> {
     /// and about the entry axis, shared among the instruments at the entry in proportion to
     /// their axial (force) and torsional (torque) stiffness; in nested mode each instrument's
     /// own chain's base reaction. Instruments withdrawn proximal of the entry feel nothing.
+    /// With [`NavigationSettings::axial_slide`](crate::navigation::NavigationSettings) an
+    /// inner instrument's hand feels the force it carries inside the ones around it
+    /// (`stack/slide.rs`) and the outermost's the strand's base force.
     pub fn proximal_reactions(&mut self) -> Vec<ProximalReaction> {
         if self.coupling == Coupling::Nested {
             return self.nested_proximal_reactions();
@@ -46,17 +49,23 @@ impl<W: Wall> Stack<W> {
             .flatten()
             .map(|p| p.torsional_stiffness_nm2)
             .sum();
+        let sliding = self.settings.axial_slide;
         present
             .iter()
-            .map(|p| match p {
-                Some(p) => ProximalReaction {
-                    axial_force_n: force * p.axial_stiffness_n / ea,
-                    torque_nm: torque * p.torsional_stiffness_nm2 / gj,
-                },
-                None => ProximalReaction {
-                    axial_force_n: 0.0,
-                    torque_nm: 0.0,
-                },
+            .enumerate()
+            .map(|(k, p)| {
+                let torque_nm = p.map_or(0.0, |p| torque * p.torsional_stiffness_nm2 / gj);
+                let axial_force_n = if sliding {
+                    // The strand's base carries the outermost instrument's own force; each
+                    // inner one's is its cable's, held by its hand alone.
+                    if k == 0 { force } else { self.slide_force_n(k) }
+                } else {
+                    p.map_or(0.0, |p| force * p.axial_stiffness_n / ea)
+                };
+                ProximalReaction {
+                    axial_force_n,
+                    torque_nm,
+                }
             })
             .collect()
     }
@@ -101,21 +110,30 @@ impl<W: Wall> Stack<W> {
         }
     }
 
-    /// Puts the instruments' tip loads on the merged model (after it is rebuilt).
+    /// Puts the instruments' tip loads and the sliding instruments' loads
+    /// (`stack/slide.rs`) on the merged model (after it is rebuilt).
     pub(super) fn apply_tip_loads(&mut self) -> Result<()> {
-        if self.instruments.iter().all(|i| i.tip_load_n == 0.0) && !self.tip_loaded {
+        if self.instruments.iter().all(|i| i.tip_load_n == 0.0)
+            && !self.tip_loaded
+            && !self.settings.axial_slide
+        {
             return Ok(());
         }
-        self.model.clear_loads();
-        self.tip_loaded = false;
+        let mut loads = self.slide_loads();
         for k in 0..self.instruments.len() {
             let load = self.instruments[k].tip_load_n;
             if load == 0.0 {
                 continue;
             }
             if let Some(i) = self.tip_node_index(k) {
-                let axis = self.nodes[i].rotation * Vector3::x();
-                self.model.set_load(i, axis * load, Vector3::zeros())?;
+                loads[i] += self.nodes[i].rotation * Vector3::x() * load;
+            }
+        }
+        self.model.clear_loads();
+        self.tip_loaded = false;
+        for (i, load) in loads.iter().enumerate() {
+            if *load != Vector3::zeros() {
+                self.model.set_load(i, *load, Vector3::zeros())?;
                 self.tip_loaded = true;
             }
         }

@@ -105,6 +105,7 @@ impl<W: Wall> Stack<W> {
     pub(super) fn nested_step(&mut self, targets: &[(f64, f64)]) -> Result<StackReport> {
         for (instrument, &(l, phi)) in self.instruments.iter_mut().zip(targets) {
             instrument.inserted_m = l;
+            instrument.hand_m = l;
             instrument.twist_rad = phi;
         }
         self.chains.truncate(self.instruments.len());

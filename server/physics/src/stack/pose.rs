@@ -33,7 +33,9 @@ impl<W: Wall> crate::autopilot::Steered for InstrumentView<'_, W> {
         self.stack.instruments[self.index].twist_rad
     }
     fn inserted_m(&self) -> f64 {
-        self.stack.instruments[self.index].inserted_m
+        self.stack
+            .inserted_m(self.index)
+            .expect("a view's instrument is in its stack")
     }
 }
 

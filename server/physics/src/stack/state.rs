@@ -171,18 +171,13 @@ impl<W: Wall> Stack<W> {
                 spec.max_twist_rate_rad_s,
             )?;
             let length_m = spec.device.length_m();
-            let state = Instrument {
-                shaped_from_m: spec.device.shaped_from_m(),
-                length_m,
-                inserted_m: spec.inserted_m,
-                twist_rad: spec.twist_rad,
-                command: Command::default(),
-                max_insertion_speed_m_s: spec.max_insertion_speed_m_s,
-                max_twist_rate_rad_s: spec.max_twist_rate_rad_s,
-                tip_node: None,
-                tip_load_n: 0.0,
-                device: spec.device,
-            };
+            let state = Instrument::new(
+                spec.device,
+                spec.inserted_m,
+                spec.twist_rad,
+                spec.max_insertion_speed_m_s,
+                spec.max_twist_rate_rad_s,
+            );
             let outer = states
                 .last()
                 .map(|o: &Instrument| (o.inserted_m, o.length_m));
@@ -234,7 +229,7 @@ impl<W: Wall> Stack<W> {
         let twist0 = states[0].twist_rad;
         let specs: Vec<ElementSpec> = sigma
             .windows(2)
-            .map(|w| composite_spec(&states, w[0], w[1]))
+            .map(|w| composite_spec(&states, w[0], w[1], settings.axial_slide))
             .collect();
         let base_rotation =
             entry_rotation * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), twist0);
@@ -357,8 +352,16 @@ impl<W: Wall> Stack<W> {
         self.instruments.get(index).map(|i| &i.device)
     }
 
-    /// Inserted length of instrument `index` (m): how far its tip lies beyond the entry point.
+    /// Inserted length of instrument `index` at its hand (m): how far its tip would lie beyond
+    /// the entry point unstrained, and does unless it slides inside the one around it
+    /// ([`NavigationSettings::axial_slide`]; see [`Self::tip_inserted_m`]).
     pub fn inserted_m(&self, index: usize) -> Option<f64> {
+        self.instruments.get(index).map(|i| i.hand_m)
+    }
+
+    /// How far instrument `index`'s tip lies beyond the entry point (m): its inserted length
+    /// at the hand less the compression of its length inside the one around it.
+    pub fn tip_inserted_m(&self, index: usize) -> Option<f64> {
         self.instruments.get(index).map(|i| i.inserted_m)
     }
 

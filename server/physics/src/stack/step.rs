@@ -28,7 +28,7 @@ pub struct StackReport {
     pub sweeps: usize,
     /// Whether Gauss–Seidel met its tolerance.
     pub converged: bool,
-    /// Inserted length of every instrument after the step (m), outermost first.
+    /// Inserted length of every instrument at its hand after the step (m), outermost first.
     pub inserted_m: Vec<f64>,
     /// Elements simulated.
     pub elements: usize,
@@ -61,7 +61,7 @@ impl<W: Wall> Stack<W> {
             let max_push = instrument.max_insertion_speed_m_s * dt;
             let wanted = match instrument.command.insertion {
                 Insertion::Velocity(v) => v * dt,
-                Insertion::Target(l) => l - instrument.inserted_m,
+                Insertion::Target(l) => l - instrument.hand_m,
             }
             .clamp(-max_push, max_push);
             // The range follows the instruments around it at their new positions: a hub
@@ -70,7 +70,7 @@ impl<W: Wall> Stack<W> {
                 .checked_sub(1)
                 .map(|k| (targets[k].0, self.instruments[k].length_m));
             let (lo, hi) = inserted_range(outer, instrument.length_m, self.settings.tip_element_m);
-            let inserted = (instrument.inserted_m + wanted).clamp(lo, hi);
+            let inserted = (instrument.hand_m + wanted).clamp(lo, hi);
             let max_turn = instrument.max_twist_rate_rad_s * dt;
             let turn = match instrument.command.twist {
                 Twist::Rate(w) => w * dt,
@@ -82,7 +82,7 @@ impl<W: Wall> Stack<W> {
         // Asleep at rest (merged coupling only): nothing to solve.
         let sleep = self.sleep();
         let still = self.instruments.iter().zip(&targets).all(|(i, (l, a))| {
-            (l - i.inserted_m).abs() <= STILL_M && (a - i.twist_rad).abs() <= STILL_RAD
+            (l - i.hand_m).abs() <= STILL_M && (a - i.twist_rad).abs() <= STILL_RAD
         });
         if still && self.stillness.asleep(sleep.as_ref()) {
             self.time_s += dt;
@@ -133,7 +133,7 @@ impl<W: Wall> Stack<W> {
             active_contacts,
             sweeps: 0,
             converged: true,
-            inserted_m: self.instruments.iter().map(|i| i.inserted_m).collect(),
+            inserted_m: self.instruments.iter().map(|i| i.hand_m).collect(),
             elements: self.model.element_count(),
             asleep: true,
         }
@@ -186,7 +186,7 @@ impl<W: Wall> Stack<W> {
                 .instruments
                 .iter()
                 .zip(targets)
-                .map(|(i, t)| (0.5 * (i.inserted_m + t.0), 0.5 * (i.twist_rad + t.1)))
+                .map(|(i, t)| (0.5 * (i.hand_m + t.0), 0.5 * (i.twist_rad + t.1)))
                 .collect();
             self.instruments = saved.instruments;
             self.advance(&half, depth + 1)?;
@@ -260,12 +260,13 @@ impl<W: Wall> Stack<W> {
             active_contacts: step.response.local.iter().filter(|l| l.x > 0.0).count(),
             sweeps: step.response.iterations,
             converged: step.response.converged,
-            inserted_m: self.instruments.iter().map(|i| i.inserted_m).collect(),
+            inserted_m: self.instruments.iter().map(|i| i.hand_m).collect(),
             elements: self.model.element_count(),
             asleep: false,
         };
         self.last = Some(step);
         self.sync_nodes();
+        self.relax_slides();
         Ok(report)
     }
 

@@ -37,10 +37,7 @@ impl<W: Wall> Stack<W> {
         let old_end = self.nodes.last().map_or(0.0, |n| n.sigma);
         let old_leader = leader(&self.instruments);
         let old: Vec<f64> = self.instruments.iter().map(|i| i.inserted_m).collect();
-        for (instrument, &(l, phi)) in self.instruments.iter_mut().zip(targets) {
-            instrument.inserted_m = l;
-            instrument.twist_rad = phi;
-        }
+        self.place_instruments(targets);
         let new_leader = leader(&self.instruments);
         let new_end = self.instruments[new_leader].inserted_m;
         let others_old = (0..old.len())
@@ -295,7 +292,12 @@ impl<W: Wall> Stack<W> {
         let mut specs = Vec::with_capacity(self.nodes.len() - 1);
         let mut keep = Vec::with_capacity(self.nodes.len() - 1);
         for w in self.nodes.windows(2) {
-            let spec = composite_spec(&self.instruments, w[0].sigma, w[1].sigma);
+            let spec = composite_spec(
+                &self.instruments,
+                w[0].sigma,
+                w[1].sigma,
+                self.settings.axial_slide,
+            );
             let kept = old
                 .get(&(w[0].id, w[1].id))
                 .copied()

@@ -9,7 +9,8 @@
 //! input, exchange, ranges, effort), `catalogue` (device definitions), `nested` (nested
 //! coupling), `arch_to_cow` (runs in the real anatomy), `capstan` (friction on a wire slid
 //! round a bend: the capstan law, the hand's force against the wall's, and a wire pushed
-//! through a still catheter); shared builders and measures in `support`.
+//! through a still catheter), `slide` (inner instruments sliding with their own axial strain: each
+//! hand its own load); shared builders and measures in `support`.
 
 mod arch_to_cow;
 mod capstan;
@@ -17,4 +18,5 @@ mod catalogue;
 mod control;
 mod merged;
 mod nested;
+mod slide;
 mod support;
