@@ -18,7 +18,7 @@
 //! hand's motion between the tip and λ as two springs in series (the cable's K and the part
 //! beyond's stiffness against the tip's placement, a secant learnt from the solves); after
 //! each solve the tip slides by the difference between the force in the first element beyond
-//! the exit and F over the two stiffnesses (at most a push's length a step). A tip inside the
+//! the exit and F over the two stiffnesses (at most 10 mm/s). A tip inside the
 //! instruments around it carries nothing, and its lag is let go.
 
 use nalgebra::Vector3;
@@ -30,6 +30,14 @@ use crate::wall::Wall;
 /// The part beyond an exit is never taken stiffer than its axial stiffness over this many tip
 /// elements (a contact can hold it no closer to the exit than the first node past it).
 const SHORTEST_HOLD_TIP_ELEMENTS: f64 = 1.0;
+
+/// The fastest a tip slides to its cable's force after a solve (m/s): 10 mm/s, 0.02 mm a
+/// step. A tip just beyond its exit has a part beyond of one short element, whose force jumps
+/// with the placement; sliding up to a push's length a step (0.3 mm) there, the relaxation
+/// overshot, the tip crossed in and out of the node it shares within 0.3 mm of the exit, and
+/// the imbalance loaded the guide's hand (`stroke_m1_thrombectomy`'s seed 1 with the options
+/// on: the guide past its strength at 4.808 s; with 10 mm/s at 12.534 s, on a twist).
+const MAX_SLIDE_M_S: f64 = 0.01;
 
 /// Slides smaller than this (m) teach nothing of the part beyond the exit: the force there
 /// changes with everything else in the step too.
@@ -177,14 +185,13 @@ impl<W: Wall> Stack<W> {
     /// After a solve: each sliding tip slides by what the first element beyond its exit
     /// carries past its cable's force, over the cable's stiffness and that of the part beyond
     /// (a secant of that force against the tip's placement, from this solve and the last),
-    /// at most a push's length of a step; a tip inside the instruments around it lets its lag
+    /// at most [`MAX_SLIDE_M_S`]; a tip inside the instruments around it lets its lag
     /// go at that rate. The slide is taken at the next move.
     pub(super) fn relax_slides(&mut self) {
         if !self.slides() {
             return;
         }
-        let most =
-            self.settings.max_insertion_speed_m_s * self.settings.time_step_s * self.step_fraction;
+        let most = MAX_SLIDE_M_S * self.settings.time_step_s * self.step_fraction;
         let shortest = SHORTEST_HOLD_TIP_ELEMENTS * self.settings.tip_element_m;
         for k in 1..self.instruments.len() {
             let Some(exit) = self.exit_node(k) else {
