@@ -18,8 +18,9 @@
 //! hand's motion between the tip and λ as two springs in series (the cable's K and the part
 //! beyond's stiffness against the tip's placement, a secant learnt from the solves); after
 //! each solve the tip slides by the difference between the force in the first element beyond
-//! the exit and F over the two stiffnesses (at most 10 mm/s). A tip inside the
-//! instruments around it carries nothing, and its lag is let go.
+//! the exit and F over the two stiffnesses (at most 10 mm/s). A tip that shares the exit's
+//! node (within 0.3 mm of it) keeps its compression, which moves only with its hand; a tip
+//! inside the instruments around it carries nothing, and its lag is let go.
 
 use nalgebra::Vector3;
 
@@ -38,6 +39,19 @@ const SHORTEST_HOLD_TIP_ELEMENTS: f64 = 1.0;
 /// the imbalance loaded the guide's hand (`stroke_m1_thrombectomy`'s seed 1 with the options
 /// on: the guide past its strength at 4.808 s; with 10 mm/s at 12.534 s, on a twist).
 const MAX_SLIDE_M_S: f64 = 0.01;
+
+/// Where an inner instrument's tip lies against its exit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Exit {
+    /// Inside the instruments around it, by more than two tips that share a node: it carries
+    /// nothing.
+    Inside,
+    /// Within two tips that share a node of the exit, which is this node: it carries its
+    /// force there.
+    Shared(usize),
+    /// Beyond the exit, whose node is this one, with an element of its own past it.
+    Beyond(usize),
+}
 
 /// Slides smaller than this (m) teach nothing of the part beyond the exit: the force there
 /// changes with everything else in the step too.
@@ -90,15 +104,17 @@ impl<W: Wall> Stack<W> {
         1.0 / compliance
     }
 
-    /// Index of the node at inner instrument `k`'s exit while its tip lies beyond it (by more
-    /// than two tips share a node), `None` otherwise.
-    fn exit_node(&self, k: usize) -> Option<usize> {
+    /// Where inner instrument `k`'s tip lies against its exit, with the exit's node where it
+    /// does not lie inside.
+    fn exit_state(&self, k: usize) -> Exit {
         let exit = self.exit_m(k);
         let snap = SHARED_TIP_FRACTION * self.settings.tip_element_m;
-        if self.instruments[k].inserted_m <= exit + snap {
-            return None;
+        let placed = self.instruments[k].inserted_m;
+        if placed < exit - snap {
+            return Exit::Inside;
         }
-        self.nodes
+        let node = self
+            .nodes
             .iter()
             .enumerate()
             .filter(|(_, n)| (n.sigma - exit).abs() <= snap)
@@ -108,12 +124,26 @@ impl<W: Wall> Stack<W> {
                     .total_cmp(&(b.1.sigma - exit).abs())
             })
             .map(|(i, _)| i)
-            .filter(|&i| i > 0 && i + 1 < self.nodes.len())
+            .filter(|&i| i > 0);
+        match node {
+            Some(i) if placed > exit + snap && i + 1 < self.nodes.len() => Exit::Beyond(i),
+            Some(i) => Exit::Shared(i),
+            None => Exit::Inside,
+        }
+    }
+
+    /// Index of the node at inner instrument `k`'s exit while its tip lies beyond it or
+    /// shares its node, `None` while inside.
+    fn exit_node(&self, k: usize) -> Option<usize> {
+        match self.exit_state(k) {
+            Exit::Beyond(i) | Exit::Shared(i) => Some(i),
+            Exit::Inside => None,
+        }
     }
 
     /// The axial force (N, compression positive) inner instrument `k` carries from its hand to
     /// its exit, which its hand feels: zero without the slide, for the outermost, and while
-    /// its tip lies inside the instruments around it.
+    /// its tip lies inside the instruments around it (beyond sharing the exit's node).
     pub(super) fn slide_force_n(&self, k: usize) -> f64 {
         if !self.slides() || k == 0 || self.exit_node(k).is_none() {
             return 0.0;
@@ -194,11 +224,20 @@ impl<W: Wall> Stack<W> {
         let most = MAX_SLIDE_M_S * self.settings.time_step_s * self.step_fraction;
         let shortest = SHORTEST_HOLD_TIP_ELEMENTS * self.settings.tip_element_m;
         for k in 1..self.instruments.len() {
-            let Some(exit) = self.exit_node(k) else {
-                let instrument = &mut self.instruments[k];
-                instrument.slide = Default::default();
-                instrument.lag_m -= instrument.lag_m.clamp(-most, most);
-                continue;
+            let exit = match self.exit_state(k) {
+                Exit::Beyond(exit) => exit,
+                Exit::Shared(_) => {
+                    // No element of its own beyond the exit to measure: the tip holds its
+                    // compression, and moves only with its hand.
+                    self.instruments[k].slide.last = None;
+                    continue;
+                }
+                Exit::Inside => {
+                    let instrument = &mut self.instruments[k];
+                    instrument.slide = Default::default();
+                    instrument.lag_m -= instrument.lag_m.clamp(-most, most);
+                    continue;
+                }
             };
             let cable = self.covered_stiffness_n_m(k);
             let beyond_ea = {
