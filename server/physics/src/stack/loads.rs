@@ -49,7 +49,7 @@ impl<W: Wall> Stack<W> {
             .flatten()
             .map(|p| p.torsional_stiffness_nm2)
             .sum();
-        let sliding = self.settings.axial_slide;
+        let sliding = self.slides();
         present
             .iter()
             .enumerate()
@@ -115,7 +115,7 @@ impl<W: Wall> Stack<W> {
     pub(super) fn apply_tip_loads(&mut self) -> Result<()> {
         if self.instruments.iter().all(|i| i.tip_load_n == 0.0)
             && !self.tip_loaded
-            && !self.settings.axial_slide
+            && !self.slides()
         {
             return Ok(());
         }

@@ -23,9 +23,9 @@
 //! The module is cut by concept: the instruments and their ranges (`instrument.rs`), merged
 //! mode's composite elements (`composite.rs`), the [`Stack`]'s data, construction and
 //! accessors (`state.rs`), where the instruments are (`pose.rs`), the loads at their ends
-//! (`loads.rs`), inner instruments sliding with their own axial strain (`slide.rs`), loading and exchanging instruments (`exchange.rs`), the step (`step.rs`),
-//! the merged strand's nodes as the instruments move (`strand.rs`) and nested mode
-//! (`nested.rs`).
+//! (`loads.rs`), inner instruments sliding with their own axial strain (`slide.rs`), loading
+//! and exchanging instruments (`exchange.rs`), the step (`step.rs`), the merged strand's nodes
+//! as the instruments move (`strand.rs`) and nested mode (`nested.rs`).
 
 mod composite;
 mod exchange;

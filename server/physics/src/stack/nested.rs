@@ -103,11 +103,8 @@ impl<W: Wall> Stack<W> {
     /// and lumen contacts, one coupled Gauss–Seidel solve (with detection rounds as in merged
     /// mode), the increments applied to every chain or to none.
     pub(super) fn nested_step(&mut self, targets: &[(f64, f64)]) -> Result<StackReport> {
-        for (instrument, &(l, phi)) in self.instruments.iter_mut().zip(targets) {
-            instrument.inserted_m = l;
-            instrument.hand_m = l;
-            instrument.twist_rad = phi;
-        }
+        // Nested chains slide nothing: every tip goes with its hand.
+        self.place_instruments(targets);
         self.chains.truncate(self.instruments.len());
         let existed: Vec<bool> = self.chains.iter().map(Option::is_some).collect();
         self.update_chains()?;

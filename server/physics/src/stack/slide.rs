@@ -24,7 +24,7 @@
 
 use nalgebra::Vector3;
 
-use super::instrument::inserted_range;
+use super::instrument::{inserted_range, properties_at};
 use super::state::{Coupling, SHARED_TIP_FRACTION, Stack};
 use crate::wall::Wall;
 
@@ -59,7 +59,7 @@ const LEARNING_SLIDE_M: f64 = 1e-7;
 
 impl<W: Wall> Stack<W> {
     /// Whether the inner instruments slide with their own axial strain.
-    fn slides(&self) -> bool {
+    pub(super) fn slides(&self) -> bool {
         self.settings.axial_slide && self.coupling == Coupling::Merged
     }
 
@@ -93,12 +93,7 @@ impl<W: Wall> Stack<W> {
             start = end;
         }
         if to - from < shortest {
-            let ea = instrument
-                .device
-                .section_at(to.clamp(0.0, instrument.length_m))
-                .0
-                .beam_properties()
-                .axial_stiffness_n;
+            let ea = properties_at(instrument, self.exit_m(k)).axial_stiffness_n;
             compliance += (shortest - (to - from).max(0.0)) / ea;
         }
         1.0 / compliance
@@ -148,6 +143,12 @@ impl<W: Wall> Stack<W> {
         if !self.slides() || k == 0 || self.exit_node(k).is_none() {
             return 0.0;
         }
+        self.cable_force_n(k)
+    }
+
+    /// The force (N, compression positive) inner instrument `k`'s lag puts in its length
+    /// inside the ones around it: its stiffness there times the lag as placed.
+    fn cable_force_n(&self, k: usize) -> f64 {
         let instrument = &self.instruments[k];
         self.covered_stiffness_n_m(k) * (instrument.hand_m - instrument.inserted_m)
     }
@@ -197,10 +198,10 @@ impl<W: Wall> Stack<W> {
                 .unwrap_or_else(Vector3::zeros)
         };
         for k in 1..self.instruments.len() {
-            let force = self.slide_force_n(k);
             let Some(exit) = self.exit_node(k) else {
                 continue;
             };
+            let force = self.cable_force_n(k);
             if force == 0.0 {
                 continue;
             }
@@ -240,16 +241,9 @@ impl<W: Wall> Stack<W> {
                 }
             };
             let cable = self.covered_stiffness_n_m(k);
-            let beyond_ea = {
-                let instrument = &self.instruments[k];
-                let at = instrument.length_m - instrument.inserted_m + self.nodes[exit].sigma;
-                instrument
-                    .device
-                    .section_at(at)
-                    .0
-                    .beam_properties()
-                    .axial_stiffness_n
-            };
+            let held = self.cable_force_n(k);
+            let beyond_ea =
+                properties_at(&self.instruments[k], self.nodes[exit].sigma).axial_stiffness_n;
             let carried = -self.model.element_axial_force_n(exit);
             let instrument = &mut self.instruments[k];
             let placed = instrument.inserted_m;
@@ -260,7 +254,7 @@ impl<W: Wall> Stack<W> {
                     ((carried - before) / (placed - at)).clamp(0.0, beyond_ea / shortest);
             }
             instrument.slide.last = Some((carried, placed));
-            let excess = carried - cable * (instrument.hand_m - placed);
+            let excess = carried - held;
             instrument.lag_m += (excess / (cable + instrument.slide.beyond_n_m)).clamp(-most, most);
         }
     }
