@@ -18,8 +18,8 @@
 //! can be run as separate processes, one seed each. `STRESS_TRACE=MS` prints each step of
 //! the full lane slower than MS milliseconds (the strand's size and its last solve);
 //! `STRESS_WATCH=FROM-TO` (simulated seconds) prints every step of the full lane in that
-//! window: each hand's inserted length, force, torque and command, and the forces in the
-//! elements at the entry. `STRESS_PROGRESS=S` prints a line every S simulated seconds of
+//! window: each hand's inserted length, force, torque and command, the forces in the
+//! elements at the entry, and where each tip of a stack lies with the forces either side. `STRESS_PROGRESS=S` prints a line every S simulated seconds of
 //! each full-lane run (its step times so far and the worst it met), and `STRESS_STOP=1` ends
 //! a full-lane run at its first failure (a divergence, error, panic, node past the wall or
 //! hand past its strength) instead of running its hour out.
@@ -282,14 +282,22 @@ fn main() {
                                 )
                             })
                             .collect();
+                        let tips: Vec<String> = w
+                            .tips
+                            .iter()
+                            .map(|(at, before, after)| {
+                                format!("{:.3} mm [{before:.2}|{after:.2}] N", at * 1e3)
+                            })
+                            .collect();
                         let (contacts, pushing, sweeps, rounds) = w.step.contacts;
                         println!(
-                            "    watch {:.3} s, {:.2} ms: {}; {} nodes, {contacts} contacts, {pushing} pushing, {sweeps} sweeps, {rounds} rounds; entry elements {:.2?} N",
+                            "    watch {:.3} s, {:.2} ms: {}; {} nodes, {contacts} contacts, {pushing} pushing, {sweeps} sweeps, {rounds} rounds; entry elements {:.2?} N; tips {}",
                             w.step.at_s,
                             w.step.step_s * 1e3,
                             hands.join(" | "),
                             w.step.nodes,
-                            w.entry_elements_n
+                            w.entry_elements_n,
+                            tips.join(", ")
                         );
                     }
                     report

@@ -80,6 +80,11 @@ pub struct WatchedStep {
     /// The axial forces (N, tension positive) of the strand's first elements from the entry
     /// (at most [`WATCHED_ENTRY_ELEMENTS`]).
     pub entry_elements_n: Vec<f64>,
+    /// A stack's instruments' tips (outermost first): where each lies (m of path from the
+    /// entry; with the slide, where its material is, not its hand) and the axial forces (N,
+    /// tension positive) of the elements just before and just after it. Empty for a single
+    /// device.
+    pub tips: Vec<(f64, f64, f64)>,
 }
 
 /// How many elements from the entry a [`WatchedStep`] reports.
@@ -318,6 +323,28 @@ fn watched_step(world: &World, now: f64, took: f64) -> WatchedStep {
         entry_elements_n: (0..model.element_count().min(WATCHED_ENTRY_ELEMENTS))
             .map(|e| model.element_axial_force_n(e))
             .collect(),
+        tips: strand.stack().map_or_else(Vec::new, |stack| {
+            let sigma = stack.node_sigma_m();
+            let last = model.element_count().saturating_sub(1);
+            (0..stack.len())
+                .filter_map(|i| stack.tip_inserted_m(i))
+                .map(|tip| {
+                    let after = sigma
+                        .partition_point(|&s| s <= tip + 1e-9)
+                        .clamp(1, last + 1)
+                        - 1;
+                    let before = sigma
+                        .partition_point(|&s| s < tip - 1e-9)
+                        .clamp(1, last + 1)
+                        - 1;
+                    (
+                        tip,
+                        model.element_axial_force_n(before.min(last)),
+                        model.element_axial_force_n(after.min(last)),
+                    )
+                })
+                .collect()
+        }),
     }
 }
 

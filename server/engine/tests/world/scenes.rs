@@ -384,8 +384,8 @@ fn a_circle_of_willis_without_its_four_inflows_is_refused_by_name() {
 }
 
 /// The physics options a scene may turn on (`fidelity.slide_friction`,
-/// `fidelity.cap_with_held_contacts`, `fidelity.axial_slide`) are off unless the scene says so, read when it does,
-/// and a value of the wrong type is named.
+/// `fidelity.cap_with_held_contacts`, `fidelity.axial_slide`) are off unless the scene says
+/// so, read when it does, and a value of the wrong type is named, each option by its own path.
 #[test]
 fn a_scene_turns_the_physics_options_on_by_name() {
     let plain = SceneSpec::parse(&default_text(), SceneFormat::Toml).unwrap();
@@ -400,15 +400,24 @@ fn a_scene_turns_the_physics_options_on_by_name() {
     assert!(on.fidelity.slide_friction);
     assert!(on.fidelity.cap_with_held_contacts);
     assert!(on.fidelity.axial_slide);
-    let bad = default_text().replace(
-        "step_rate_hz = 500",
-        "step_rate_hz = 500\nslide_friction = 1",
-    );
-    match SceneSpec::parse(&bad, SceneFormat::Toml) {
-        Err(EngineError::Scene { path, reason }) => {
-            assert!(path.contains("fidelity.slide_friction"), "{path}: {reason}");
-            assert!(reason.contains("invalid type"), "{reason}");
+    for (option, value) in [
+        ("slide_friction", "1"),
+        ("cap_with_held_contacts", "\"yes\""),
+        ("axial_slide", "0.5"),
+    ] {
+        let bad = default_text().replace(
+            "step_rate_hz = 500",
+            &format!("step_rate_hz = 500\n{option} = {value}"),
+        );
+        match SceneSpec::parse(&bad, SceneFormat::Toml) {
+            Err(EngineError::Scene { path, reason }) => {
+                assert!(
+                    path.contains(&format!("fidelity.{option}")),
+                    "{path}: {reason}"
+                );
+                assert!(reason.contains("invalid type"), "{reason}");
+            }
+            other => panic!("expected a scene error naming {option}, got {other:?}"),
         }
-        other => panic!("expected a scene error, got {other:?}"),
     }
 }
