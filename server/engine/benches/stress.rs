@@ -19,8 +19,9 @@
 //! the full lane slower than MS milliseconds (the strand's size and its last solve);
 //! `STRESS_WATCH=FROM-TO` (simulated seconds) prints every step of the full lane in that
 //! window: each hand's inserted length, force, torque and command, the forces in the
-//! elements at the entry, and where each tip of a stack lies with the forces either side. `STRESS_PROGRESS=S` prints a line every S simulated seconds of
-//! each full-lane run (its step times so far and the worst it met), and `STRESS_STOP=1` ends
+//! elements at the entry, and where each tip of a stack lies with the forces either side.
+//! `STRESS_PROGRESS=S` prints a line every S simulated seconds of each full-lane run (its
+//! step times so far and the worst it met), and `STRESS_STOP=1` ends
 //! a full-lane run at its first failure (a divergence, error, panic, node past the wall or
 //! hand past its strength) instead of running its hour out.
 

@@ -325,24 +325,17 @@ fn watched_step(world: &World, now: f64, took: f64) -> WatchedStep {
             .collect(),
         tips: strand.stack().map_or_else(Vec::new, |stack| {
             let sigma = stack.node_sigma_m();
-            let last = model.element_count().saturating_sub(1);
+            let last = model.element_count() - 1;
+            // The element that holds path coordinate `s` (m): the one from the last node at
+            // or before it. A micrometre's thousandth either side of a tip on a node picks
+            // the elements that meet there.
+            let force_at = |s: f64| {
+                let e = sigma.partition_point(|&x| x <= s).clamp(1, last + 1) - 1;
+                model.element_axial_force_n(e)
+            };
             (0..stack.len())
                 .filter_map(|i| stack.tip_inserted_m(i))
-                .map(|tip| {
-                    let after = sigma
-                        .partition_point(|&s| s <= tip + 1e-9)
-                        .clamp(1, last + 1)
-                        - 1;
-                    let before = sigma
-                        .partition_point(|&s| s < tip - 1e-9)
-                        .clamp(1, last + 1)
-                        - 1;
-                    (
-                        tip,
-                        model.element_axial_force_n(before.min(last)),
-                        model.element_axial_force_n(after.min(last)),
-                    )
-                })
+                .map(|tip| (tip, force_at(tip - 1e-9), force_at(tip + 1e-9)))
                 .collect()
         }),
     }
