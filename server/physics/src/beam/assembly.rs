@@ -118,6 +118,16 @@ impl BeamModel {
             .fold(0.0, f64::max)
     }
 
+    /// Puts element `index` in series with a cable of axial stiffness `cable_n_m` (N/m) and
+    /// slack `slack_m` (m, positive compressed) until the next remesh: the exit of an
+    /// instrument sliding inside another, whose length inside lets material through the exit
+    /// within the solve (`stack/slide.rs`).
+    pub fn set_axial_series(&mut self, index: usize, cable_n_m: f64, slack_m: f64) {
+        if let Some(element) = self.elements.get(index) {
+            self.elements[index] = element.in_series(cable_n_m, slack_m);
+        }
+    }
+
     /// The axial force element `index` carries (N, tension positive), as the element
     /// computes it from its chord: E·A/ℓ₀ times the chord's change from the rest length.
     pub fn element_axial_force_n(&self, index: usize) -> f64 {

@@ -41,6 +41,11 @@ impl ElementSpec {
 pub(super) struct Element {
     props: BeamProperties,
     pub(super) rest_length_m: f64,
+    /// How much longer the rest chord is, axially (m): the slack of a cable in series with
+    /// the element (`BeamModel::set_axial_series`); 0 otherwise.
+    pub(super) axial_offset_m: f64,
+    /// Whether the element is in series with a cable (never kept by a remesh).
+    pub(super) series: bool,
     pub(super) offsets: [UnitQuaternion<f64>; 2],
     bending: BendingCoefficients,
     /// K̄e blocks (node-1/node-1, node-1/node-2, node-2/node-2) in frame-free form.
@@ -144,7 +149,25 @@ impl Element {
     /// The axial force (N, tension positive) at chord length `chord_m` (m): E·A/ℓ₀ times the
     /// chord's change from the rest chord.
     pub(super) fn axial_force_n(&self, chord_m: f64) -> f64 {
-        self.props.axial_stiffness_n / self.rest_length_m * (chord_m - self.rest_length_m)
+        self.props.axial_stiffness_n / self.rest_length_m
+            * (chord_m - self.rest_length_m - self.axial_offset_m)
+    }
+
+    /// This element in series with a cable of axial stiffness `cable_n_m` (N/m) whose slack
+    /// is `slack_m` (m, positive: the cable compressed by that much): its axial stiffness the
+    /// two in series, its rest chord longer by the slack, as the cable's length lets the
+    /// element's material out or in (the rest unchanged).
+    pub(super) fn in_series(&self, cable_n_m: f64, slack_m: f64) -> Self {
+        let own = self.props.axial_stiffness_n / self.rest_length_m;
+        let series = own * cable_n_m / (own + cable_n_m);
+        let props = BeamProperties {
+            axial_stiffness_n: series * self.rest_length_m,
+            ..self.props
+        };
+        let mut element = Self::new(props, self.rest_length_m, self.offsets);
+        element.axial_offset_m = slack_m;
+        element.series = true;
+        element
     }
 
     pub(super) fn new(
@@ -162,6 +185,8 @@ impl Element {
         Self {
             props,
             rest_length_m,
+            axial_offset_m: 0.0,
+            series: false,
             offsets,
             bending: BendingCoefficients::new(props.bending_stiffness_nm2, rest_length_m, phi),
             stiffness: split(&local_stiffness(&props, rest_length_m)),

@@ -212,8 +212,8 @@ impl BeamModel {
         let mut elements = Vec::with_capacity(specs.len());
         for (spec, kept) in specs.iter().zip(keep) {
             match kept.and_then(|k| self.elements.get(k)) {
-                Some(element) => elements.push(element.clone()),
-                None => elements.push(Element::from_spec(spec)?),
+                Some(element) if !element.series => elements.push(element.clone()),
+                _ => elements.push(Element::from_spec(spec)?),
             }
         }
         self.elements = elements;

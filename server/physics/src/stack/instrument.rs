@@ -57,11 +57,9 @@ pub(super) struct Instrument {
     /// reports are in it.
     pub(super) hand_m: f64,
     /// With [`NavigationSettings::axial_slide`]: how far the material lags the hand (m,
-    /// positive: compressed), taken at the next move; zero otherwise.
+    /// positive: compressed), the slack of its length inside the ones around it; zero
+    /// otherwise.
     pub(super) lag_m: f64,
-    /// With [`NavigationSettings::axial_slide`]: what the slide has learnt of the part beyond
-    /// the exit.
-    pub(super) slide: Slide,
     pub(super) twist_rad: f64,
     pub(super) command: Command,
     pub(super) max_insertion_speed_m_s: f64,
@@ -72,19 +70,6 @@ pub(super) struct Instrument {
     /// Axial load on the tip (N, along its tangent, positive forward), from the next step
     /// on: what a clot asks of a tip crossing it.
     pub(super) tip_load_n: f64,
-}
-
-/// What the axial slide of an instrument inside the one around it has learnt (see
-/// `stack/slide.rs`).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub(super) struct Slide {
-    /// The last solve's force in the first element beyond the exit (N, compression positive)
-    /// and the tip's placement then (m).
-    pub(super) last: Option<(f64, f64)>,
-    /// Axial stiffness of the part beyond the exit against the tip's placement (N/m): how
-    /// much the force there rises when the material slides 1 m further out (a secant; zero
-    /// while the part is free).
-    pub(super) beyond_n_m: f64,
 }
 
 impl Instrument {
@@ -103,7 +88,6 @@ impl Instrument {
             inserted_m,
             hand_m: inserted_m,
             lag_m: 0.0,
-            slide: Slide::default(),
             twist_rad,
             command: Command::default(),
             max_insertion_speed_m_s,

@@ -14,30 +14,29 @@
 //! F·tₓ₋₁ at the exit node, where the instrument goes on as the strand; together F·t₀, which
 //! its hand holds, not the strand's base.
 //!
-//! The tip's placement is where the part beyond the exit carries F. Each move shares the
-//! hand's motion between the tip and λ as two springs in series (the cable's K and the part
-//! beyond's stiffness against the tip's placement, a secant learnt from the solves); after
-//! each solve the tip slides by the difference between the force in the first element beyond
-//! the exit and F over the two stiffnesses (at most 10 mm/s). A tip that shares the exit's
-//! node (within 0.3 mm of it) keeps its compression, which moves only with its hand; a tip
-//! inside the instruments around it carries nothing, and its lag is let go.
+//! While the tip lies beyond its exit, the hand's move carries the material beyond the exit
+//! along the strand's curve (its nodes slid along it and relabelled, as a single device's are
+//! by a push), and in the solve the first element beyond the exit is **in series with the
+//! cable**: its axial stiffness the two in series, its rest chord longer by the cable's
+//! slack λ, so that the solve lets material through the exit as far as the part beyond gives
+//! (`BeamModel::set_axial_series`). After the solve the material let through moves from the
+//! cable to that element (the nodes and tips beyond relabelled where they lie), and λ is
+//! what the solved force leaves the cable, F/K. Before the twenty-eighth session the tip's
+//! placement was relaxed after each solve at up to 10 mm/s, sliding the tip along the strand:
+//! that left the compression of the part behind the tip where it was, so a hand that gave way
+//! could not unload it. A tip that shares the exit's node (within 0.3 mm of it) keeps its
+//! compression, which moves only with its hand; a tip inside the instruments around it
+//! carries nothing, and its lag is let go at 10 mm/s.
 
 use nalgebra::Vector3;
 
 use super::instrument::{inserted_range, properties_at};
-use super::state::{Coupling, SHARED_TIP_FRACTION, Stack};
+use super::state::{Coupling, MIN_GAP_FRACTION, SHARED_TIP_FRACTION, Stack};
+use super::strand::curve_through;
 use crate::wall::Wall;
 
-/// The part beyond an exit is never taken stiffer than its axial stiffness over this many tip
-/// elements (a contact can hold it no closer to the exit than the first node past it).
-const SHORTEST_HOLD_TIP_ELEMENTS: f64 = 1.0;
-
-/// The fastest a tip slides to its cable's force after a solve (m/s): 10 mm/s, 0.02 mm a
-/// step. A tip just beyond its exit has a part beyond of one short element, whose force jumps
-/// with the placement; sliding up to a push's length a step (0.3 mm) there, the relaxation
-/// overshot, the tip crossed in and out of the node it shares within 0.3 mm of the exit, and
-/// the imbalance loaded the guide's hand (`stroke_m1_thrombectomy`'s seed 1 with the options
-/// on: the guide past its strength at 4.808 s; with 10 mm/s at 12.534 s, on a twist).
+/// How fast a tip inside the instruments around it lets its lag go (m/s): 10 mm/s, 0.02 mm
+/// a step.
 const MAX_SLIDE_M_S: f64 = 0.01;
 
 /// Where an inner instrument's tip lies against its exit.
@@ -52,10 +51,6 @@ enum Exit {
     /// Beyond the exit, whose node is this one, with an element of its own past it.
     Beyond(usize),
 }
-
-/// Slides smaller than this (m) teach nothing of the part beyond the exit: the force there
-/// changes with everything else in the step too.
-const LEARNING_SLIDE_M: f64 = 1e-7;
 
 impl<W: Wall> Stack<W> {
     /// Whether the inner instruments slide with their own axial strain.
@@ -154,11 +149,15 @@ impl<W: Wall> Stack<W> {
     }
 
     /// Moves every hand to `targets` (inserted length m, twist rad) and places the
-    /// instruments: each tip with its hand, or, sliding, by the share of the hand's move the
-    /// part beyond its exit lets through (the rest compresses or stretches it), within the
-    /// range the instrument around it leaves.
+    /// instruments: each tip with its hand, or, sliding with its tip beyond its exit, its
+    /// hand's move less what `carry_beyond_exits` carried beyond the exit (a pull's part that
+    /// would take the tip into the exit) to the cable's slack, within the range the
+    /// instrument around it leaves.
     pub(super) fn place_instruments(&mut self, targets: &[(f64, f64)]) {
         let slides = self.slides();
+        let beyond: Vec<bool> = (0..targets.len())
+            .map(|k| slides && k > 0 && matches!(self.exit_state(k), Exit::Beyond(_)))
+            .collect();
         for (k, &(l, phi)) in targets.iter().enumerate() {
             self.instruments[k].twist_rad = phi;
             if !slides || k == 0 {
@@ -168,15 +167,15 @@ impl<W: Wall> Stack<W> {
                 instrument.lag_m = 0.0;
                 continue;
             }
-            let cable = self.covered_stiffness_n_m(k);
             let outer = (
                 self.instruments[k - 1].inserted_m,
                 self.instruments[k - 1].length_m,
             );
             let tip_element = self.settings.tip_element_m;
             let instrument = &mut self.instruments[k];
-            let beyond = instrument.slide.beyond_n_m;
-            instrument.lag_m += (l - instrument.hand_m) * beyond / (cable + beyond);
+            if beyond[k] {
+                instrument.lag_m += l - instrument.hand_m;
+            }
             let (lo, hi) = inserted_range(Some(outer), instrument.length_m, tip_element);
             instrument.hand_m = l;
             instrument.inserted_m = (l - instrument.lag_m).clamp(lo, hi);
@@ -213,49 +212,154 @@ impl<W: Wall> Stack<W> {
         loads
     }
 
-    /// After a solve: each sliding tip slides by what the first element beyond its exit
-    /// carries past its cable's force, over the cable's stiffness and that of the part beyond
-    /// (a secant of that force against the tip's placement, from this solve and the last),
-    /// at most [`MAX_SLIDE_M_S`]; a tip inside the instruments around it lets its lag
-    /// go at that rate. The slide is taken at the next move.
+    /// After a solve: a tip inside the instruments around it lets its lag go at up to
+    /// [`MAX_SLIDE_M_S`] (beyond the exit the solve lets the material through:
+    /// `let_through_exits`; a tip sharing the exit's node keeps its compression).
     pub(super) fn relax_slides(&mut self) {
         if !self.slides() {
             return;
         }
         let most = MAX_SLIDE_M_S * self.settings.time_step_s * self.step_fraction;
-        let shortest = SHORTEST_HOLD_TIP_ELEMENTS * self.settings.tip_element_m;
         for k in 1..self.instruments.len() {
-            let exit = match self.exit_state(k) {
-                Exit::Beyond(exit) => exit,
-                Exit::Shared(_) => {
-                    // No element of its own beyond the exit to measure: the tip holds its
-                    // compression, and moves only with its hand.
-                    self.instruments[k].slide.last = None;
-                    continue;
-                }
-                Exit::Inside => {
-                    let instrument = &mut self.instruments[k];
-                    instrument.slide = Default::default();
-                    instrument.lag_m -= instrument.lag_m.clamp(-most, most);
-                    continue;
-                }
-            };
-            let cable = self.covered_stiffness_n_m(k);
-            let held = self.cable_force_n(k);
-            let beyond_ea =
-                properties_at(&self.instruments[k], self.nodes[exit].sigma).axial_stiffness_n;
-            let carried = -self.model.element_axial_force_n(exit);
-            let instrument = &mut self.instruments[k];
-            let placed = instrument.inserted_m;
-            if let Some((before, at)) = instrument.slide.last
-                && (placed - at).abs() > LEARNING_SLIDE_M
-            {
-                instrument.slide.beyond_n_m =
-                    ((carried - before) / (placed - at)).clamp(0.0, beyond_ea / shortest);
+            if self.exit_state(k) == Exit::Inside {
+                let instrument = &mut self.instruments[k];
+                instrument.lag_m -= instrument.lag_m.clamp(-most, most);
             }
-            instrument.slide.last = Some((carried, placed));
-            let excess = carried - held;
-            instrument.lag_m += (excess / (cable + instrument.slide.beyond_n_m)).clamp(-most, most);
+        }
+    }
+
+    /// Before a solve: the first element beyond each sliding instrument's exit is put in
+    /// series with that instrument's cable, slack and all (`BeamModel::set_axial_series`), so
+    /// that the solve lets the material through the exit as far as the part beyond gives,
+    /// instead of a relaxation after it (which left the compression of the part beyond
+    /// where it was, or crushed the element at the exit).
+    pub(super) fn put_exits_in_series(&mut self) {
+        self.series.clear();
+        if !self.slides() {
+            return;
+        }
+        for k in 1..self.instruments.len() {
+            if let Exit::Beyond(exit) = self.exit_state(k) {
+                let cable = self.covered_stiffness_n_m(k);
+                let slack = self.instruments[k].lag_m;
+                self.model.set_axial_series(exit, cable, slack);
+                self.series.push((k, exit));
+            }
+        }
+    }
+
+    /// After a solve: the material each cable let through its exit (its slack less the
+    /// compression the solved force leaves it) moves from the cable to the element beyond
+    /// the exit, the nodes and tips beyond relabelled where they lie (`flow_through_exit`);
+    /// what that element cannot give moves the tip at the next move.
+    pub(super) fn let_through_exits(&mut self) {
+        for (k, exit) in std::mem::take(&mut self.series) {
+            let cable = self.covered_stiffness_n_m(k);
+            let force = -self.model.element_axial_force_n(exit);
+            let through = self.instruments[k].lag_m - force / cable;
+            let taken = self.flow_through_exit(exit, -through);
+            self.instruments[k].lag_m += -through - taken;
+        }
+    }
+
+    /// Moves `flow` (m, positive inwards) of an inner instrument's material through its exit
+    /// node `exit`: the element beyond the exit, which is that instrument's, loses that rest
+    /// length, and every node and tip beyond it is relabelled where it lies (path coordinates
+    /// lowered by `flow`, positions kept). The element keeps at least half the smallest gap
+    /// between nodes (the refinement then joins it with the next); what does not fit is not
+    /// taken. Returns the flow taken (m).
+    fn flow_through_exit(&mut self, exit: usize, flow: f64) -> f64 {
+        let min_gap = MIN_GAP_FRACTION * self.settings.tip_element_m;
+        let Some(next) = self.nodes.get(exit + 1) else {
+            return 0.0;
+        };
+        let room = next.sigma - self.nodes[exit].sigma - 0.5 * min_gap;
+        let flow = flow.min(room.max(0.0));
+        if flow == 0.0 {
+            return 0.0;
+        }
+        let from = self.nodes[exit].sigma;
+        for node in &mut self.nodes[exit + 1..] {
+            node.sigma -= flow;
+        }
+        for (sigma, _) in &mut self.previous_contacts {
+            if *sigma > from {
+                *sigma -= flow;
+            }
+        }
+        for instrument in &mut self.instruments {
+            if instrument.inserted_m > from {
+                instrument.inserted_m -= flow;
+                instrument.lag_m += flow;
+            }
+        }
+        flow
+    }
+
+    /// The predictor of a sliding instrument whose tip lies beyond its exit: its hand's move
+    /// carries the material beyond the exit along the strand's curve (nodes and tips beyond
+    /// the exit slid along it and relabelled by the move), as a single device's nodes are
+    /// slid by its push, so that the solve does not drag them there; the cable's slack is
+    /// unchanged, and the solve lets through the exit what the part beyond does not take
+    /// (`put_exits_in_series`). A pull carries no tip back into its exit (the rest of it
+    /// goes to the slack).
+    pub(super) fn carry_beyond_exits(&mut self, targets: &[(f64, f64)]) {
+        if !self.slides() {
+            return;
+        }
+        let snap = SHARED_TIP_FRACTION * self.settings.tip_element_m;
+        let min_gap = MIN_GAP_FRACTION * self.settings.tip_element_m;
+        let count = self.instruments.len();
+        for (k, target) in targets.iter().enumerate().take(count).skip(1) {
+            let Exit::Beyond(exit) = self.exit_state(k) else {
+                continue;
+            };
+            let wanted = target.0 - self.instruments[k].hand_m;
+            let exit_sigma = self.nodes[exit].sigma;
+            let room = self.instruments[k].inserted_m - exit_sigma - 2.0 * snap;
+            let shift = wanted.max(-room.max(0.0));
+            self.instruments[k].hand_m += shift;
+            if shift == 0.0 {
+                continue;
+            }
+            let old = self.nodes.clone();
+            let end = *old.last().expect("a strand has nodes");
+            for node in &mut self.nodes[exit + 1..] {
+                let at = node.sigma + shift;
+                let (position, rotation) = if at >= end.sigma {
+                    let tangent = end.rotation * Vector3::x();
+                    (end.position + tangent * (at - end.sigma), end.rotation)
+                } else {
+                    curve_through(&old, at)
+                };
+                node.sigma = at;
+                node.position = position;
+                node.rotation = rotation;
+            }
+            // Nodes a pull brought back onto the exit's.
+            let keys: Vec<u64> = self.instruments.iter().filter_map(|i| i.tip_node).collect();
+            let i = exit + 1;
+            while i + 1 < self.nodes.len()
+                && self.nodes[i].sigma < exit_sigma + min_gap
+                && !keys.contains(&self.nodes[i].id)
+            {
+                self.nodes.remove(i);
+            }
+            for (sigma, _) in &mut self.previous_contacts {
+                if *sigma > exit_sigma {
+                    *sigma += shift;
+                }
+            }
+            // Every tip beyond the exit goes with the part: this instrument's with its hand,
+            // an inner one's (inside the part) against its own hand, which it lags the more.
+            for (j, instrument) in self.instruments.iter_mut().enumerate() {
+                if instrument.inserted_m > exit_sigma {
+                    instrument.inserted_m += shift;
+                    if j != k {
+                        instrument.lag_m -= shift;
+                    }
+                }
+            }
         }
     }
 }

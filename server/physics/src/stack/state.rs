@@ -76,6 +76,9 @@ pub struct Stack<W: Wall> {
     pub(super) clearance: ClearanceCache,
     /// The share of a time step the next solve covers (½ⁿ in a step halved n times).
     pub(super) step_fraction: f64,
+    /// The exits in series with their cables in the solve under way: (instrument, exit
+    /// node) (`stack/slide.rs`).
+    pub(super) series: Vec<(usize, usize)>,
     /// Whether the model carries tip loads (cleared when none is left).
     pub(super) tip_loaded: bool,
     /// How long the stack has been at rest ([`NavigationSettings::sleep`]).
@@ -282,6 +285,7 @@ impl<W: Wall> Stack<W> {
             clearance: ClearanceCache::default(),
             stillness: Stillness::default(),
             step_fraction: 1.0,
+            series: Vec::new(),
         };
         if coupling == Coupling::Nested {
             stack.update_chains()?;

@@ -203,6 +203,7 @@ impl<W: Wall> Stack<W> {
         self.refine();
         self.rebuild_model()?;
         self.apply_tip_loads()?;
+        self.put_exits_in_series();
         let twist =
             UnitQuaternion::from_axis_angle(&Vector3::x_axis(), self.instruments[0].twist_rad);
         self.model
@@ -266,6 +267,7 @@ impl<W: Wall> Stack<W> {
         };
         self.last = Some(step);
         self.sync_nodes();
+        self.let_through_exits();
         self.relax_slides();
         Ok(report)
     }

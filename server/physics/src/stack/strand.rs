@@ -34,6 +34,7 @@ impl<W: Wall> Stack<W> {
     /// new leading tip extends the strand along its tip tangent; a retreating one retraces
     /// its path. Tips inside the strand slide along the curve.
     pub(super) fn move_instruments(&mut self, targets: &[(f64, f64)]) -> Result<()> {
+        self.carry_beyond_exits(targets);
         let old_end = self.nodes.last().map_or(0.0, |n| n.sigma);
         let old_leader = leader(&self.instruments);
         let old: Vec<f64> = self.instruments.iter().map(|i| i.inserted_m).collect();
@@ -207,14 +208,7 @@ impl<W: Wall> Stack<W> {
 
     /// The smooth curve through the current nodes at path coordinate `sigma` (clamped).
     fn curve_at(&self, sigma: f64) -> (Vector3<f64>, UnitQuaternion<f64>) {
-        let k = self
-            .nodes
-            .partition_point(|n| n.sigma <= sigma)
-            .clamp(1, self.nodes.len() - 1)
-            - 1;
-        let (a, b) = (&self.nodes[k], &self.nodes[k + 1]);
-        let f = ((sigma - a.sigma) / (b.sigma - a.sigma)).clamp(0.0, 1.0);
-        hermite_point((&a.position, &a.rotation), (&b.position, &b.rotation), f)
+        curve_through(&self.nodes, sigma)
     }
 
     /// Splits elements longer than 1.5 nominal spacings, or bending more than the refinement
@@ -314,4 +308,16 @@ impl<W: Wall> Stack<W> {
         self.specs = specs;
         Ok(())
     }
+}
+
+/// The smooth curve through `nodes` (ordered by path coordinate) at path coordinate `sigma`
+/// (m, clamped to the strand): Hermite between the two nodes around it.
+pub(super) fn curve_through(nodes: &[Node], sigma: f64) -> (Vector3<f64>, UnitQuaternion<f64>) {
+    let k = nodes
+        .partition_point(|n| n.sigma <= sigma)
+        .clamp(1, nodes.len() - 1)
+        - 1;
+    let (a, b) = (&nodes[k], &nodes[k + 1]);
+    let f = ((sigma - a.sigma) / (b.sigma - a.sigma)).clamp(0.0, 1.0);
+    hermite_point((&a.position, &a.rotation), (&b.position, &b.rotation), f)
 }
