@@ -282,18 +282,25 @@ impl<W: Wall> Stack<W> {
         for node in &mut self.nodes[exit + 1..] {
             node.sigma -= flow;
         }
+        self.relabel_beyond(from, -flow);
+        flow
+    }
+
+    /// Moves by `by` (m) the path coordinates of everything beyond `from` (m) but the nodes:
+    /// the last contacts' and the tips', each hand staying where it is (so its instrument's
+    /// lag changes by −`by`).
+    fn relabel_beyond(&mut self, from: f64, by: f64) {
         for (sigma, _) in &mut self.previous_contacts {
             if *sigma > from {
-                *sigma -= flow;
+                *sigma += by;
             }
         }
         for instrument in &mut self.instruments {
             if instrument.inserted_m > from {
-                instrument.inserted_m -= flow;
-                instrument.lag_m += flow;
+                instrument.inserted_m += by;
+                instrument.lag_m -= by;
             }
         }
-        flow
     }
 
     /// The predictor of a sliding instrument whose tip lies beyond its exit: its hand's move
@@ -345,21 +352,11 @@ impl<W: Wall> Stack<W> {
             {
                 self.nodes.remove(i);
             }
-            for (sigma, _) in &mut self.previous_contacts {
-                if *sigma > exit_sigma {
-                    *sigma += shift;
-                }
-            }
-            // Every tip beyond the exit goes with the part: this instrument's with its hand,
-            // an inner one's (inside the part) against its own hand, which it lags the more.
-            for (j, instrument) in self.instruments.iter_mut().enumerate() {
-                if instrument.inserted_m > exit_sigma {
-                    instrument.inserted_m += shift;
-                    if j != k {
-                        instrument.lag_m -= shift;
-                    }
-                }
-            }
+            // Every tip beyond the exit goes with the part: an inner one's (inside the part)
+            // against its own hand, which it lags the more; this instrument's with its hand,
+            // moved by the shift above, so its lag stays.
+            self.relabel_beyond(exit_sigma, shift);
+            self.instruments[k].lag_m += shift;
         }
     }
 }

@@ -16,7 +16,7 @@ fn wire(mu: f64) -> Device {
 
 /// A ring of tube of core radius `r` (m) and lumen radius 2 mm about the z axis, entered at
 /// the origin along x, and settings with the slide's friction on.
-fn ring_with_slide_friction(r: f64) -> (RingTube, NavigationSettings) {
+pub(crate) fn ring_with_slide_friction(r: f64) -> (RingTube, NavigationSettings) {
     let ring = RingTube {
         center: Vector3::new(0.0, r, 0.0),
         axis: Vector3::z(),

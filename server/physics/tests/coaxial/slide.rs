@@ -156,9 +156,9 @@ fn force_beyond<W: Wall>(stack: &Stack<W>, sigma: f64) -> f64 {
 /// first try at letting material through the exit after each solve left 189 N of
 /// compression there against 1.5 N at the hand (the relaxation before it balanced them at
 /// 2.31 N); the cable in series with that element in the solve balances them by
-/// construction, and the push stays within a few newtons (the
-/// same try with the hands' moves sent to the cables and no carry beyond the exit reached
-/// 146 N: the solve's drag held the nodes the material had to move).
+/// construction, and the push stays within a few newtons (the same try with the hands'
+/// moves sent to the cables and no carry beyond the exit reached 146 N: the solve's drag
+/// held the nodes the material had to move).
 #[test]
 fn a_wire_pulled_back_gives_its_compression_back_through_the_exit() {
     let (tube, wire) = straight_pair();
@@ -166,15 +166,10 @@ fn a_wire_pulled_back_gives_its_compression_back_through_the_exit() {
     for section in &mut wire.sections {
         section.friction_coefficient = 0.3;
     }
-    let ring = cathlab_physics::wall::RingTube {
-        center: Vector3::new(0.0, 0.03, 0.0),
-        axis: Vector3::z(),
-        major_radius_m: 0.03,
-        minor_radius_m: 2e-3,
-    };
+    let (ring, settings) = crate::capstan::ring_with_slide_friction(0.03);
     let settings = NavigationSettings {
-        slide_friction: true,
-        ..sliding()
+        axial_slide: true,
+        ..settings
     };
     let mut stack = merged_stack_in(vec![(tube, 0.005), (wire, 0.01)], ring, settings);
     let exit = stack.tip_inserted_m(0).unwrap();
